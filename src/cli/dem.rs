@@ -1,0 +1,10 @@
+//! `grainforce dem` (not built yet).
+
+#[derive(clap::Args)]
+pub struct Args {}
+
+pub fn run(_args: Args) -> grainforce::Result<()> {
+    Err(grainforce::Error::Invalid(
+        "`dem` is not available yet".into(),
+    ))
+}

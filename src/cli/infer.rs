@@ -1,0 +1,10 @@
+//! `grainforce infer` (not built yet).
+
+#[derive(clap::Args)]
+pub struct Args {}
+
+pub fn run(_args: Args) -> grainforce::Result<()> {
+    Err(grainforce::Error::Invalid(
+        "`infer` is not available yet".into(),
+    ))
+}

@@ -1,0 +1,79 @@
+//! One module per verb; each parses its flags (clap) and calls the library.
+
+use clap::{Parser, Subcommand};
+
+mod dem;
+mod detect;
+mod export;
+mod import;
+mod infer;
+mod perturb;
+mod plot;
+mod render;
+mod score;
+mod stats;
+mod strain;
+
+#[derive(Parser)]
+#[command(
+    name = "grainforce",
+    version,
+    about = "Contact forces inside granular materials from measured grain stresses (the Granular Element Method)",
+    long_about = "grainforce infers every contact force in a granular packing from each grain's \
+position, contacts and volume-averaged stress (2D and 3D, static and dynamic). Scenes are folders \
+of CSV files (grains.csv, contacts.csv, optional walls.csv and scene.json); see the README."
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Infer contact forces of a scene (or of every frame of a sequence).
+    Infer(infer::Args),
+    /// Compare inferred forces with ground truth: relative error and more.
+    Score(score::Args),
+    /// Draw a force-chain picture (or a Pareto front).
+    Plot(plot::Args),
+    /// Generate a synthetic scene with exact forces by the discrete element method.
+    Dem(dem::Args),
+    /// Add measurement noise to a scene.
+    Perturb(perturb::Args),
+    /// Find disks in photographs and write a scene.
+    Detect(detect::Args),
+    /// Measure grain strains by image correlation and write stresses into a scene.
+    Strain(strain::Args),
+    /// Draw a scene as a camera would see it (speckled, deformed disks).
+    Render(render::Args),
+    /// Convert DEM or diffraction output into a scene.
+    Import(import::Args),
+    /// Write a scene and its forces for ParaView.
+    Export(export::Args),
+    /// Force-network statistics of a scene and its forces.
+    Stats(stats::Args),
+}
+
+pub fn main() -> std::process::ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Infer(a) => infer::run(a),
+        Command::Score(a) => score::run(a),
+        Command::Plot(a) => plot::run(a),
+        Command::Dem(a) => dem::run(a),
+        Command::Perturb(a) => perturb::run(a),
+        Command::Detect(a) => detect::run(a),
+        Command::Strain(a) => strain::run(a),
+        Command::Render(a) => render::run(a),
+        Command::Import(a) => import::run(a),
+        Command::Export(a) => export::run(a),
+        Command::Stats(a) => stats::run(a),
+    };
+    match result {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}

@@ -1,0 +1,10 @@
+//! `grainforce plot` (not built yet).
+
+#[derive(clap::Args)]
+pub struct Args {}
+
+pub fn run(_args: Args) -> grainforce::Result<()> {
+    Err(grainforce::Error::Invalid(
+        "`plot` is not available yet".into(),
+    ))
+}
