@@ -213,8 +213,8 @@ impl Scene {
             .any(|g| g.acceleration.is_some() || g.angular_acceleration.is_some())
     }
 
-    /// The net external (non-contact) load each grain's contacts must balance:
-    /// force m (a − g) and moment I α. None when the grain needs none.
+    /// The net load a grain's contacts must supply: force m (a − g) and moment
+    /// I α (zero for whatever the scene does not give).
     pub fn momentum_target(&self, grain: &Grain) -> (Vec3, Vec3) {
         let g = self.gravity();
         let mut force = [0.0; 3];
@@ -291,4 +291,39 @@ pub fn tangents(dim: usize, n: Vec3) -> (Vec3, Vec3) {
         let t1 = [t1[0] / l, t1[1] / l, t1[2] / l];
         (t1, cross(n, t1))
     }
+}
+
+/// Volume of the assembly Ω: the bounding box of the grains (centroid ± radius),
+/// an area in 2D.
+pub fn assembly_volume(scene: &Scene) -> f64 {
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for g in &scene.grains {
+        let r = g.equivalent_radius(scene.dim);
+        for k in 0..scene.dim {
+            lo[k] = lo[k].min(g.position[k] - r);
+            hi[k] = hi[k].max(g.position[k] + r);
+        }
+    }
+    (0..scene.dim).map(|k| (hi[k] - lo[k]).max(0.0)).product()
+}
+
+/// Macroscopic stress (eq. 2.1) ⟨σ⟩ = (1/Ω) Σ_c sym(f ⊗ d) of a force field,
+/// with d the branch vector between centroids (for a wall contact, the arm from
+/// the grain's centroid to the contact point), tension positive.
+pub fn macroscopic_stress(scene: &Scene, forces: &[Vec3], volume: f64) -> Sym {
+    let mut s = [0.0; 6];
+    for (c, f) in scene.contacts.iter().zip(forces) {
+        let a = scene.grains[c.a].position;
+        // f acts on a; the branch vector points from b to a so that compression is negative.
+        let d = match c.b {
+            Body::Grain(b) => sub(a, scene.grains[b].position),
+            Body::Wall(_) => sub(a, c.point),
+        };
+        let t = sym_outer(d, *f);
+        for k in 0..6 {
+            s[k] -= t[k] / volume;
+        }
+    }
+    s
 }
