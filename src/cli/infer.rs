@@ -1,10 +1,239 @@
-//! `grainforce infer` (not built yet).
+//! `grainforce infer`: scene → forces.csv (+ summary on stderr, JSON report).
+
+use grainforce::error::{Error, Result};
+use grainforce::infer::{self, ConeModel, InferOptions, Method};
+use grainforce::scene::{self, Forces, Selection};
+use std::path::PathBuf;
 
 #[derive(clap::Args)]
-pub struct Args {}
+pub struct Args {
+    /// Scene folder (grains.csv, contacts.csv, optional walls.csv and scene.json).
+    pub scene: PathBuf,
+    /// Where to write the forces (forces.csv format; force on grain `a` by `b`).
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Formulation: qs (least squares on stresses, hard equilibrium, friction);
+    /// tikhonov (adds λ²‖f‖², λ from --lambda or matched to walls.csv);
+    /// scaled (estimates a global stress scale from walls.csv);
+    /// ls (equalities only, no friction: the fast floor).
+    #[arg(short, long, value_enum, default_value_t = MethodArg::Qs)]
+    pub method: MethodArg,
+    /// Friction coefficient for contacts without a `mu` column value (overrides
+    /// scene.json). Without any μ only f_n ≥ 0 is imposed.
+    #[arg(long)]
+    pub mu: Option<f64>,
+    /// Tikhonov λ in the units of the equation (a length, e.g. metres); without
+    /// it `tikhonov` chooses λ so inferred wall forces match walls.csv.
+    #[arg(long)]
+    pub lambda: Option<f64>,
+    /// Dimensionless range of the automatic λ search (λ / grain radius), MIN..MAX.
+    #[arg(long, value_name = "MIN..MAX")]
+    pub lambda_range: Option<String>,
+    /// Gravity vector gx,gy[,gz] in m/s² (overrides scene.json); grains then need `mass`.
+    #[arg(long, value_name = "GX,GY[,GZ]", allow_hyphen_values = true)]
+    pub gravity: Option<String>,
+    /// Infer locally on these grains only (comma-separated ids).
+    #[arg(long, value_name = "ID,ID,...", conflicts_with = "region")]
+    pub grains: Option<String>,
+    /// Infer locally on the grains whose centroid lies in this box.
+    #[arg(
+        long,
+        value_name = "XMIN,XMAX,YMIN,YMAX[,ZMIN,ZMAX]",
+        allow_hyphen_values = true
+    )]
+    pub region: Option<String>,
+    /// 3D friction cone: exact (second-order cone) or an inscribed pyramid with
+    /// 4, 8 or 16 facets (a faster linear QP, slightly stricter than Coulomb).
+    #[arg(long, value_enum, default_value_t = ConeArg::Exact)]
+    pub cone: ConeArg,
+    /// Solver tolerance (gap and feasibility) of the first attempt.
+    #[arg(long, default_value_t = 1e-8)]
+    pub tolerance: f64,
+    /// On infeasible data, return the least-violation answer (momentum softened)
+    /// instead of an error.
+    #[arg(long)]
+    pub allow_infeasible: bool,
+    /// Weight of the wall rows relative to the stress rows (method scaled).
+    #[arg(long, default_value_t = 100.0)]
+    pub wall_weight: f64,
+    /// Write the report (sizes, residuals, λ, solver status, warnings) as JSON.
+    #[arg(long, value_name = "REPORT.json")]
+    pub report: Option<PathBuf>,
+    /// Print nothing on stderr.
+    #[arg(short, long)]
+    pub quiet: bool,
+}
 
-pub fn run(_args: Args) -> grainforce::Result<()> {
-    Err(grainforce::Error::Invalid(
-        "`infer` is not available yet".into(),
-    ))
+#[derive(Clone, Copy, clap::ValueEnum)]
+pub enum MethodArg {
+    Qs,
+    Tikhonov,
+    Scaled,
+    Ls,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+pub enum ConeArg {
+    Exact,
+    Pyramid4,
+    Pyramid8,
+    Pyramid16,
+}
+
+fn numbers(flag: &str, text: &str) -> Result<Vec<f64>> {
+    text.split(',')
+        .map(|s| {
+            s.trim()
+                .parse::<f64>()
+                .ok()
+                .filter(|x| x.is_finite())
+                .ok_or_else(|| Error::Invalid(format!("{flag}: `{s}` is not a finite number")))
+        })
+        .collect()
+}
+
+pub fn range(flag: &str, text: &str) -> Result<(f64, f64)> {
+    let parts: Vec<&str> = text.split("..").collect();
+    if parts.len() != 2 {
+        return Err(Error::Invalid(format!(
+            "{flag}: expected MIN..MAX, got `{text}`"
+        )));
+    }
+    let lo = numbers(flag, parts[0])?[0];
+    let hi = numbers(flag, parts[1])?[0];
+    Ok((lo, hi))
+}
+
+pub fn options(args: &Args) -> Result<(InferOptions, Selection)> {
+    let mut opts = InferOptions {
+        method: match args.method {
+            MethodArg::Qs => Method::Qs,
+            MethodArg::Tikhonov => Method::Tikhonov,
+            MethodArg::Scaled => Method::Scaled,
+            MethodArg::Ls => Method::Ls,
+        },
+        cone: match args.cone {
+            ConeArg::Exact => ConeModel::Exact,
+            ConeArg::Pyramid4 => ConeModel::Pyramid(4),
+            ConeArg::Pyramid8 => ConeModel::Pyramid(8),
+            ConeArg::Pyramid16 => ConeModel::Pyramid(16),
+        },
+        lambda: args.lambda,
+        allow_infeasible: args.allow_infeasible,
+        wall_weight: args.wall_weight,
+        ..InferOptions::default()
+    };
+    if let Some(l) = args.lambda {
+        if !(l >= 0.0 && l.is_finite()) {
+            return Err(Error::Invalid(format!(
+                "--lambda must be finite and ≥ 0, got {l}"
+            )));
+        }
+    }
+    if !(args.tolerance > 0.0 && args.tolerance < 1.0) {
+        return Err(Error::Invalid(format!(
+            "--tolerance must lie in (0, 1), got {}",
+            args.tolerance
+        )));
+    }
+    if !(args.wall_weight > 0.0 && args.wall_weight.is_finite()) {
+        return Err(Error::Invalid("--wall-weight must be positive".into()));
+    }
+    opts.conic.tolerance = args.tolerance;
+    opts.assemble.mu = args.mu;
+    if let Some(g) = &args.gravity {
+        let v = numbers("--gravity", g)?;
+        if !(2..=3).contains(&v.len()) {
+            return Err(Error::Invalid("--gravity takes 2 or 3 components".into()));
+        }
+        let mut g = [0.0; 3];
+        g[..v.len()].copy_from_slice(&v);
+        opts.assemble.gravity = Some(g);
+    }
+    if let Some(r) = &args.lambda_range {
+        let (lo, hi) = range("--lambda-range", r)?;
+        opts.lambda_search.min = lo;
+        opts.lambda_search.max = hi;
+    }
+    let selection = if let Some(ids) = &args.grains {
+        Selection::Grains(
+            ids.split(',')
+                .map(|s| s.trim().to_owned())
+                .filter(|s| !s.is_empty())
+                .collect(),
+        )
+    } else if let Some(r) = &args.region {
+        let v = numbers("--region", r)?;
+        if v.len() % 2 != 0 || v.len() < 4 {
+            return Err(Error::Invalid(
+                "--region takes min,max pairs per axis".into(),
+            ));
+        }
+        Selection::Region(v.chunks(2).map(|c| (c[0], c[1])).collect())
+    } else {
+        Selection::All
+    };
+    Ok((opts, selection))
+}
+
+pub fn run(args: Args) -> Result<()> {
+    let (opts, selection) = options(&args)?;
+    let frames = scene::read_sequence(&args.scene)?;
+    let mut per_frame = Vec::with_capacity(frames.len());
+    for frame in &frames {
+        let mut o = opts.clone();
+        if selection != Selection::All {
+            o.assemble.active = Some(scene::select_subassembly(frame, &selection)?);
+        }
+        per_frame.push(o);
+    }
+    let results = if frames.len() == 1 {
+        vec![infer::infer(&frames[0], &per_frame[0])?]
+    } else {
+        use rayon::prelude::*;
+        frames
+            .par_iter()
+            .zip(&per_frame)
+            .map(|(f, o)| infer::infer(f, o))
+            .collect::<Result<Vec<_>>>()?
+    };
+    let mut rows = Vec::new();
+    for (frame, result) in frames.iter().zip(&results) {
+        for (c, f) in frame.contacts.iter().zip(&result.forces) {
+            if let Some(f) = f {
+                rows.push(scene::ForceRow {
+                    contact: c.id.clone(),
+                    frame: frame.frame,
+                    force: *f,
+                    sd: None,
+                });
+            }
+        }
+    }
+    let forces = Forces {
+        dim: frames[0].dim,
+        rows,
+    };
+    if let Some(path) = &args.report {
+        let reports: Vec<&infer::InferenceReport> = results.iter().map(|r| &r.report).collect();
+        let json = if reports.len() == 1 {
+            serde_json::to_string_pretty(reports[0])
+        } else {
+            serde_json::to_string_pretty(&reports)
+        }
+        .map_err(|e| Error::Invalid(e.to_string()))?;
+        scene::write_file_atomically(path, json.as_bytes())?;
+    }
+    scene::write_forces(&args.output, &forces)?;
+    if !args.quiet {
+        for r in &results {
+            eprint!("{}", r.report);
+        }
+        eprintln!(
+            "wrote {} forces to {}",
+            forces.rows.len(),
+            args.output.display()
+        );
+    }
+    Ok(())
 }

@@ -1,1 +1,420 @@
-//! (being built)
+//! Force inference: the formulations of the method and the choice of λ.
+//!
+//! - `qs` (eq. 2.13): min ‖K_st f − b_st‖² s.t. K_eq f = b_eq and friction.
+//! - `tikhonov` (eq. 2.14): adds λ²‖f‖²; λ fixed, or chosen so the inferred wall
+//!   forces match the load cells (eq. 2.17).
+//! - `scaled`: min ‖K_st f − s b_st‖² + ω‖W f − F_walls‖² over f and a global
+//!   stress scale s — the measured wall forces pin down a global bias of the
+//!   stresses (e.g. a wrong Young's modulus).
+//! - `ls`: the equality-constrained least squares without inequalities: the fast floor.
+
+mod lambda;
+mod report;
+
+pub use lambda::{LambdaSearch, LambdaTrace};
+pub use report::InferenceReport;
+
+use crate::assemble::{self, AssembleOptions, Assembly, Friction, System};
+use crate::error::{Error, Result};
+use crate::scene::{Body, Scene, Vec3};
+use crate::solver::conic::{self, Cone, ConicProblem, ConicSettings, Term};
+use crate::solver::Triplets;
+use std::time::Instant;
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Method {
+    Qs,
+    Tikhonov,
+    Scaled,
+    Ls,
+}
+
+impl std::fmt::Display for Method {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Method::Qs => "qs",
+            Method::Tikhonov => "tikhonov",
+            Method::Scaled => "scaled",
+            Method::Ls => "ls",
+        })
+    }
+}
+
+/// How the 3D Coulomb cone is modelled.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub enum ConeModel {
+    /// The exact second-order cone (SOCP).
+    Exact,
+    /// An inscribed pyramid with this many facets (a linear QP).
+    Pyramid(usize),
+}
+
+#[derive(Debug, Clone)]
+pub struct InferOptions {
+    pub method: Method,
+    pub assemble: AssembleOptions,
+    /// Tikhonov λ in the units of the equation (a length: ‖K f − b‖ is force × length).
+    pub lambda: Option<f64>,
+    pub lambda_search: LambdaSearch,
+    pub cone: ConeModel,
+    pub conic: ConicSettings,
+    /// Weight ω of the wall rows in `scaled`, relative to the stress rows.
+    pub wall_weight: f64,
+    /// On infeasible data, return the least-violation answer (momentum softened).
+    pub allow_infeasible: bool,
+}
+
+impl Default for InferOptions {
+    fn default() -> Self {
+        InferOptions {
+            method: Method::Qs,
+            assemble: AssembleOptions::default(),
+            lambda: None,
+            lambda_search: LambdaSearch::default(),
+            cone: ConeModel::Exact,
+            conic: ConicSettings::default(),
+            wall_weight: 100.0,
+            allow_infeasible: false,
+        }
+    }
+}
+
+/// The result of one scene (frame).
+#[derive(Debug, Clone)]
+pub struct Inference {
+    /// Force on grain `a` by `b` per scene contact; `None` for contacts outside
+    /// the inferred sub-assembly.
+    pub forces: Vec<Option<Vec3>>,
+    pub report: InferenceReport,
+}
+
+impl Inference {
+    /// Forces with `None` replaced by zero (for metrics on the whole scene).
+    pub fn forces_or_zero(&self) -> Vec<Vec3> {
+        self.forces.iter().map(|f| f.unwrap_or([0.0; 3])).collect()
+    }
+}
+
+pub fn infer(scene: &Scene, opts: &InferOptions) -> Result<Inference> {
+    let start = Instant::now();
+    let mut assemble_opts = opts.assemble.clone();
+    // Pruning relies on momentum being a hard constraint; `scaled` couples all
+    // clusters through one scale factor.
+    assemble_opts.prune_single_contacts = !opts.allow_infeasible;
+    assemble_opts.single_system = opts.method == Method::Scaled;
+    let assembly = assemble::assemble(scene, &assemble_opts)?;
+    let mut report = InferenceReport::new(scene, opts, &assembly);
+
+    let (solutions, lambda_trace) = match opts.method {
+        Method::Qs => (solve_all(&assembly, opts, 0.0, &mut report)?, None),
+        Method::Ls => (
+            solve_all(&assembly, opts, scaled_lambda(opts, &assembly), &mut report)?,
+            None,
+        ),
+        Method::Tikhonov => match opts.lambda {
+            Some(_) => (
+                solve_all(&assembly, opts, scaled_lambda(opts, &assembly), &mut report)?,
+                None,
+            ),
+            None => {
+                let (lam, trace) = lambda::search(scene, &assembly, opts, &mut report)?;
+                report.lambda = Some(lam * assembly.scales.length);
+                (solve_all(&assembly, opts, lam, &mut report)?, Some(trace))
+            }
+        },
+        Method::Scaled => {
+            let (x, s) = solve_scaled(scene, &assembly, opts, &mut report)?;
+            report.stress_scale = Some(s);
+            (vec![x], None)
+        }
+    };
+    let forces = collect_forces(scene, &assembly, &solutions);
+    report.finish(
+        scene,
+        &assembly,
+        &solutions,
+        &forces,
+        lambda_trace,
+        start.elapsed().as_secs_f64(),
+    );
+    Ok(Inference { forces, report })
+}
+
+/// Infers every frame of a sequence, frames in parallel.
+pub fn infer_sequence(
+    frames: &[Scene],
+    opts: &InferOptions,
+    progress: bool,
+) -> Result<Vec<Inference>> {
+    use rayon::prelude::*;
+    let bar = if progress && frames.len() > 1 {
+        let bar = indicatif::ProgressBar::new(frames.len() as u64);
+        bar.set_style(
+            indicatif::ProgressStyle::with_template(
+                "{bar:40} {pos}/{len} frames, {elapsed} elapsed, ETA {eta}",
+            )
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        );
+        Some(bar)
+    } else {
+        None
+    };
+    let results: Vec<Result<Inference>> = frames
+        .par_iter()
+        .map(|scene| {
+            let r = infer(scene, opts).map_err(|e| match scene.frame {
+                Some(k) => Error::Solver(format!("frame {k}: {e}")),
+                None => e,
+            });
+            if let Some(b) = &bar {
+                b.inc(1);
+            }
+            r
+        })
+        .collect();
+    if let Some(b) = bar {
+        b.finish_and_clear();
+    }
+    results.into_iter().collect()
+}
+
+fn scaled_lambda(opts: &InferOptions, assembly: &Assembly) -> f64 {
+    opts.lambda
+        .map(|l| l / assembly.scales.length)
+        .unwrap_or(0.0)
+}
+
+/// The cones of a system's unknowns under the chosen friction and cone model.
+pub(crate) fn cones(system: &System, cone_model: ConeModel) -> Vec<Cone> {
+    system
+        .unknowns
+        .iter()
+        .map(|u| {
+            let o = u.offset;
+            match (u.friction, system.dim) {
+                (Friction::Coulomb(mu), 2) => Cone::Wedge {
+                    normal: o,
+                    tangent: o + 1,
+                    mu,
+                },
+                (Friction::Coulomb(mu), _) => match cone_model {
+                    ConeModel::Exact => Cone::Circular {
+                        normal: o,
+                        t1: o + 1,
+                        t2: o + 2,
+                        mu,
+                    },
+                    ConeModel::Pyramid(facets) => Cone::Pyramid {
+                        normal: o,
+                        t1: o + 1,
+                        t2: o + 2,
+                        mu,
+                        facets,
+                    },
+                },
+                _ => Cone::NonNegative { normal: o },
+            }
+        })
+        .collect()
+}
+
+/// Solves every cluster at dimensionless Tikhonov parameter `lambda`.
+pub(crate) fn solve_all(
+    assembly: &Assembly,
+    opts: &InferOptions,
+    lambda: f64,
+    report: &mut InferenceReport,
+) -> Result<Vec<Vec<f64>>> {
+    use rayon::prelude::*;
+    let results: Vec<Result<(Vec<f64>, Option<conic::ConicSolution>)>> = assembly
+        .systems
+        .par_iter()
+        .map(|s| solve_system(s, opts, lambda))
+        .collect();
+    let mut xs = Vec::with_capacity(results.len());
+    for r in results {
+        let (x, sol) = r?;
+        if let Some(sol) = sol {
+            report.absorb(&sol);
+        }
+        xs.push(x);
+    }
+    Ok(xs)
+}
+
+fn solve_system(
+    system: &System,
+    opts: &InferOptions,
+    lambda: f64,
+) -> Result<(Vec<f64>, Option<conic::ConicSolution>)> {
+    let with_cones = opts.method != Method::Ls;
+    let cone_list = if with_cones {
+        cones(system, opts.cone)
+    } else {
+        Vec::new()
+    };
+    let mut problem = ConicProblem {
+        n: system.n,
+        terms: vec![Term {
+            matrix: &system.stress,
+            rhs: &system.stress_rhs,
+            weight: 1.0,
+        }],
+        equalities: vec![(&system.momentum, system.momentum_rhs.as_slice())],
+        tikhonov: lambda * lambda,
+        regularized: system.n,
+        cones: cone_list,
+    };
+    if opts.allow_infeasible {
+        problem.equalities.clear();
+        problem.terms.push(Term {
+            matrix: &system.momentum,
+            rhs: &system.momentum_rhs,
+            weight: 1e6,
+        });
+    }
+    match conic::solve(&problem, &opts.conic) {
+        Ok(sol) => Ok((sol.x.clone(), Some(sol))),
+        Err(Error::Infeasible(_)) => Err(diagnose_infeasible(system, opts, &problem)),
+        Err(e) => Err(e),
+    }
+}
+
+/// Explains an infeasible problem: is it friction (μ too small) or the sign of
+/// the loads (tension needed)?
+fn diagnose_infeasible(system: &System, opts: &InferOptions, problem: &ConicProblem) -> Error {
+    let mut normal_only = problem.clone();
+    normal_only.cones = system
+        .unknowns
+        .iter()
+        .map(|u| Cone::NonNegative { normal: u.offset })
+        .collect();
+    let friction_bound = system
+        .unknowns
+        .iter()
+        .any(|u| u.friction != Friction::NormalOnly);
+    let hint = "or pass --allow-infeasible for the least-violation answer";
+    if friction_bound && conic::solve(&normal_only, &opts.conic).is_ok() {
+        Error::Infeasible(format!(
+            "the measured loads need tangential forces beyond μ·f_n at some contacts (μ too small for these stresses \
+             and accelerations); raise --mu, check the data, {hint}"
+        ))
+    } else {
+        Error::Infeasible(format!(
+            "the loads on {} grains cannot be balanced by compressive contact forces alone (tension would be needed); \
+             check that normals point from a to b and that stress is tension-positive, {hint}",
+            system.grains.len()
+        ))
+    }
+}
+
+/// `scaled`: one system; unknowns [x, s].
+fn solve_scaled(
+    scene: &Scene,
+    assembly: &Assembly,
+    opts: &InferOptions,
+    report: &mut InferenceReport,
+) -> Result<(Vec<f64>, f64)> {
+    let Some(system) = assembly.systems.first() else {
+        return Err(Error::Invalid(
+            "no contacts carry load: nothing to infer".into(),
+        ));
+    };
+    let n = system.n;
+    // Stress term K x − s b = 0 with s the (n+1)-th unknown.
+    let mut stress = Triplets::new(system.stress.nrows, n + 1);
+    for k in 0..system.stress.nnz() {
+        stress.push(
+            system.stress.rows[k],
+            system.stress.cols[k],
+            system.stress.vals[k],
+        );
+    }
+    for (i, &b) in system.stress_rhs.iter().enumerate() {
+        stress.push(i, n, -b);
+    }
+    let zeros = vec![0.0; system.stress.nrows];
+    let dim = scene.dim;
+    let mut walls = Triplets::new(0, n + 1);
+    let mut wall_rhs = Vec::new();
+    for w in &system.walls {
+        let Some(measured) = scene.walls[w.wall].measured_force else {
+            continue;
+        };
+        let base = walls.nrows;
+        walls.nrows += dim;
+        for k in 0..w.rows.nnz() {
+            walls.push(base + w.rows.rows[k], w.rows.cols[k], w.rows.vals[k]);
+        }
+        wall_rhs.extend(measured[..dim].iter().map(|f| f / assembly.scales.force));
+    }
+    if wall_rhs.is_empty() {
+        return Err(Error::Invalid(
+            "--method scaled needs measured wall forces (walls.csv) for walls that touch the grains".into(),
+        ));
+    }
+    let momentum = widen(&system.momentum, n + 1);
+    let mut cone_list = cones(system, opts.cone);
+    cone_list.push(Cone::NonNegative { normal: n });
+    let problem = ConicProblem {
+        n: n + 1,
+        terms: vec![
+            Term {
+                matrix: &stress,
+                rhs: &zeros,
+                weight: 1.0,
+            },
+            Term {
+                matrix: &walls,
+                rhs: &wall_rhs,
+                weight: opts.wall_weight,
+            },
+        ],
+        equalities: vec![(&momentum, system.momentum_rhs.as_slice())],
+        tikhonov: 0.0,
+        regularized: 0,
+        cones: cone_list,
+    };
+    let sol = conic::solve(&problem, &opts.conic)?;
+    report.absorb(&sol);
+    let s = sol.x[n];
+    if s <= 0.0 {
+        return Err(Error::Invalid(
+            "the wall forces and the stresses disagree in sign (estimated stress scale ≤ 0)".into(),
+        ));
+    }
+    Ok((sol.x[..n].to_vec(), s))
+}
+
+fn widen(m: &Triplets, ncols: usize) -> Triplets {
+    let mut w = m.clone();
+    w.ncols = ncols;
+    w
+}
+
+fn collect_forces(scene: &Scene, assembly: &Assembly, solutions: &[Vec<f64>]) -> Vec<Option<Vec3>> {
+    let mut forces = vec![None; scene.contacts.len()];
+    for (system, x) in assembly.systems.iter().zip(solutions) {
+        for (c, f) in system.forces(x) {
+            forces[c] = Some(f);
+        }
+    }
+    for &c in &assembly.zero_contacts {
+        forces[c] = Some([0.0; 3]);
+    }
+    forces
+}
+
+/// Total force each wall exerts on the grains, from per-contact forces.
+pub fn wall_totals(scene: &Scene, forces: &[Option<Vec3>]) -> Vec<Vec3> {
+    let mut totals = vec![[0.0; 3]; scene.walls.len()];
+    for (c, f) in scene.contacts.iter().zip(forces) {
+        if let (Body::Wall(w), Some(f)) = (c.b, f) {
+            for k in 0..3 {
+                totals[w][k] += f[k];
+            }
+        }
+    }
+    totals
+}

@@ -553,6 +553,11 @@ fn write_atomically(
     Ok(())
 }
 
+/// Writes bytes to `path` atomically (temporary file in the same folder, then rename).
+pub fn write_file_atomically(path: &Path, bytes: &[u8]) -> Result<()> {
+    write_atomically(path, |out| out.write_all(bytes))
+}
+
 /// Shortest text that reads back to the same f64.
 fn num(x: f64) -> String {
     format!("{x}")

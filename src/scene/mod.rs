@@ -6,8 +6,8 @@ mod io;
 mod select;
 
 pub use io::{
-    read_forces, read_scene, read_sequence, write_forces, write_scene, write_sequence, ForceRow,
-    Forces,
+    read_forces, read_scene, read_sequence, write_file_atomically, write_forces, write_scene,
+    write_sequence, ForceRow, Forces,
 };
 pub use select::{select_subassembly, Selection};
 
@@ -216,7 +216,11 @@ impl Scene {
     /// The net load a grain's contacts must supply: force m (a − g) and moment
     /// I α (zero for whatever the scene does not give).
     pub fn momentum_target(&self, grain: &Grain) -> (Vec3, Vec3) {
-        let g = self.gravity();
+        self.momentum_target_with(grain, self.gravity())
+    }
+
+    /// [`Scene::momentum_target`] under the given gravity.
+    pub fn momentum_target_with(&self, grain: &Grain, g: Vec3) -> (Vec3, Vec3) {
         let mut force = [0.0; 3];
         if let Some(m) = grain.mass {
             let a = grain.acceleration.unwrap_or([0.0; 3]);

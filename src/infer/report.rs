@@ -1,0 +1,300 @@
+//! What an inference did: sizes, residuals, λ, solver status, warnings — printed
+//! as a short summary and serialisable as JSON.
+
+use super::{wall_totals, InferOptions, LambdaTrace, Method};
+use crate::assemble::{Assembly, Friction};
+use crate::scene::{Scene, Vec3};
+use crate::solver::conic::ConicSolution;
+
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct WallReport {
+    pub wall: String,
+    pub measured: Option<Vec<f64>>,
+    pub inferred: Vec<f64>,
+}
+
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct InferenceReport {
+    pub method: Method,
+    pub dim: usize,
+    pub frame: Option<i64>,
+    pub grains: usize,
+    pub grains_with_equations: usize,
+    pub contacts: usize,
+    pub modelled_contacts: usize,
+    pub unknowns: usize,
+    pub clusters: usize,
+    pub rattlers: usize,
+    pub loaded_rattlers: Vec<String>,
+    pub zero_force_contacts: usize,
+    /// How friction was modelled.
+    pub friction: String,
+    pub force_scale: f64,
+    pub length_scale: f64,
+    /// ‖K_st f − b_st‖ / ‖b_st‖ over all modelled grains.
+    pub stress_residual: f64,
+    /// Largest momentum-row residual relative to the mean contact force.
+    pub momentum_residual: f64,
+    /// Largest (|f_t| − μ f_n)₊ relative to the mean contact force.
+    pub coulomb_violation: f64,
+    /// Tikhonov λ in the units of the equation (length), when used.
+    pub lambda: Option<f64>,
+    pub lambda_trace: Option<LambdaTrace>,
+    /// Estimated global stress scale (method `scaled`): true ≈ s · measured.
+    pub stress_scale: Option<f64>,
+    /// Whether the forces are uniquely determined by the data (None: not checked).
+    pub unique: Option<bool>,
+    pub solver_status: String,
+    pub iterations: u32,
+    pub solver_time: f64,
+    pub walls: Vec<WallReport>,
+    pub warnings: Vec<String>,
+    pub time: f64,
+}
+
+impl InferenceReport {
+    pub(crate) fn new(scene: &Scene, opts: &InferOptions, assembly: &Assembly) -> Self {
+        let [frictionless, coulomb, normal_only] = assembly.friction_counts;
+        let friction = match opts.method {
+            Method::Ls => "none imposed (ls: equalities only)".to_owned(),
+            _ if normal_only > 0 && coulomb == 0 => format!(
+                "normal force ≥ 0 only: no μ given (Coulomb abandoned) for {normal_only} contacts{}",
+                if frictionless > 0 { format!(", {frictionless} frictionless") } else { String::new() }
+            ),
+            _ => format!("Coulomb on {coulomb} contacts, {frictionless} frictionless, {normal_only} normal-only"),
+        };
+        let mut warnings = Vec::new();
+        if normal_only > 0 && opts.method != Method::Ls {
+            warnings.push(format!(
+                "{normal_only} contacts have no friction coefficient (no `mu` column, --mu or scene.json mu): only f_n ≥ 0 imposed"
+            ));
+        }
+        let loaded_rattlers: Vec<String> = assembly
+            .loaded_rattlers
+            .iter()
+            .map(|&p| scene.grains[p].id.clone())
+            .collect();
+        if !loaded_rattlers.is_empty() {
+            warnings.push(format!(
+                "{} grains report load (stress or acceleration) but have no contacts; their data are ignored",
+                loaded_rattlers.len()
+            ));
+        }
+        InferenceReport {
+            method: opts.method,
+            dim: scene.dim,
+            frame: scene.frame,
+            grains: scene.grains.len(),
+            grains_with_equations: assembly.systems.iter().map(|s| s.grains.len()).sum(),
+            contacts: scene.contacts.len(),
+            modelled_contacts: assembly.systems.iter().map(|s| s.unknowns.len()).sum(),
+            unknowns: assembly.systems.iter().map(|s| s.n).sum(),
+            clusters: assembly.systems.len(),
+            rattlers: assembly.rattlers.len(),
+            loaded_rattlers,
+            zero_force_contacts: assembly.zero_contacts.len(),
+            friction,
+            force_scale: assembly.scales.force,
+            length_scale: assembly.scales.length,
+            stress_residual: 0.0,
+            momentum_residual: 0.0,
+            coulomb_violation: 0.0,
+            lambda: opts
+                .lambda
+                .filter(|_| matches!(opts.method, Method::Tikhonov | Method::Ls)),
+            lambda_trace: None,
+            stress_scale: None,
+            unique: None,
+            solver_status: "not run".into(),
+            iterations: 0,
+            solver_time: 0.0,
+            walls: Vec::new(),
+            warnings,
+            time: 0.0,
+        }
+    }
+
+    /// Accounts for one solver call.
+    pub(crate) fn absorb(&mut self, sol: &ConicSolution) {
+        self.iterations += sol.iterations;
+        self.solver_time += sol.solve_time;
+        let worse = |s: &str| match s {
+            "not run" => 0,
+            "Solved" => 1,
+            _ => 2,
+        };
+        if worse(&sol.status) >= worse(&self.solver_status) {
+            self.solver_status = sol.status.clone();
+        }
+        for w in &sol.warnings {
+            if !self.warnings.contains(w) {
+                self.warnings.push(w.clone());
+            }
+        }
+    }
+
+    pub(crate) fn finish(
+        &mut self,
+        scene: &Scene,
+        assembly: &Assembly,
+        solutions: &[Vec<f64>],
+        forces: &[Option<Vec3>],
+        trace: Option<LambdaTrace>,
+        time: f64,
+    ) {
+        let (mut r2, mut b2, mut worst_momentum) = (0.0, 0.0, 0.0f64);
+        let mut magnitudes = 0.0;
+        let mut count = 0usize;
+        for (system, x) in assembly.systems.iter().zip(solutions) {
+            let scale = self.stress_scale.unwrap_or(1.0);
+            let kx = system.stress.mul(x);
+            for (k, b) in kx.iter().zip(&system.stress_rhs) {
+                r2 += (k - scale * b).powi(2);
+                b2 += (scale * b).powi(2);
+            }
+            let mx = system.momentum.mul(x);
+            for (m, b) in mx.iter().zip(&system.momentum_rhs) {
+                worst_momentum = worst_momentum.max((m - b).abs());
+            }
+            for (_, f) in system.forces(x) {
+                magnitudes += crate::scene::norm(f) / assembly.scales.force;
+                count += 1;
+            }
+        }
+        let mean = if count > 0 {
+            magnitudes / count as f64
+        } else {
+            0.0
+        };
+        self.stress_residual = if b2 > 0.0 {
+            (r2 / b2).sqrt()
+        } else {
+            r2.sqrt()
+        };
+        self.momentum_residual = if mean > 0.0 {
+            worst_momentum / mean
+        } else {
+            worst_momentum
+        };
+        let mut worst_coulomb = 0.0f64;
+        for system in &assembly.systems {
+            for u in &system.unknowns {
+                if let (Friction::Coulomb(mu), Some(f)) = (u.friction, forces[u.contact]) {
+                    let n = scene.contacts[u.contact].normal;
+                    let fn_ = -crate::scene::dot(f, n);
+                    let ft = crate::scene::norm([
+                        f[0] + fn_ * n[0],
+                        f[1] + fn_ * n[1],
+                        f[2] + fn_ * n[2],
+                    ]);
+                    worst_coulomb = worst_coulomb.max(ft - mu * fn_);
+                }
+            }
+        }
+        self.coulomb_violation = if mean > 0.0 {
+            worst_coulomb / (mean * assembly.scales.force)
+        } else {
+            0.0
+        };
+        let totals = wall_totals(scene, forces);
+        self.walls = scene
+            .walls
+            .iter()
+            .zip(&totals)
+            .map(|(w, t)| WallReport {
+                wall: w.name.clone(),
+                measured: w.measured_force.map(|m| m[..scene.dim].to_vec()),
+                inferred: t[..scene.dim].to_vec(),
+            })
+            .collect();
+        if let Some(t) = &trace {
+            if t.at_edge {
+                self.warnings.push(
+                    "the best λ lies at an end of the search range; widen it (--lambda-range) or give --lambda".into(),
+                );
+            }
+        }
+        self.lambda_trace = trace;
+        self.time = time;
+    }
+}
+
+fn fmt_vec(v: &[f64]) -> String {
+    let parts: Vec<String> = v.iter().map(|x| format!("{x:.4e}")).collect();
+    format!("({})", parts.join(", "))
+}
+
+impl std::fmt::Display for InferenceReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        if let Some(frame) = self.frame {
+            writeln!(f, "frame {frame}")?;
+        }
+        writeln!(f, "method      {} ({}D)", self.method, self.dim)?;
+        writeln!(
+            f,
+            "size        {} grains ({} with equations, {} rattlers), {} contacts ({} modelled, {} zero by pruning), {} unknowns, {} clusters",
+            self.grains,
+            self.grains_with_equations,
+            self.rattlers,
+            self.contacts,
+            self.modelled_contacts,
+            self.zero_force_contacts,
+            self.unknowns,
+            self.clusters
+        )?;
+        writeln!(f, "friction    {}", self.friction)?;
+        writeln!(
+            f,
+            "residuals   stress {:.3e} (relative), momentum {:.3e} (of mean force), Coulomb violation {:.3e}",
+            self.stress_residual, self.momentum_residual, self.coulomb_violation
+        )?;
+        if let Some(l) = self.lambda {
+            writeln!(
+                f,
+                "lambda      {:.4e} (dimensionless {:.4e})",
+                l,
+                l / self.length_scale
+            )?;
+        }
+        if let Some(s) = self.stress_scale {
+            writeln!(
+                f,
+                "stress      scale estimated from walls: {s:.5} (measured stresses × {s:.5})"
+            )?;
+        }
+        match self.unique {
+            Some(true) => writeln!(f, "unique      yes: the data determine every force")?,
+            Some(false) => writeln!(
+                f,
+                "unique      NO: N(K_st) ∩ N(K_eq) ≠ {{0}}, other force fields fit the data equally well"
+            )?,
+            None => writeln!(f, "unique      not checked")?,
+        }
+        for w in &self.walls {
+            match &w.measured {
+                Some(m) => writeln!(
+                    f,
+                    "wall        {}: inferred {} measured {}",
+                    w.wall,
+                    fmt_vec(&w.inferred),
+                    fmt_vec(m)
+                )?,
+                None => writeln!(
+                    f,
+                    "wall        {}: inferred {}",
+                    w.wall,
+                    fmt_vec(&w.inferred)
+                )?,
+            }
+        }
+        writeln!(
+            f,
+            "solver      {} in {} iterations, {:.3} s solver time, {:.3} s total",
+            self.solver_status, self.iterations, self.solver_time, self.time
+        )?;
+        for w in &self.warnings {
+            writeln!(f, "warning     {w}")?;
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,292 @@
+//! Hand-built scenes with exact forces, built independently of the library's
+//! assembler: a force field is made to satisfy momentum balance by a dense
+//! least-change projection, and stresses follow from V σ = Σ sym(r ⊗ f).
+#![allow(dead_code)]
+
+use grainforce::scene::{self, Body, Contact, Grain, Scene, Vec3};
+use nalgebra::{DMatrix, DVector};
+
+pub fn grain(id: &str, position: Vec3, radius: f64, dim: usize) -> Grain {
+    let volume = if dim == 2 {
+        std::f64::consts::PI * radius * radius
+    } else {
+        4.0 / 3.0 * std::f64::consts::PI * radius.powi(3)
+    };
+    let mut g = Grain::new(id, position, volume, [0.0; 6]);
+    g.radius = Some(radius);
+    g
+}
+
+/// Adds a grain–grain contact at the middle of the two surfaces.
+pub fn touch(scene: &mut Scene, a: usize, b: usize, mu: Option<f64>) {
+    let (pa, pb) = (scene.grains[a].position, scene.grains[b].position);
+    let (ra, rb) = (
+        scene.grains[a].radius.unwrap(),
+        scene.grains[b].radius.unwrap(),
+    );
+    let d = scene::sub(pb, pa);
+    let l = scene::norm(d);
+    let n = [d[0] / l, d[1] / l, d[2] / l];
+    let t = 0.5 * (l + ra - rb);
+    let id = format!("c{}", scene.contacts.len());
+    scene.contacts.push(Contact {
+        id,
+        a,
+        b: Body::Grain(b),
+        point: [pa[0] + t * n[0], pa[1] + t * n[1], pa[2] + t * n[2]],
+        normal: n,
+        mu,
+    });
+}
+
+/// Adds a contact of grain `a` with a wall whose outward normal (from the grain) is `n`.
+pub fn wall(scene: &mut Scene, a: usize, name: &str, n: Vec3, mu: Option<f64>) {
+    let w = scene.wall_or_insert(name);
+    let p = scene.grains[a].position;
+    let r = scene.grains[a].radius.unwrap();
+    let id = format!("c{}", scene.contacts.len());
+    scene.contacts.push(Contact {
+        id,
+        a,
+        b: Body::Wall(w),
+        point: [p[0] + r * n[0], p[1] + r * n[1], p[2] + r * n[2]],
+        normal: n,
+        mu,
+    });
+}
+
+/// The momentum matrix (force and moment per grain) over d components per contact.
+/// Frictionless contacts get extra rows forcing their tangential part to zero.
+fn momentum_matrix(scene: &Scene) -> DMatrix<f64> {
+    let d = scene.dim;
+    let rows_per = if d == 2 { 3 } else { 6 };
+    let frictionless: Vec<usize> = (0..scene.contacts.len())
+        .filter(|&c| scene.contacts[c].mu == Some(0.0))
+        .collect();
+    let base = rows_per * scene.grains.len();
+    let mut m = DMatrix::zeros(
+        base + (d - 1) * frictionless.len(),
+        d * scene.contacts.len(),
+    );
+    for (k, &c) in frictionless.iter().enumerate() {
+        let (t1, t2) = scene::tangents(d, scene.contacts[c].normal);
+        for j in 0..d {
+            m[(base + (d - 1) * k, d * c + j)] = t1[j];
+            if d == 3 {
+                m[(base + (d - 1) * k + 1, d * c + j)] = t2[j];
+            }
+        }
+    }
+    for (ci, c) in scene.contacts.iter().enumerate() {
+        let mut sides = vec![(c.a, 1.0)];
+        if let Body::Grain(b) = c.b {
+            sides.push((b, -1.0));
+        }
+        for (p, s) in sides {
+            let r = scene::sub(c.point, scene.grains[p].position);
+            for k in 0..d {
+                let mut e = [0.0; 3];
+                e[k] = s;
+                m[(rows_per * p + k, d * ci + k)] += s;
+                let mom = scene::cross(r, e);
+                if d == 2 {
+                    m[(rows_per * p + 2, d * ci + k)] += mom[2];
+                } else {
+                    for j in 0..3 {
+                        m[(rows_per * p + 3 + j, d * ci + k)] += mom[j];
+                    }
+                }
+            }
+        }
+    }
+    m
+}
+
+/// The force field closest to `guess` with zero net force and moment on every grain.
+pub fn equilibrate(scene: &Scene, guess: &[Vec3]) -> Vec<Vec3> {
+    let d = scene.dim;
+    let m = momentum_matrix(scene);
+    let f0 = DVector::from_iterator(d * guess.len(), guess.iter().flat_map(|f| f[..d].to_vec()));
+    // f = f0 − Mᵀ (M Mᵀ)⁺ M f0
+    let svd = (&m * m.transpose()).svd(true, true);
+    let y = svd.solve(&(&m * &f0), 1e-12).unwrap();
+    let f = &f0 - m.transpose() * y;
+    let residual = (&m * &f).amax();
+    assert!(
+        residual < 1e-9 * f0.amax(),
+        "equilibration failed: {residual}"
+    );
+    (0..guess.len())
+        .map(|c| {
+            let mut v = [0.0; 3];
+            v[..d].copy_from_slice(&f.as_slice()[d * c..d * c + d]);
+            v
+        })
+        .collect()
+}
+
+/// Sets every grain's stress from V σ = Σ sym(r ⊗ f) (tension positive).
+pub fn set_stresses(scene: &mut Scene, forces: &[Vec3]) {
+    let mut acc = vec![[0.0; 6]; scene.grains.len()];
+    for (c, f) in scene.contacts.iter().zip(forces) {
+        let mut sides = vec![(c.a, *f)];
+        if let Body::Grain(b) = c.b {
+            sides.push((b, [-f[0], -f[1], -f[2]]));
+        }
+        for (p, fp) in sides {
+            let r = scene::sub(c.point, scene.grains[p].position);
+            let t = scene::sym_outer(r, fp);
+            for k in 0..6 {
+                acc[p][k] += t[k];
+            }
+        }
+    }
+    for (g, s) in scene.grains.iter_mut().zip(acc) {
+        for k in 0..6 {
+            g.stress[k] = s[k] / g.volume;
+        }
+    }
+}
+
+/// Compressive normal forces of magnitude ~`p` with tangential parts of
+/// relative size `shear` (deterministic pseudo-random), before equilibration.
+pub fn compressive_guess(scene: &Scene, p: f64, shear: f64) -> Vec<Vec3> {
+    scene
+        .contacts
+        .iter()
+        .enumerate()
+        .map(|(i, c)| {
+            let (t1, t2) = scene::tangents(scene.dim, c.normal);
+            let s1 = shear * ((i as f64 * 12.9898).sin() * 43758.5453).fract();
+            let s2 = shear * ((i as f64 * 78.233).sin() * 12543.531).fract();
+            let mag = p * (1.0 + 0.3 * ((i as f64 * 3.7).sin()));
+            let mut f = [0.0; 3];
+            for k in 0..3 {
+                f[k] = -mag * c.normal[k] + mag * (s1 * t1[k] + s2 * t2[k]);
+            }
+            if c.mu == Some(0.0) {
+                let fn_ = scene::dot(f, c.normal);
+                for k in 0..3 {
+                    f[k] = fn_ * c.normal[k];
+                }
+            }
+            f
+        })
+        .collect()
+}
+
+/// Checks compressive and Coulomb-admissible forces (for building valid truth).
+pub fn admissible(scene: &Scene, forces: &[Vec3]) -> bool {
+    scene.contacts.iter().zip(forces).all(|(c, f)| {
+        let fn_ = -scene::dot(*f, c.normal);
+        let ft = scene::norm([
+            f[0] + fn_ * c.normal[0],
+            f[1] + fn_ * c.normal[1],
+            f[2] + fn_ * c.normal[2],
+        ]);
+        let mu = c.mu.or(scene.settings.mu).unwrap_or(f64::INFINITY);
+        fn_ > 0.0 && ft <= mu * fn_ * (1.0 + 1e-12) + 1e-9 * fn_
+    })
+}
+
+pub fn relerr(truth: &[Vec3], inferred: &[Vec3]) -> f64 {
+    let (mut e, mut n) = (0.0, 0.0);
+    for (t, f) in truth.iter().zip(inferred) {
+        for k in 0..3 {
+            e += (t[k] - f[k]).powi(2);
+            n += t[k] * t[k];
+        }
+    }
+    (e / n).sqrt()
+}
+
+/// A frictional 2D packing: `nx` × `ny` disks on a triangular lattice between
+/// four frictionless walls, with exact forces.
+pub fn lattice_2d(nx: usize, ny: usize, mu: f64) -> (Scene, Vec<Vec3>) {
+    let mut s = Scene::new(2);
+    let r = 0.004;
+    let h = r * 3f64.sqrt();
+    for j in 0..ny {
+        for i in 0..nx {
+            let x = r + 2.0 * r * i as f64 + if j % 2 == 1 { r } else { 0.0 };
+            let rr = if j % 2 == 1 && i == nx - 1 {
+                continue;
+            } else {
+                r
+            };
+            s.grains.push(grain(
+                &format!("{}", s.grains.len()),
+                [x, r + h * j as f64, 0.0],
+                rr,
+                2,
+            ));
+        }
+    }
+    let ng = s.grains.len();
+    for a in 0..ng {
+        for b in a + 1..ng {
+            let d = scene::norm(scene::sub(s.grains[a].position, s.grains[b].position));
+            if d < 2.0 * r * 1.0001 {
+                touch(&mut s, a, b, Some(mu));
+            }
+        }
+    }
+    let width = 2.0 * r * nx as f64;
+    let top = s.grains.iter().map(|g| g.position[1]).fold(0.0, f64::max);
+    for a in 0..ng {
+        let p = s.grains[a].position;
+        if p[1] < 1.5 * r {
+            wall(&mut s, a, "bottom", [0.0, -1.0, 0.0], Some(0.0));
+        }
+        if p[1] > top - 0.5 * r {
+            wall(&mut s, a, "top", [0.0, 1.0, 0.0], Some(0.0));
+        }
+        if p[0] < 1.5 * r {
+            wall(&mut s, a, "left", [-1.0, 0.0, 0.0], Some(0.0));
+        }
+        if p[0] > width - 1.5 * r {
+            wall(&mut s, a, "right", [1.0, 0.0, 0.0], Some(0.0));
+        }
+    }
+    let guess = compressive_guess(&s, 100.0, 0.2);
+    let forces = equilibrate(&s, &guess);
+    assert!(
+        admissible(&s, &forces),
+        "lattice truth is not admissible: {:?}",
+        admissibility(&s, &forces)
+    );
+    set_stresses(&mut s, &forces);
+    (s, forces)
+}
+
+/// Measured wall loads from exact forces.
+pub fn set_wall_loads(scene: &mut Scene, forces: &[Vec3]) {
+    let mut totals = vec![[0.0; 3]; scene.walls.len()];
+    for (c, f) in scene.contacts.iter().zip(forces) {
+        if let Body::Wall(w) = c.b {
+            for k in 0..3 {
+                totals[w][k] += f[k];
+            }
+        }
+    }
+    for (w, t) in scene.walls.iter_mut().zip(totals) {
+        w.measured_force = Some(t);
+    }
+}
+
+/// Worst normal force and worst |f_t|/f_n, for diagnosing a truth that is not admissible.
+pub fn admissibility(scene: &Scene, forces: &[Vec3]) -> (f64, f64) {
+    let mut min_fn = f64::INFINITY;
+    let mut max_ratio: f64 = 0.0;
+    for (c, f) in scene.contacts.iter().zip(forces) {
+        let fn_ = -scene::dot(*f, c.normal);
+        let ft = scene::norm([
+            f[0] + fn_ * c.normal[0],
+            f[1] + fn_ * c.normal[1],
+            f[2] + fn_ * c.normal[2],
+        ]);
+        min_fn = min_fn.min(fn_);
+        max_ratio = max_ratio.max(ft / fn_.abs());
+    }
+    (min_fn, max_ratio)
+}
