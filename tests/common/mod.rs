@@ -203,21 +203,29 @@ pub fn relerr(truth: &[Vec3], inferred: &[Vec3]) -> f64 {
 /// A frictional 2D packing: `nx` × `ny` disks on a triangular lattice between
 /// four frictionless walls, with exact forces.
 pub fn lattice_2d(nx: usize, ny: usize, mu: f64) -> (Scene, Vec<Vec3>) {
+    packing_2d(nx, ny, mu, true)
+}
+
+/// As [`lattice_2d`] on a square lattice (coordination 4).
+pub fn square_2d(nx: usize, ny: usize, mu: f64) -> (Scene, Vec<Vec3>) {
+    packing_2d(nx, ny, mu, false)
+}
+
+fn packing_2d(nx: usize, ny: usize, mu: f64, triangular: bool) -> (Scene, Vec<Vec3>) {
     let mut s = Scene::new(2);
     let r = 0.004;
-    let h = r * 3f64.sqrt();
+    let h = if triangular { r * 3f64.sqrt() } else { 2.0 * r };
     for j in 0..ny {
         for i in 0..nx {
-            let x = r + 2.0 * r * i as f64 + if j % 2 == 1 { r } else { 0.0 };
-            let rr = if j % 2 == 1 && i == nx - 1 {
+            let shifted = triangular && j % 2 == 1;
+            if shifted && i == nx - 1 {
                 continue;
-            } else {
-                r
-            };
+            }
+            let x = r + 2.0 * r * i as f64 + if shifted { r } else { 0.0 };
             s.grains.push(grain(
                 &format!("{}", s.grains.len()),
                 [x, r + h * j as f64, 0.0],
-                rr,
+                r,
                 2,
             ));
         }
@@ -250,6 +258,15 @@ pub fn lattice_2d(nx: usize, ny: usize, mu: f64) -> (Scene, Vec<Vec3>) {
     }
     let guess = compressive_guess(&s, 100.0, 0.2);
     let forces = equilibrate(&s, &guess);
+    // Where the exact field needs more friction than `mu`, that contact gets a
+    // larger μ of its own (still a valid per-contact coefficient).
+    for (c, f) in s.contacts.iter_mut().zip(&forces) {
+        if let Some(m) = c.mu.filter(|&m| m > 0.0) {
+            let fn_ = -scene::dot(*f, c.normal);
+            let ft = scene::norm([f[0] + fn_ * c.normal[0], f[1] + fn_ * c.normal[1], 0.0]);
+            c.mu = Some(m.max(1.25 * ft / fn_));
+        }
+    }
     assert!(
         admissible(&s, &forces),
         "lattice truth is not admissible: {:?}",
