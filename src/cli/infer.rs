@@ -20,11 +20,11 @@ pub struct Args {
     pub method: MethodArg,
     /// Friction coefficient for contacts without a `mu` column value (overrides
     /// scene.json). Without any μ only f_n ≥ 0 is imposed.
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub mu: Option<f64>,
     /// Tikhonov λ in the units of the equation (a length, e.g. metres); without
     /// it `tikhonov` chooses λ so inferred wall forces match walls.csv.
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub lambda: Option<f64>,
     /// Dimensionless range of the automatic λ search (λ / grain radius), MIN..MAX.
     #[arg(long, value_name = "MIN..MAX")]
