@@ -193,9 +193,9 @@ fn print_walls(s: &Score) {
     for w in &s.walls {
         let measured = w
             .measured
-            .map(|m| vector_text(m, dim3))
+            .map(|m| format!("measured {}", vector_text(m, dim3)))
             .unwrap_or_else(|| "not measured".into());
-        println!("  {}: measured {measured}", w.wall);
+        println!("  {}: {measured}", w.wall);
         println!("    inferred {}   truth {}", vector_text(w.inferred, dim3), vector_text(w.truth, dim3));
         if let (Some(a), Some(r)) = (w.absolute, w.relative) {
             println!("    mismatch |measured - inferred| = {a:.4e} ({:.4}% of measured)", 100.0 * r);

@@ -260,7 +260,8 @@ pub fn draw_force_chains(
         .unwrap_or(data_max);
     let mut order: Vec<usize> = (0..forces.len()).collect();
     order.sort_by(|&a, &b| magnitudes[a].total_cmp(&magnitudes[b]));
-    let full_width = mean_radius_px.max(1.0);
+    // The strongest force is drawn about a grain radius wide (a little less, to keep chains apart).
+    let full_width = (0.75 * mean_radius_px).max(1.0);
     for c in order {
         let contact = &scene.contacts[c];
         let p = layout.to_pixel(scene.grains[contact.a].position);
