@@ -1,10 +1,101 @@
-//! `grainforce plot` (not built yet).
+//! `grainforce plot`: a force-chain picture of a scene and its forces, or a
+//! Pareto front from a λ sweep.
+
+use grainforce::report::{self, forcechain::ForceChainOptions, forcechain::Plane};
+use grainforce::scene;
+use grainforce::{Error, Result};
+use std::path::PathBuf;
 
 #[derive(clap::Args)]
-pub struct Args {}
+pub struct Args {
+    /// Scene folder (not with --pareto).
+    #[arg(conflicts_with = "pareto")]
+    scene: Option<PathBuf>,
+    /// forces.csv to draw (not with --pareto).
+    #[arg(conflicts_with = "pareto")]
+    forces: Option<PathBuf>,
+    /// Output PNG.
+    #[arg(short, long, value_name = "OUT.png")]
+    output: PathBuf,
+    /// Draw this Pareto-front CSV (lambda,stress_residual,momentum_residual,knee) instead.
+    #[arg(long, value_name = "PARETO.csv")]
+    pareto: Option<PathBuf>,
+    /// Projection plane of a 3D scene.
+    #[arg(long, default_value = "xy", value_parser = ["xy", "xz", "yz"])]
+    plane: String,
+    /// Image width in pixels.
+    #[arg(long, default_value_t = 1000, value_parser = clap::value_parser!(u32).range(64..=20000))]
+    width: u32,
+    /// Frame of a sequence to draw (default: the first).
+    #[arg(long)]
+    frame: Option<i64>,
+    /// Write grain ids at their centroids.
+    #[arg(long)]
+    ids: bool,
+    /// Force drawn at full width and darkest colour (default: the largest), to
+    /// compare pictures on one scale.
+    #[arg(long, value_name = "F")]
+    max_force: Option<f64>,
+}
 
-pub fn run(_args: Args) -> grainforce::Result<()> {
-    Err(grainforce::Error::Invalid(
-        "`plot` is not available yet".into(),
-    ))
+pub fn run(args: Args) -> Result<()> {
+    if let Some(path) = &args.pareto {
+        let (points, knee) = report::read_pareto_csv(path)?;
+        if points.is_empty() {
+            return Err(Error::Invalid(format!("{} holds no points", path.display())));
+        }
+        let img = report::draw_pareto(&points, knee);
+        report::save_png(&args.output, &img)?;
+        println!("wrote {} ({} points)", args.output.display(), points.len());
+        return Ok(());
+    }
+    let (Some(scene_dir), Some(forces_path)) = (&args.scene, &args.forces) else {
+        return Err(Error::Invalid(
+            "plot needs SCENE_DIR and FORCES.csv (or --pareto PARETO.csv)".into(),
+        ));
+    };
+    if let Some(m) = args.max_force {
+        if !(m.is_finite() && m > 0.0) {
+            return Err(Error::Invalid(format!("--max-force {m} must be a positive number")));
+        }
+    }
+    let frames = scene::read_sequence(scene_dir)?;
+    let scene = match args.frame {
+        None => &frames[0],
+        Some(k) => frames.iter().find(|s| s.frame == Some(k)).ok_or_else(|| {
+            let numbers: Vec<i64> = frames.iter().filter_map(|s| s.frame).collect();
+            let available = match (numbers.iter().min(), numbers.iter().max()) {
+                (Some(lo), Some(hi)) => format!("frames {lo} to {hi}"),
+                _ => "no frame numbers (a single scene)".into(),
+            };
+            Error::Invalid(format!(
+                "--frame {k}: {} has {available}",
+                scene_dir.display()
+            ))
+        })?,
+    };
+    let forces = scene::read_forces(forces_path)?.for_scene(scene, forces_path)?;
+    let plane: Plane = args.plane.parse()?;
+    let title = match scene.frame {
+        Some(k) => format!("frame {k}"),
+        None => String::new(),
+    };
+    let opts = ForceChainOptions {
+        width_px: args.width,
+        plane,
+        show_ids: args.ids,
+        max_force: args.max_force,
+        title: (!title.is_empty()).then_some(title),
+        units: None,
+    };
+    let img = report::draw_force_chains(scene, &forces, &opts)?;
+    report::save_png(&args.output, &img)?;
+    println!(
+        "wrote {} ({}x{} px, {} contacts)",
+        args.output.display(),
+        img.width(),
+        img.height(),
+        scene.contacts.len()
+    );
+    Ok(())
 }
