@@ -1,7 +1,7 @@
 //! `grainforce infer`: scene → forces.csv (+ summary on stderr, JSON report).
 
 use grainforce::error::{Error, Result};
-use grainforce::infer::{self, ConeModel, InferOptions, Method};
+use grainforce::infer::{self, ConeModel, InferOptions, LambdaRule, Method};
 use grainforce::scene::{self, Forces, Selection};
 use std::path::PathBuf;
 
@@ -15,7 +15,8 @@ pub struct Args {
     /// Formulation: qs (least squares on stresses, hard equilibrium, friction);
     /// tikhonov (adds λ²‖f‖², λ from --lambda or matched to walls.csv);
     /// scaled (estimates a global stress scale from walls.csv);
-    /// ls (equalities only, no friction: the fast floor).
+    /// ls (equalities only, no friction: the fast floor);
+    /// dynamic (stress and momentum rows weighted by λ, see --lambda-rule).
     #[arg(short, long, value_enum, default_value_t = MethodArg::Qs)]
     pub method: MethodArg,
     /// Friction coefficient for contacts without a `mu` column value (overrides
@@ -56,6 +57,32 @@ pub struct Args {
     /// Weight of the wall rows relative to the stress rows (method scaled).
     #[arg(long, default_value_t = 100.0)]
     pub wall_weight: f64,
+    /// Dynamic: how the momentum weight λ is chosen. weights: λ = (σ_s/σ_m)²
+    /// from --stress-sd and --accel-sd (momentum exact when --accel-sd is 0);
+    /// knee: maximum curvature of the Pareto front (the original study's rule);
+    /// hard: momentum as an exact constraint; fixed: --lambda (dimensionless).
+    #[arg(long, value_enum, default_value_t = RuleArg::Weights)]
+    pub lambda_rule: RuleArg,
+    /// Dynamic, rule weights: relative noise of the stresses.
+    #[arg(long, default_value_t = 0.1)]
+    pub stress_sd: f64,
+    /// Dynamic, rule weights: relative noise of m·a (0 = accelerations exact).
+    #[arg(long, default_value_t = 0.0)]
+    pub accel_sd: f64,
+    /// Dynamic: dimensionless λ range of the Pareto sweep, MIN..MAX.
+    #[arg(long, value_name = "MIN..MAX", default_value = "1e-4..1e6")]
+    pub sweep: String,
+    /// Dynamic: number of λ values in the sweep.
+    #[arg(long, default_value_t = 31)]
+    pub sweep_points: usize,
+    /// Dynamic: write the Pareto front (lambda, stress_residual,
+    /// momentum_residual, knee) to this CSV (sweeps even when the rule is not knee).
+    #[arg(long, value_name = "PARETO.csv")]
+    pub pareto: Option<PathBuf>,
+    /// Sequences: infer only frames A..B (inclusive), e.g. to split a long
+    /// experiment across a cluster job array.
+    #[arg(long, value_name = "A..B")]
+    pub frames: Option<String>,
     /// Write the report (sizes, residuals, λ, solver status, warnings) as JSON.
     #[arg(long, value_name = "REPORT.json")]
     pub report: Option<PathBuf>,
@@ -70,6 +97,15 @@ pub enum MethodArg {
     Tikhonov,
     Scaled,
     Ls,
+    Dynamic,
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum RuleArg {
+    Weights,
+    Knee,
+    Hard,
+    Fixed,
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -111,6 +147,7 @@ pub fn options(args: &Args) -> Result<(InferOptions, Selection)> {
             MethodArg::Tikhonov => Method::Tikhonov,
             MethodArg::Scaled => Method::Scaled,
             MethodArg::Ls => Method::Ls,
+            MethodArg::Dynamic => Method::Dynamic,
         },
         cone: match args.cone {
             ConeArg::Exact => ConeModel::Exact,
@@ -155,6 +192,36 @@ pub fn options(args: &Args) -> Result<(InferOptions, Selection)> {
         opts.lambda_search.min = lo;
         opts.lambda_search.max = hi;
     }
+    if !(args.stress_sd >= 0.0
+        && args.accel_sd >= 0.0
+        && args.stress_sd.is_finite()
+        && args.accel_sd.is_finite())
+    {
+        return Err(Error::Invalid(
+            "--stress-sd and --accel-sd must be finite and ≥ 0".into(),
+        ));
+    }
+    opts.dynamic.rule = match args.lambda_rule {
+        RuleArg::Weights => LambdaRule::Weights {
+            stress_sd: args.stress_sd,
+            momentum_sd: args.accel_sd,
+        },
+        RuleArg::Knee => LambdaRule::Knee,
+        RuleArg::Hard => LambdaRule::Hard,
+        RuleArg::Fixed => LambdaRule::Fixed(
+            args.lambda
+                .ok_or_else(|| Error::Invalid("--lambda-rule fixed needs --lambda".into()))?,
+        ),
+    };
+    if args.pareto.is_some() && args.lambda_rule != RuleArg::Knee && opts.method == Method::Dynamic
+    {
+        // The front is still wanted: sweep it, but keep the chosen rule's λ.
+        opts.dynamic_front = true;
+    }
+    let (lo, hi) = range("--sweep", &args.sweep)?;
+    opts.dynamic.sweep_min = lo;
+    opts.dynamic.sweep_max = hi;
+    opts.dynamic.sweep_points = args.sweep_points;
     let selection = if let Some(ids) = &args.grains {
         Selection::Grains(
             ids.split(',')
@@ -178,7 +245,19 @@ pub fn options(args: &Args) -> Result<(InferOptions, Selection)> {
 
 pub fn run(args: Args) -> Result<()> {
     let (opts, selection) = options(&args)?;
-    let frames = scene::read_sequence(&args.scene)?;
+    let mut frames = scene::read_sequence(&args.scene)?;
+    if let Some(r) = &args.frames {
+        let (lo, hi) = range("--frames", r)?;
+        frames.retain(|f| {
+            f.frame
+                .is_some_and(|k| (k as f64) >= lo && (k as f64) <= hi)
+        });
+        if frames.is_empty() {
+            return Err(Error::Invalid(format!(
+                "--frames {r}: no frame of the sequence lies in that range"
+            )));
+        }
+    }
     let mut per_frame = Vec::with_capacity(frames.len());
     for frame in &frames {
         let mut o = opts.clone();
@@ -190,12 +269,7 @@ pub fn run(args: Args) -> Result<()> {
     let results = if frames.len() == 1 {
         vec![infer::infer(&frames[0], &per_frame[0])?]
     } else {
-        use rayon::prelude::*;
-        frames
-            .par_iter()
-            .zip(&per_frame)
-            .map(|(f, o)| infer::infer(f, o))
-            .collect::<Result<Vec<_>>>()?
+        infer::infer_frames(&frames, &per_frame, !args.quiet)?
     };
     let mut rows = Vec::new();
     for (frame, result) in frames.iter().zip(&results) {
@@ -223,6 +297,16 @@ pub fn run(args: Args) -> Result<()> {
         }
         .map_err(|e| Error::Invalid(e.to_string()))?;
         scene::write_file_atomically(path, json.as_bytes())?;
+    }
+    if let Some(path) = &args.pareto {
+        let front = results
+            .first()
+            .and_then(|r| r.report.pareto.as_ref())
+            .ok_or_else(|| Error::Invalid("--pareto needs --method dynamic".into()))?;
+        if results.len() > 1 {
+            eprintln!("note: --pareto writes the front of the first frame");
+        }
+        grainforce::report::pareto::write_pareto_csv(path, &front.points, front.knee)?;
     }
     scene::write_forces(&args.output, &forces)?;
     if !args.quiet {

@@ -7,10 +7,13 @@
 //!   stress scale s — the measured wall forces pin down a global bias of the
 //!   stresses (e.g. a wrong Young's modulus).
 //! - `ls`: the equality-constrained least squares without inequalities: the fast floor.
+//! - `dynamic` (eq. 3.18): ‖K_s f − b_s‖² + λ‖K_m f − b_m‖², λ by a rule (see [`dynamic`]).
 
+pub mod dynamic;
 mod lambda;
 mod report;
 
+pub use dynamic::{DynamicOptions, Front, LambdaRule};
 pub use lambda::{LambdaSearch, LambdaTrace};
 pub use report::InferenceReport;
 
@@ -28,6 +31,7 @@ pub enum Method {
     Tikhonov,
     Scaled,
     Ls,
+    Dynamic,
 }
 
 impl std::fmt::Display for Method {
@@ -37,6 +41,7 @@ impl std::fmt::Display for Method {
             Method::Tikhonov => "tikhonov",
             Method::Scaled => "scaled",
             Method::Ls => "ls",
+            Method::Dynamic => "dynamic",
         })
     }
 }
@@ -63,6 +68,9 @@ pub struct InferOptions {
     pub wall_weight: f64,
     /// On infeasible data, return the least-violation answer (momentum softened).
     pub allow_infeasible: bool,
+    pub dynamic: DynamicOptions,
+    /// Dynamic: sweep and report the Pareto front even when the rule is not `knee`.
+    pub dynamic_front: bool,
 }
 
 impl Default for InferOptions {
@@ -76,6 +84,8 @@ impl Default for InferOptions {
             conic: ConicSettings::default(),
             wall_weight: 100.0,
             allow_infeasible: false,
+            dynamic: DynamicOptions::default(),
+            dynamic_front: false,
         }
     }
 }
@@ -101,7 +111,11 @@ pub fn infer(scene: &Scene, opts: &InferOptions) -> Result<Inference> {
     let mut assemble_opts = opts.assemble.clone();
     // Pruning relies on momentum being a hard constraint; `scaled` couples all
     // clusters through one scale factor.
-    assemble_opts.prune_single_contacts = !opts.allow_infeasible;
+    let hard_momentum = match opts.method {
+        Method::Dynamic => dynamic_lambda(opts).is_none(),
+        _ => true,
+    };
+    assemble_opts.prune_single_contacts = hard_momentum && !opts.allow_infeasible;
     assemble_opts.single_system = opts.method == Method::Scaled;
     let assembly = assemble::assemble(scene, &assemble_opts)?;
     let mut report = InferenceReport::new(scene, opts, &assembly);
@@ -128,6 +142,32 @@ pub fn infer(scene: &Scene, opts: &InferOptions) -> Result<Inference> {
             report.stress_scale = Some(s);
             (vec![x], None)
         }
+        Method::Dynamic => {
+            if opts.dynamic_front && opts.dynamic.rule != LambdaRule::Knee {
+                report.pareto = Some(dynamic::sweep(&assembly, opts, &mut report)?);
+            }
+            let lambda = match opts.dynamic.rule {
+                LambdaRule::Knee => {
+                    let front = dynamic::sweep(&assembly, opts, &mut report)?;
+                    let lambda = front.knee.map(|k| front.points[k].lambda);
+                    report.pareto = Some(front);
+                    lambda
+                }
+                LambdaRule::Weights {
+                    stress_sd,
+                    momentum_sd,
+                } => dynamic::weight_from_noise(&assembly, stress_sd, momentum_sd),
+                _ => dynamic_lambda(opts),
+            };
+            report.momentum_weight = lambda;
+            match lambda {
+                Some(l) => (
+                    dynamic::solve_weighted(&assembly, opts, l, &mut report)?.0,
+                    None,
+                ),
+                None => (solve_all(&assembly, opts, 0.0, &mut report)?, None),
+            }
+        }
     };
     let forces = collect_forces(scene, &assembly, &solutions);
     report.finish(
@@ -147,7 +187,22 @@ pub fn infer_sequence(
     opts: &InferOptions,
     progress: bool,
 ) -> Result<Vec<Inference>> {
+    let per_frame = vec![opts.clone(); frames.len()];
+    infer_frames(frames, &per_frame, progress)
+}
+
+/// Infers frames in parallel, each with its own options, with a progress bar.
+pub fn infer_frames(
+    frames: &[Scene],
+    opts: &[InferOptions],
+    progress: bool,
+) -> Result<Vec<Inference>> {
     use rayon::prelude::*;
+    if frames.len() != opts.len() {
+        return Err(Error::Invalid(
+            "one set of options per frame is needed".into(),
+        ));
+    }
     let bar = if progress && frames.len() > 1 {
         let bar = indicatif::ProgressBar::new(frames.len() as u64);
         bar.set_style(
@@ -162,7 +217,8 @@ pub fn infer_sequence(
     };
     let results: Vec<Result<Inference>> = frames
         .par_iter()
-        .map(|scene| {
+        .zip(opts.par_iter())
+        .map(|(scene, opts)| {
             let r = infer(scene, opts).map_err(|e| match scene.frame {
                 Some(k) => Error::Solver(format!("frame {k}: {e}")),
                 None => e,
@@ -177,6 +233,17 @@ pub fn infer_sequence(
         b.finish_and_clear();
     }
     results.into_iter().collect()
+}
+
+/// The momentum weight a dynamic rule fixes before any solve; `None` means
+/// hard momentum (or a weight the data decide later: knee, weights).
+fn dynamic_lambda(opts: &InferOptions) -> Option<f64> {
+    match opts.dynamic.rule {
+        LambdaRule::Hard => None,
+        LambdaRule::Fixed(l) => Some(l),
+        LambdaRule::Knee => Some(1.0),
+        LambdaRule::Weights { momentum_sd, .. } => (momentum_sd > 0.0).then_some(1.0),
+    }
 }
 
 fn scaled_lambda(opts: &InferOptions, assembly: &Assembly) -> f64 {

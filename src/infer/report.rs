@@ -40,6 +40,10 @@ pub struct InferenceReport {
     /// Tikhonov λ in the units of the equation (length), when used.
     pub lambda: Option<f64>,
     pub lambda_trace: Option<LambdaTrace>,
+    /// Dimensionless weight of the momentum rows (method `dynamic`); None = hard.
+    pub momentum_weight: Option<f64>,
+    /// The swept Pareto front (dynamic, rule knee).
+    pub pareto: Option<super::Front>,
     /// Estimated global stress scale (method `scaled`): true ≈ s · measured.
     pub stress_scale: Option<f64>,
     /// Whether the forces are uniquely determined by the data (None: not checked).
@@ -103,6 +107,8 @@ impl InferenceReport {
                 .lambda
                 .filter(|_| matches!(opts.method, Method::Tikhonov | Method::Ls)),
             lambda_trace: None,
+            momentum_weight: None,
+            pareto: None,
             stress_scale: None,
             unique: None,
             solver_status: "not run".into(),
@@ -255,6 +261,12 @@ impl std::fmt::Display for InferenceReport {
                 l,
                 l / self.length_scale
             )?;
+        }
+        if self.method == Method::Dynamic {
+            match self.momentum_weight {
+                Some(w) => writeln!(f, "momentum    weight λ = {w:.4e} (dimensionless)")?,
+                None => writeln!(f, "momentum    exact (hard constraint)")?,
+            }
         }
         if let Some(s) = self.stress_scale {
             writeln!(

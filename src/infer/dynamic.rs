@@ -1,0 +1,252 @@
+//! Dynamic inference (eq. 3.18): min ‖K_s f − b_s‖² + λ‖K_m f − b_m‖² s.t.
+//! friction, with λ chosen by a rule:
+//!
+//! - `knee`: sweep λ, draw the Pareto front (momentum residual vs stress
+//!   residual) and take its point of maximum curvature — the original study's rule;
+//! - `weights`: λ = (σ_s/σ_m)², the maximum-likelihood weight for the stated
+//!   relative noise of stresses and of m·a — accurate accelerations make it large;
+//! - `hard`: momentum as an exact constraint (accelerations trusted fully);
+//! - `fixed`: a given λ.
+
+use super::{cones, InferOptions, InferenceReport};
+use crate::assemble::{Assembly, System};
+use crate::error::{Error, Result};
+use crate::report::pareto::ParetoPoint;
+use crate::solver::conic::{self, ConicProblem, Term};
+
+/// How λ (the weight of the momentum rows) is chosen.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub enum LambdaRule {
+    /// Maximum curvature of the log–log Pareto front.
+    Knee,
+    /// λ = (σ_s/σ_m)² from relative noise levels of the stresses and of m·a.
+    Weights { stress_sd: f64, momentum_sd: f64 },
+    /// Momentum rows as hard equalities.
+    Hard,
+    /// This dimensionless λ.
+    Fixed(f64),
+}
+
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct DynamicOptions {
+    pub rule: LambdaRule,
+    /// Dimensionless λ range of the sweep (log-spaced).
+    pub sweep_min: f64,
+    pub sweep_max: f64,
+    pub sweep_points: usize,
+}
+
+impl Default for DynamicOptions {
+    fn default() -> Self {
+        DynamicOptions {
+            rule: LambdaRule::Weights {
+                stress_sd: 0.1,
+                momentum_sd: 0.0,
+            },
+            sweep_min: 1e-4,
+            sweep_max: 1e6,
+            sweep_points: 31,
+        }
+    }
+}
+
+/// The swept front and the chosen point.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Front {
+    pub points: Vec<ParetoPoint>,
+    pub knee: Option<usize>,
+}
+
+/// Solves all clusters with momentum weight `lambda`; returns the solutions and
+/// the (stress, momentum) residual norms (dimensionless).
+pub(crate) fn solve_weighted(
+    assembly: &Assembly,
+    opts: &InferOptions,
+    lambda: f64,
+    report: &mut InferenceReport,
+) -> Result<(Vec<Vec<f64>>, f64, f64)> {
+    use rayon::prelude::*;
+    let results: Vec<Result<(Vec<f64>, conic::ConicSolution)>> = assembly
+        .systems
+        .par_iter()
+        .map(|s| solve_one(s, opts, lambda))
+        .collect();
+    let (mut xs, mut rs, mut rm) = (Vec::new(), 0.0, 0.0);
+    for (r, system) in results.into_iter().zip(&assembly.systems) {
+        let (x, sol) = r?;
+        report.absorb(&sol);
+        rs += residual_sq(&system.stress, &system.stress_rhs, &x);
+        rm += residual_sq(&system.momentum, &system.momentum_rhs, &x);
+        xs.push(x);
+    }
+    Ok((xs, rs.sqrt(), rm.sqrt()))
+}
+
+fn residual_sq(m: &crate::solver::Triplets, b: &[f64], x: &[f64]) -> f64 {
+    m.mul(x).iter().zip(b).map(|(a, b)| (a - b).powi(2)).sum()
+}
+
+fn solve_one(
+    system: &System,
+    opts: &InferOptions,
+    lambda: f64,
+) -> Result<(Vec<f64>, conic::ConicSolution)> {
+    let problem = ConicProblem {
+        n: system.n,
+        terms: vec![
+            Term {
+                matrix: &system.stress,
+                rhs: &system.stress_rhs,
+                weight: 1.0,
+            },
+            Term {
+                matrix: &system.momentum,
+                rhs: &system.momentum_rhs,
+                weight: lambda,
+            },
+        ],
+        equalities: Vec::new(),
+        tikhonov: 0.0,
+        regularized: 0,
+        cones: cones(system, opts.cone),
+    };
+    let sol = conic::solve(&problem, &opts.conic)?;
+    Ok((sol.x.clone(), sol))
+}
+
+/// Sweeps λ and returns the front (λ dimensionless).
+pub(crate) fn sweep(
+    assembly: &Assembly,
+    opts: &InferOptions,
+    report: &mut InferenceReport,
+) -> Result<Front> {
+    let d = &opts.dynamic;
+    if !(d.sweep_min > 0.0
+        && d.sweep_max > d.sweep_min
+        && d.sweep_points >= 2
+        && d.sweep_max.is_finite())
+    {
+        return Err(Error::Invalid(format!(
+            "λ sweep must satisfy 0 < min < max with at least 2 points, got {}..{} ({} points)",
+            d.sweep_min, d.sweep_max, d.sweep_points
+        )));
+    }
+    let (lo, hi) = (d.sweep_min.log10(), d.sweep_max.log10());
+    let mut points = Vec::with_capacity(d.sweep_points);
+    for i in 0..d.sweep_points {
+        let lambda = 10f64.powf(lo + (hi - lo) * i as f64 / (d.sweep_points - 1) as f64);
+        let (_, s, m) = solve_weighted(assembly, opts, lambda, report)?;
+        points.push(ParetoPoint {
+            lambda,
+            stress_residual: s,
+            momentum_residual: m,
+        });
+    }
+    let knee = knee(&points);
+    Ok(Front { points, knee })
+}
+
+/// The point of maximum curvature of the front in log–log coordinates, both
+/// axes normalised to [0, 1] and lightly smoothed so noise does not win over
+/// the corner. `None` only for
+/// an empty front; a degenerate one (all points equal, or fewer than three)
+/// gives its middle point.
+pub fn knee(points: &[ParetoPoint]) -> Option<usize> {
+    if points.is_empty() {
+        return None;
+    }
+    let floor = f64::MIN_POSITIVE;
+    let xy: Vec<(f64, f64)> = points
+        .iter()
+        .map(|p| {
+            (
+                p.stress_residual.max(floor).log10(),
+                p.momentum_residual.max(floor).log10(),
+            )
+        })
+        .collect();
+    let normalise = |v: Vec<f64>| -> Vec<f64> {
+        let (lo, hi) = v
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
+                (a.min(x), b.max(x))
+            });
+        if hi - lo <= 1e-12 * (1.0 + hi.abs()) {
+            vec![0.0; v.len()]
+        } else {
+            v.iter().map(|x| (x - lo) / (hi - lo)).collect()
+        }
+    };
+    let xs = smooth(&normalise(xy.iter().map(|p| p.0).collect()));
+    let ys = smooth(&normalise(xy.iter().map(|p| p.1).collect()));
+    let n = points.len();
+    if n < 3 {
+        return Some(n / 2);
+    }
+    let mut best: Option<(usize, f64)> = None;
+    for i in 1..n - 1 {
+        let (a, b, c) = (
+            (xs[i - 1], ys[i - 1]),
+            (xs[i], ys[i]),
+            (xs[i + 1], ys[i + 1]),
+        );
+        let cross = (b.0 - a.0) * (c.1 - a.1) - (b.1 - a.1) * (c.0 - a.0);
+        let denom = dist(a, b) * dist(b, c) * dist(c, a);
+        // Menger curvature: 4·area / (product of the sides).
+        let curvature = if denom > 1e-15 {
+            2.0 * cross.abs() / denom
+        } else {
+            0.0
+        };
+        if curvature > best.map_or(0.0, |b| b.1) {
+            best = Some((i, curvature));
+        }
+    }
+    Some(best.map_or(n / 2, |b| b.0))
+}
+
+/// A 1-2-1 moving average (ends kept): damps noise without moving a corner.
+fn smooth(v: &[f64]) -> Vec<f64> {
+    (0..v.len())
+        .map(|i| {
+            if i == 0 || i + 1 == v.len() {
+                v[i]
+            } else {
+                0.25 * v[i - 1] + 0.5 * v[i] + 0.25 * v[i + 1]
+            }
+        })
+        .collect()
+}
+
+fn dist(a: (f64, f64), b: (f64, f64)) -> f64 {
+    ((a.0 - b.0).powi(2) + (a.1 - b.1).powi(2)).sqrt()
+}
+
+/// λ from relative noise levels: rows are dimensionless, so σ per row is the
+/// relative level times the rms of that block's right-hand side.
+pub(crate) fn weight_from_noise(
+    assembly: &Assembly,
+    stress_sd: f64,
+    momentum_sd: f64,
+) -> Option<f64> {
+    let rms = |f: &dyn Fn(&System) -> &Vec<f64>| {
+        let (sum, n) = assembly.systems.iter().fold((0.0, 0usize), |(s, n), sys| {
+            let v = f(sys);
+            (s + v.iter().map(|x| x * x).sum::<f64>(), n + v.len())
+        });
+        if n > 0 {
+            (sum / n as f64).sqrt()
+        } else {
+            0.0
+        }
+    };
+    let sigma_s = stress_sd * rms(&|s: &System| &s.stress_rhs);
+    // A floor so grains at rest (b_m = 0) still get a finite weight.
+    let sigma_m = momentum_sd
+        * rms(&|s: &System| &s.momentum_rhs).max(1e-3 * rms(&|s: &System| &s.stress_rhs));
+    if sigma_m <= 0.0 {
+        None
+    } else {
+        Some((sigma_s / sigma_m).powi(2).clamp(1e-12, 1e12))
+    }
+}
