@@ -1,6 +1,7 @@
 //! `grainforce infer`: scene → forces.csv (+ summary on stderr, JSON report).
 
 use grainforce::error::{Error, Result};
+use grainforce::infer::kinematics::{self, Smoother};
 use grainforce::infer::{self, ConeModel, InferOptions, LambdaRule, Method};
 use grainforce::scene::{self, Forces, Selection};
 use std::path::PathBuf;
@@ -83,6 +84,34 @@ pub struct Args {
     /// experiment across a cluster job array.
     #[arg(long, value_name = "A..B")]
     pub frames: Option<String>,
+    /// Sequences: frames per second. Needed to derive accelerations from the
+    /// centroid tracks (done when grains.csv has no a_x column, or with
+    /// --derive-accelerations) and for --impulse.
+    #[arg(long)]
+    pub fps: Option<f64>,
+    /// Recompute accelerations from the tracks even when grains.csv has them.
+    #[arg(long)]
+    pub derive_accelerations: bool,
+    /// How tracks are smoothed before differentiation: fir (low-pass with a
+    /// Hamming window, as the original experiments) or savgol (Savitzky–Golay).
+    #[arg(long, value_enum, default_value_t = SmootherArg::Fir)]
+    pub smoother: SmootherArg,
+    /// FIR filter order (even; order + 1 taps).
+    #[arg(long, default_value_t = 20)]
+    pub fir_order: usize,
+    /// FIR cut-off as a fraction of the Nyquist frequency (fps/2).
+    #[arg(long, default_value_t = 0.2)]
+    pub cutoff: f64,
+    /// Savitzky–Golay window (odd number of frames).
+    #[arg(long, default_value_t = 11)]
+    pub savgol_window: usize,
+    /// Savitzky–Golay polynomial degree.
+    #[arg(long, default_value_t = 3)]
+    pub savgol_degree: usize,
+    /// Sequences: write the impulse check (Δv integrated from the inferred
+    /// forces vs Δv of the tracks, per grain) to this CSV.
+    #[arg(long, value_name = "IMPULSE.csv")]
+    pub impulse: Option<PathBuf>,
     /// Write the report (sizes, residuals, λ, solver status, warnings) as JSON.
     #[arg(long, value_name = "REPORT.json")]
     pub report: Option<PathBuf>,
@@ -106,6 +135,12 @@ pub enum RuleArg {
     Knee,
     Hard,
     Fixed,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+pub enum SmootherArg {
+    Fir,
+    Savgol,
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -258,6 +293,33 @@ pub fn run(args: Args) -> Result<()> {
             )));
         }
     }
+    let smoother = match args.smoother {
+        SmootherArg::Fir => Smoother::Fir {
+            order: args.fir_order,
+            cutoff: args.cutoff,
+        },
+        SmootherArg::Savgol => Smoother::SavitzkyGolay {
+            window: args.savgol_window,
+            degree: args.savgol_degree,
+        },
+    };
+    let lacks_accelerations = frames.len() > 1 && !frames.iter().any(|f| f.has_accelerations());
+    if args.derive_accelerations || (lacks_accelerations && opts.method == Method::Dynamic) {
+        let fps = args.fps.ok_or_else(|| {
+            Error::Invalid(
+                "deriving accelerations from the tracks needs the frame rate: give --fps".into(),
+            )
+        })?;
+        let k = kinematics::derive_accelerations(&mut frames, fps, smoother)?;
+        if !args.quiet {
+            eprintln!(
+                "accelerations derived from {} tracks ({} partial, {} too short: zero)",
+                k.tracks,
+                k.partial_tracks,
+                k.short_tracks.len()
+            );
+        }
+    }
     let mut per_frame = Vec::with_capacity(frames.len());
     for frame in &frames {
         let mut o = opts.clone();
@@ -297,6 +359,30 @@ pub fn run(args: Args) -> Result<()> {
         }
         .map_err(|e| Error::Invalid(e.to_string()))?;
         scene::write_file_atomically(path, json.as_bytes())?;
+    }
+    if let Some(path) = &args.impulse {
+        let fps = args
+            .fps
+            .ok_or_else(|| Error::Invalid("--impulse needs the frame rate: give --fps".into()))?;
+        let gravity = opts.assemble.gravity.unwrap_or_else(|| frames[0].gravity());
+        let forces: Vec<Vec<Option<grainforce::scene::Vec3>>> =
+            results.iter().map(|r| r.forces.clone()).collect();
+        let rows = kinematics::impulse_check(&frames, &forces, fps, smoother, gravity)?;
+        let dim = frames[0].dim;
+        let axes = &["x", "y", "z"][..dim];
+        let mut text = String::from("grain");
+        for a in axes {
+            text.push_str(&format!(",dv_{a}_measured,dv_{a}_inferred"));
+        }
+        text.push('\n');
+        for r in &rows {
+            text.push_str(&r.grain);
+            for k in 0..dim {
+                text.push_str(&format!(",{},{}", r.measured[k], r.inferred[k]));
+            }
+            text.push('\n');
+        }
+        scene::write_file_atomically(path, text.as_bytes())?;
     }
     if let Some(path) = &args.pareto {
         let front = results

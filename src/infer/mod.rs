@@ -10,6 +10,7 @@
 //! - `dynamic` (eq. 3.18): ‖K_s f − b_s‖² + λ‖K_m f − b_m‖², λ by a rule (see [`dynamic`]).
 
 pub mod dynamic;
+pub mod kinematics;
 mod lambda;
 mod report;
 
