@@ -21,7 +21,9 @@ fn last_line_relerr(out: &Output) -> f64 {
     let value = last
         .strip_prefix("relerr=")
         .unwrap_or_else(|| panic!("last line is `{last}`"));
-    value.parse().unwrap_or_else(|_| panic!("`{value}` is not a number"))
+    value
+        .parse()
+        .unwrap_or_else(|_| panic!("`{value}` is not a number"))
 }
 
 fn write(dir: &Path, name: &str, content: &str) -> String {
@@ -52,7 +54,11 @@ fn scene_dir(dir: &Path) -> String {
 #[test]
 fn score_prints_relerr_last_and_checks_physics_with_a_scene() {
     let dir = tempfile::tempdir().unwrap();
-    let truth = write(dir.path(), "truth.csv", "contact,f_x,f_y\nc1,-4,0\nc2,-2,1\nw1,0,10\n");
+    let truth = write(
+        dir.path(),
+        "truth.csv",
+        "contact,f_x,f_y\nc1,-4,0\nc2,-2,1\nw1,0,10\n",
+    );
     let inferred = write(
         dir.path(),
         "inferred.csv",
@@ -79,8 +85,18 @@ fn score_prints_relerr_last_and_checks_physics_with_a_scene() {
     let stdout = text(&out.stdout);
     assert!(out.status.success(), "{}", text(&out.stderr));
     assert!((last_line_relerr(&out) - 0.1).abs() < 1e-12);
-    for expected in ["normal part", "tangential part", "Coulomb", "tensile contacts: 0 of 3", "floor", "macroscopic stress"] {
-        assert!(stdout.contains(expected), "missing `{expected}` in\n{stdout}");
+    for expected in [
+        "normal part",
+        "tangential part",
+        "Coulomb",
+        "tensile contacts: 0 of 3",
+        "floor",
+        "macroscopic stress",
+    ] {
+        assert!(
+            stdout.contains(expected),
+            "missing `{expected}` in\n{stdout}"
+        );
     }
     // Floor: measured 10, inferred 11 → 10 % mismatch.
     assert!(stdout.contains("10.0000% of measured"), "{stdout}");
@@ -94,16 +110,27 @@ fn score_prints_relerr_last_and_checks_physics_with_a_scene() {
 #[test]
 fn score_names_a_missing_contact() {
     let dir = tempfile::tempdir().unwrap();
-    let truth = write(dir.path(), "truth.csv", "contact,f_x,f_y\nc1,-4,0\nc2,-2,1\n");
+    let truth = write(
+        dir.path(),
+        "truth.csv",
+        "contact,f_x,f_y\nc1,-4,0\nc2,-2,1\n",
+    );
     let inferred = write(dir.path(), "inferred.csv", "contact,f_x,f_y\nc1,-4,0\n");
     let out = grainforce(&["score", &truth, &inferred]);
     assert!(!out.status.success());
     let err = text(&out.stderr);
-    assert!(err.contains("`c2`") && err.contains("inferred.csv"), "{err}");
+    assert!(
+        err.contains("`c2`") && err.contains("inferred.csv"),
+        "{err}"
+    );
 
     // Also when the scene has a contact that neither file covers.
     let scene = scene_dir(dir.path());
-    let both = write(dir.path(), "both.csv", "contact,f_x,f_y\nc1,-4,0\nc2,-2,1\n");
+    let both = write(
+        dir.path(),
+        "both.csv",
+        "contact,f_x,f_y\nc1,-4,0\nc2,-2,1\n",
+    );
     let out = grainforce(&["score", &both, &both, "--scene", &scene]);
     assert!(!out.status.success());
     assert!(text(&out.stderr).contains("`w1`"), "{}", text(&out.stderr));
@@ -116,7 +143,11 @@ fn score_refuses_an_all_zero_truth() {
     let inferred = write(dir.path(), "inferred.csv", "contact,f_x,f_y\nc1,1,0\n");
     let out = grainforce(&["score", &truth, &inferred]);
     assert!(!out.status.success());
-    assert!(text(&out.stderr).contains("undefined"), "{}", text(&out.stderr));
+    assert!(
+        text(&out.stderr).contains("undefined"),
+        "{}",
+        text(&out.stderr)
+    );
 }
 
 #[test]
@@ -137,7 +168,10 @@ fn score_of_a_sequence_is_per_frame_and_overall() {
     let stdout = text(&out.stdout);
     assert!(stdout.contains("all 2 frames together"), "{stdout}");
     // Frame 0: 4/3; frame 1: 3/4; overall √(16+9)/√(9+16) = 1.
-    assert!(stdout.contains("1.3333e0") && stdout.contains("7.5000e-1"), "{stdout}");
+    assert!(
+        stdout.contains("1.3333e0") && stdout.contains("7.5000e-1"),
+        "{stdout}"
+    );
     assert!((last_line_relerr(&out) - 1.0).abs() < 1e-12);
 }
 
@@ -150,9 +184,21 @@ fn png_size(path: &Path) -> (u32, u32) {
 fn plot_draws_forces_and_pareto_fronts() {
     let dir = tempfile::tempdir().unwrap();
     let scene = scene_dir(dir.path());
-    let forces = write(dir.path(), "forces.csv", "contact,f_x,f_y\nc1,-4,0\nc2,-2,1\nw1,0,10\n");
+    let forces = write(
+        dir.path(),
+        "forces.csv",
+        "contact,f_x,f_y\nc1,-4,0\nc2,-2,1\nw1,0,10\n",
+    );
     let png = dir.path().join("chains.png");
-    let out = grainforce(&["plot", &scene, &forces, "-o", png.to_str().unwrap(), "--width", "400"]);
+    let out = grainforce(&[
+        "plot",
+        &scene,
+        &forces,
+        "-o",
+        png.to_str().unwrap(),
+        "--width",
+        "400",
+    ]);
     assert!(out.status.success(), "{}", text(&out.stderr));
     assert_eq!(png_size(&png).0, 400);
 
@@ -169,15 +215,39 @@ fn plot_draws_forces_and_pareto_fronts() {
     // Neither a scene nor --pareto: a clear error.
     let out = grainforce(&["plot", "-o", front.to_str().unwrap()]);
     assert!(!out.status.success());
-    assert!(text(&out.stderr).contains("SCENE_DIR"), "{}", text(&out.stderr));
+    assert!(
+        text(&out.stderr).contains("SCENE_DIR"),
+        "{}",
+        text(&out.stderr)
+    );
 
     // A 2D scene cannot be projected on xz.
-    let out = grainforce(&["plot", &scene, &forces, "-o", png.to_str().unwrap(), "--plane", "xz"]);
+    let out = grainforce(&[
+        "plot",
+        &scene,
+        &forces,
+        "-o",
+        png.to_str().unwrap(),
+        "--plane",
+        "xz",
+    ]);
     assert!(!out.status.success());
     assert!(text(&out.stderr).contains("3D"), "{}", text(&out.stderr));
 
     // A frame that does not exist.
-    let out = grainforce(&["plot", &scene, &forces, "-o", png.to_str().unwrap(), "--frame", "3"]);
+    let out = grainforce(&[
+        "plot",
+        &scene,
+        &forces,
+        "-o",
+        png.to_str().unwrap(),
+        "--frame",
+        "3",
+    ]);
     assert!(!out.status.success());
-    assert!(text(&out.stderr).contains("--frame 3"), "{}", text(&out.stderr));
+    assert!(
+        text(&out.stderr).contains("--frame 3"),
+        "{}",
+        text(&out.stderr)
+    );
 }

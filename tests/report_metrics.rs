@@ -36,7 +36,9 @@ fn row_scene(n: usize) -> Scene {
 
 /// Compressive forces (n·f < 0) with some tangential part.
 fn truth_forces(n: usize) -> Vec<Vec3> {
-    (0..n).map(|i| [-(10.0 + i as f64), 1.0 + 0.5 * i as f64, 0.0]).collect()
+    (0..n)
+        .map(|i| [-(10.0 + i as f64), 1.0 + 0.5 * i as f64, 0.0])
+        .collect()
 }
 
 #[test]
@@ -52,7 +54,10 @@ fn scaled_truth_gives_the_scale_as_relative_error_in_every_part() {
     // Macroscopic stress is linear in the forces.
     let (si, st) = (sc.stress_inferred.unwrap(), sc.stress_truth.unwrap());
     assert!(close(si[0], 1.1 * st[0], 1e-12));
-    assert!(st[0] < 0.0, "a compressed row must have σ_xx < 0 (tension positive)");
+    assert!(
+        st[0] < 0.0,
+        "a compressed row must have σ_xx < 0 (tension positive)"
+    );
 }
 
 #[test]
@@ -199,11 +204,17 @@ fn pairing_names_the_missing_contact_and_the_file() {
     };
     let truth = scene::Forces {
         dim: 2,
-        rows: vec![row("a", Some(1), [1.0, 0.0, 0.0]), row("b", Some(1), [2.0, 0.0, 0.0])],
+        rows: vec![
+            row("a", Some(1), [1.0, 0.0, 0.0]),
+            row("b", Some(1), [2.0, 0.0, 0.0]),
+        ],
     };
     let inferred = scene::Forces {
         dim: 2,
-        rows: vec![row("b", Some(1), [2.5, 0.0, 0.0]), row("a", Some(1), [1.0, 0.0, 0.0])],
+        rows: vec![
+            row("b", Some(1), [2.5, 0.0, 0.0]),
+            row("a", Some(1), [1.0, 0.0, 0.0]),
+        ],
     };
     let (tp, ip) = (Path::new("truth.csv"), Path::new("inferred.csv"));
     let paired = metrics::pair_forces(&truth, tp, &inferred, ip).unwrap();
@@ -213,12 +224,19 @@ fn pairing_names_the_missing_contact_and_the_file() {
 
     let mut short = inferred.clone();
     short.rows.remove(0);
-    let err = metrics::pair_forces(&truth, tp, &short, ip).unwrap_err().to_string();
-    assert!(err.contains("contact `b` of frame 1") && err.contains("inferred.csv"), "{err}");
+    let err = metrics::pair_forces(&truth, tp, &short, ip)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("contact `b` of frame 1") && err.contains("inferred.csv"),
+        "{err}"
+    );
 
     let mut extra = inferred.clone();
     extra.rows.push(row("z", Some(1), [0.0; 3]));
-    let err = metrics::pair_forces(&truth, tp, &extra, ip).unwrap_err().to_string();
+    let err = metrics::pair_forces(&truth, tp, &extra, ip)
+        .unwrap_err()
+        .to_string();
     assert!(err.contains("`z`") && err.starts_with("truth.csv"), "{err}");
 
     let mut other_frame = inferred.clone();

@@ -42,7 +42,10 @@ pub fn run(args: Args) -> Result<()> {
     if let Some(path) = &args.pareto {
         let (points, knee) = report::read_pareto_csv(path)?;
         if points.is_empty() {
-            return Err(Error::Invalid(format!("{} holds no points", path.display())));
+            return Err(Error::Invalid(format!(
+                "{} holds no points",
+                path.display()
+            )));
         }
         let img = report::draw_pareto(&points, knee);
         report::save_png(&args.output, &img)?;
@@ -56,7 +59,9 @@ pub fn run(args: Args) -> Result<()> {
     };
     if let Some(m) = args.max_force {
         if !(m.is_finite() && m > 0.0) {
-            return Err(Error::Invalid(format!("--max-force {m} must be a positive number")));
+            return Err(Error::Invalid(format!(
+                "--max-force {m} must be a positive number"
+            )));
         }
     }
     let frames = scene::read_sequence(scene_dir)?;

@@ -64,7 +64,8 @@ pub fn run(args: Args) -> Result<()> {
 
     if let Some(path) = &args.json {
         let report = serde_json::json!({ "overall": overall, "frames": frames });
-        let text = serde_json::to_string_pretty(&report).map_err(|e| Error::Invalid(e.to_string()))?;
+        let text =
+            serde_json::to_string_pretty(&report).map_err(|e| Error::Invalid(e.to_string()))?;
         write_text(path, &text)?;
     }
     println!("relerr={}", overall.relerr());
@@ -75,16 +76,15 @@ fn score_with_scene(dir: &std::path::Path, paired: &[PairedFrame]) -> Result<Vec
     let scenes = scene::read_sequence(dir)?;
     let mut out = Vec::with_capacity(paired.len());
     for p in paired {
-        let scene = scenes
-            .iter()
-            .find(|s| s.frame == p.frame)
-            .ok_or_else(|| {
-                Error::Invalid(format!(
-                    "the forces have frame {} but the scene {} does not",
-                    p.frame.map(|f| f.to_string()).unwrap_or_else(|| "(none)".into()),
-                    dir.display()
-                ))
-            })?;
+        let scene = scenes.iter().find(|s| s.frame == p.frame).ok_or_else(|| {
+            Error::Invalid(format!(
+                "the forces have frame {} but the scene {} does not",
+                p.frame
+                    .map(|f| f.to_string())
+                    .unwrap_or_else(|| "(none)".into()),
+                dir.display()
+            ))
+        })?;
         let (truth, inferred) = metrics::in_scene_order(scene, p, dir)?;
         out.push(metrics::score(scene, &truth, &inferred)?);
     }
@@ -107,13 +107,19 @@ fn relative_text(e: &ErrorNorm) -> String {
     if e.truth_norm == 0.0 {
         format!("{:.4e} absolute (the truth is zero here)", e.absolute)
     } else {
-        format!("{:.6} (|error| {:.4e} of |truth| {:.4e})", e.relative, e.absolute, e.truth_norm)
+        format!(
+            "{:.6} (|error| {:.4e} of |truth| {:.4e})",
+            e.relative, e.absolute, e.truth_norm
+        )
     }
 }
 
 fn print_summary(s: &Score) {
     println!("contacts scored: {}", s.contacts);
-    println!("relative error |f - f*|/|f*| (eq. 2.15): {}", relative_text(&s.error));
+    println!(
+        "relative error |f - f*|/|f*| (eq. 2.15): {}",
+        relative_text(&s.error)
+    );
     if let Some(n) = &s.normal {
         println!("  normal part:     {}", relative_text(n));
     }
@@ -134,7 +140,11 @@ fn print_summary(s: &Score) {
         None => {}
     }
     if let (Some(n), Some(f)) = (s.tensile_contacts, s.tensile_fraction()) {
-        println!("tensile contacts: {n} of {} ({:.2}%)", s.contacts, 100.0 * f);
+        println!(
+            "tensile contacts: {n} of {} ({:.2}%)",
+            s.contacts,
+            100.0 * f
+        );
     }
 }
 
@@ -165,7 +175,9 @@ fn print_frame_table(frames: &[Score]) {
                 cell(s.normal.map(|e| e.relative).filter(|x| x.is_finite())),
                 cell(s.tangential.map(|e| e.relative).filter(|x| x.is_finite())),
                 cell(s.coulomb.as_ref().map(|c| c.relative)),
-                s.tensile_contacts.map(|n| n.to_string()).unwrap_or_default()
+                s.tensile_contacts
+                    .map(|n| n.to_string())
+                    .unwrap_or_default()
             );
         } else {
             println!("{:>8} {:>8} {:>12}", frame, s.contacts, relerr);
@@ -185,10 +197,9 @@ fn print_walls(s: &Score) {
     if s.walls.is_empty() {
         return;
     }
-    let dim3 = s
-        .walls
-        .iter()
-        .any(|w| w.inferred[2] != 0.0 || w.truth[2] != 0.0 || w.measured.is_some_and(|m| m[2] != 0.0));
+    let dim3 = s.walls.iter().any(|w| {
+        w.inferred[2] != 0.0 || w.truth[2] != 0.0 || w.measured.is_some_and(|m| m[2] != 0.0)
+    });
     println!("walls (force on the grains by the wall):");
     for w in &s.walls {
         let measured = w
@@ -196,9 +207,16 @@ fn print_walls(s: &Score) {
             .map(|m| format!("measured {}", vector_text(m, dim3)))
             .unwrap_or_else(|| "not measured".into());
         println!("  {}: {measured}", w.wall);
-        println!("    inferred {}   truth {}", vector_text(w.inferred, dim3), vector_text(w.truth, dim3));
+        println!(
+            "    inferred {}   truth {}",
+            vector_text(w.inferred, dim3),
+            vector_text(w.truth, dim3)
+        );
         if let (Some(a), Some(r)) = (w.absolute, w.relative) {
-            println!("    mismatch |measured - inferred| = {a:.4e} ({:.4}% of measured)", 100.0 * r);
+            println!(
+                "    mismatch |measured - inferred| = {a:.4e} ({:.4}% of measured)",
+                100.0 * r
+            );
         }
     }
 }
@@ -209,7 +227,14 @@ fn print_stress(s: &Score) {
     };
     let dim3 = inferred[2] != 0.0 || inferred[4] != 0.0 || inferred[5] != 0.0 || truth[2] != 0.0;
     let names: &[(usize, &str)] = if dim3 {
-        &[(0, "xx"), (1, "yy"), (2, "zz"), (3, "xy"), (4, "xz"), (5, "yz")]
+        &[
+            (0, "xx"),
+            (1, "yy"),
+            (2, "zz"),
+            (3, "xy"),
+            (4, "xz"),
+            (5, "yz"),
+        ]
     } else {
         &[(0, "xx"), (1, "yy"), (3, "xy")]
     };
@@ -217,6 +242,11 @@ fn print_stress(s: &Score) {
     println!("  {:>4} {:>14} {:>14}", "", "inferred", "truth");
     let row = |t: &Sym, k: usize| t[k];
     for &(k, name) in names {
-        println!("  {:>4} {:>14.6e} {:>14.6e}", name, row(&inferred, k), row(&truth, k));
+        println!(
+            "  {:>4} {:>14.6e} {:>14.6e}",
+            name,
+            row(&inferred, k),
+            row(&truth, k)
+        );
     }
 }

@@ -216,9 +216,21 @@ impl Chart {
             .max()
             .unwrap_or(0) as i64;
         let pad = 6 * scale as i64;
-        let title_h = if self.title.is_empty() { 0 } else { th as i64 + pad };
-        let y_label_w = if self.y.label.is_empty() { 0 } else { th as i64 + pad };
-        let x_label_h = if self.x.label.is_empty() { 0 } else { th as i64 + pad };
+        let title_h = if self.title.is_empty() {
+            0
+        } else {
+            th as i64 + pad
+        };
+        let y_label_w = if self.y.label.is_empty() {
+            0
+        } else {
+            th as i64 + pad
+        };
+        let x_label_h = if self.x.label.is_empty() {
+            0
+        } else {
+            th as i64 + pad
+        };
         let left = pad + y_label_w + tick_label_w + pad;
         let right = w as i64 - 3 * pad;
         let top = pad + title_h + pad;
@@ -267,7 +279,13 @@ impl Chart {
                 thick_line(&mut img, (px, frame.top), (px, frame.bottom), 1.0, GRID);
             }
             let len = if t.major { 5.0 } else { 3.0 } * scale as f64;
-            thick_line(&mut img, (px, frame.bottom), (px, frame.bottom - len), 1.0, BLACK);
+            thick_line(
+                &mut img,
+                (px, frame.bottom),
+                (px, frame.bottom - len),
+                1.0,
+                BLACK,
+            );
             if !t.label.is_empty() {
                 let (tw, _) = text_size(&t.label, scale);
                 draw_text(
@@ -286,7 +304,13 @@ impl Chart {
                 thick_line(&mut img, (frame.left, py), (frame.right, py), 1.0, GRID);
             }
             let len = if t.major { 5.0 } else { 3.0 } * scale as f64;
-            thick_line(&mut img, (frame.left, py), (frame.left + len, py), 1.0, BLACK);
+            thick_line(
+                &mut img,
+                (frame.left, py),
+                (frame.left + len, py),
+                1.0,
+                BLACK,
+            );
             if !t.label.is_empty() {
                 let (tw, _) = text_size(&t.label, scale);
                 draw_text(
@@ -305,8 +329,11 @@ impl Chart {
         let mut drawn = 0usize;
         let stroke = scale as f64;
         for s in &self.series {
-            let placed: Vec<Option<(f64, f64)>> =
-                s.points.iter().map(|&p| frame.place(&self.x, &self.y, p)).collect();
+            let placed: Vec<Option<(f64, f64)>> = s
+                .points
+                .iter()
+                .map(|&p| frame.place(&self.x, &self.y, p))
+                .collect();
             drawn += placed.iter().flatten().count();
             match s.kind {
                 Kind::Line => {
@@ -353,7 +380,14 @@ impl Chart {
                 }
                 let ty = (p.1 - gap - tth as f64).max(2.0);
                 let color = if a.marked { MARK } else { Rgb([60, 60, 60]) };
-                draw_text(&mut img, tx.round() as i64, ty.round() as i64, &a.text, s, color);
+                draw_text(
+                    &mut img,
+                    tx.round() as i64,
+                    ty.round() as i64,
+                    &a.text,
+                    s,
+                    color,
+                );
             }
         }
 
@@ -434,10 +468,19 @@ impl Chart {
             let cy = ty as f64 + th as f64 / 2.0;
             let sx = (x0 + pad) as f64;
             match s.kind {
-                Kind::Line => {
-                    thick_line(img, (sx, cy), (sx + sample as f64, cy), 1.5 * scale as f64, s.color)
-                }
-                Kind::Scatter => disk(img, (sx + sample as f64 / 2.0, cy), 2.5 * scale as f64, s.color),
+                Kind::Line => thick_line(
+                    img,
+                    (sx, cy),
+                    (sx + sample as f64, cy),
+                    1.5 * scale as f64,
+                    s.color,
+                ),
+                Kind::Scatter => disk(
+                    img,
+                    (sx + sample as f64 / 2.0, cy),
+                    2.5 * scale as f64,
+                    s.color,
+                ),
             }
             draw_text(img, x0 + pad + sample + pad, ty, &s.name, scale, BLACK);
         }
@@ -455,9 +498,8 @@ impl Chart {
         let mut lo = f64::INFINITY;
         let mut hi = f64::NEG_INFINITY;
         // Only points placeable on both axes count.
-        let placeable = |p: &(f64, f64)| {
-            self.x.to_space(p.0).is_some() && self.y.to_space(p.1).is_some()
-        };
+        let placeable =
+            |p: &(f64, f64)| self.x.to_space(p.0).is_some() && self.y.to_space(p.1).is_some();
         let values = self
             .series
             .iter()
@@ -643,7 +685,11 @@ pub fn format_tick(v: f64, step: f64) -> String {
     if (-3..5).contains(&magnitude) && step_exponent >= -6 {
         let decimals = (-step_exponent).max(0) as usize;
         // A step of 2.5 × 10^k needs one more digit.
-        let decimals = if (step / 10f64.powi(step_exponent) - (step / 10f64.powi(step_exponent)).round()).abs() > 1e-6 {
+        let decimals = if (step / 10f64.powi(step_exponent)
+            - (step / 10f64.powi(step_exponent)).round())
+        .abs()
+            > 1e-6
+        {
             decimals + 1
         } else {
             decimals
@@ -683,5 +729,7 @@ pub fn save_png(path: &Path, img: &RgbImage) -> Result<()> {
 /// Lightens a colour towards white by `amount` ∈ [0, 1].
 pub fn lighten(color: Rgb<u8>, amount: f64) -> Rgb<u8> {
     let a = amount.clamp(0.0, 1.0);
-    Rgb(color.0.map(|c| (c as f64 + (255.0 - c as f64) * a).round() as u8))
+    Rgb(color
+        .0
+        .map(|c| (c as f64 + (255.0 - c as f64) * a).round() as u8))
 }

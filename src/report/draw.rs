@@ -7,12 +7,7 @@ use image::{Rgb, RgbImage};
 
 /// Blends `color` into the pixel at (x, y) with weight `alpha` ∈ [0, 1].
 pub fn blend(img: &mut RgbImage, x: i64, y: i64, color: Rgb<u8>, alpha: f64) {
-    if alpha <= 0.0
-        || x < 0
-        || y < 0
-        || x >= img.width() as i64
-        || y >= img.height() as i64
-    {
+    if alpha <= 0.0 || x < 0 || y < 0 || x >= img.width() as i64 || y >= img.height() as i64 {
         return;
     }
     let a = alpha.min(1.0);
@@ -80,7 +75,13 @@ pub fn ring(img: &mut RgbImage, c: (f64, f64), r: f64, width: f64, color: Rgb<u8
     for y in y0..=y1 {
         for x in x0..=x1 {
             let d = ((x as f64 + 0.5 - c.0).powi(2) + (y as f64 + 0.5 - c.1).powi(2)).sqrt();
-            blend(img, x, y, color, (half + 0.5 - (d - r).abs()).clamp(0.0, 1.0));
+            blend(
+                img,
+                x,
+                y,
+                color,
+                (half + 0.5 - (d - r).abs()).clamp(0.0, 1.0),
+            );
         }
     }
 }
@@ -151,7 +152,11 @@ pub mod colormap {
     ];
 
     fn sample(table: &[[u8; 3]; 10], t: f64) -> Rgb<u8> {
-        let t = if t.is_finite() { t.clamp(0.0, 1.0) } else { 0.0 };
+        let t = if t.is_finite() {
+            t.clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
         let x = t * 9.0;
         let i = (x.floor() as usize).min(8);
         let f = x - i as f64;

@@ -130,7 +130,11 @@ pub fn has_glyph(c: char) -> bool {
 /// Width and height in pixels of `text` drawn at `scale`.
 pub fn text_size(text: &str, scale: u32) -> (u32, u32) {
     let n = text.chars().count() as u32;
-    let width = if n == 0 { 0 } else { (n * CELL_WIDTH - 1) * scale };
+    let width = if n == 0 {
+        0
+    } else {
+        (n * CELL_WIDTH - 1) * scale
+    };
     (width, GLYPH_HEIGHT * scale)
 }
 

@@ -284,8 +284,8 @@ pub fn draw_force_chains(
             let (tw, th) = text_size(&g.id, s);
             draw_text(
                 &mut img,
-                x.round() as i64 - tw as i64 / 2,
-                y.round() as i64 - th as i64 / 2,
+                snap(x) - tw as i64 / 2,
+                snap(y) - th as i64 / 2,
                 &g.id,
                 s,
                 Rgb([20, 60, 160]),
@@ -305,12 +305,21 @@ pub fn draw_force_chains(
         );
     }
 
-    let units = opts
-        .units
-        .clone()
-        .unwrap_or_else(|| if scene.dim == 2 { "N/m".into() } else { "N".into() });
+    let units = opts.units.clone().unwrap_or_else(|| {
+        if scene.dim == 2 {
+            "N/m".into()
+        } else {
+            "N".into()
+        }
+    });
     draw_colorbar(&mut img, &layout, fmax, &units, forces.is_empty());
     Ok(img)
+}
+
+/// A text position in whole pixels. The small bias keeps exact half-pixel
+/// positions from flipping with rounding noise (e.g. after a shift of origin).
+fn snap(v: f64) -> i64 {
+    (v + 1e-3).round() as i64
 }
 
 /// Each wall as a line through its contact points, perpendicular to their mean
@@ -373,11 +382,17 @@ fn draw_walls(scene: &Scene, layout: &ChainLayout, img: &mut RgbImage) {
         let ly = a.1 + gap * normal_px.1 - th as f64 / 2.0 + 8.0 * tangent_px.1;
         let lx = lx.clamp(1.0, (layout.width as f64 - tw as f64 - 1.0).max(1.0));
         let ly = ly.clamp(1.0, (layout.height as f64 - th as f64 - 1.0).max(1.0));
-        draw_text(img, lx.round() as i64, ly.round() as i64, &wall.name, 1, WALL);
+        draw_text(img, snap(lx), snap(ly), &wall.name, 1, WALL);
     }
 }
 
-fn draw_colorbar(img: &mut RgbImage, layout: &ChainLayout, fmax: f64, units: &str, no_contacts: bool) {
+fn draw_colorbar(
+    img: &mut RgbImage,
+    layout: &ChainLayout,
+    fmax: f64,
+    units: &str,
+    no_contacts: bool,
+) {
     let s = layout.text_scale;
     let (_, th) = text_size("0", s);
     let th = th as i64;
@@ -392,7 +407,14 @@ fn draw_colorbar(img: &mut RgbImage, layout: &ChainLayout, fmax: f64, units: &st
             format!("all contact forces are zero [{units}]")
         };
         let (tw, _) = text_size(&msg, s);
-        draw_text(img, (layout.width as i64 - tw as i64) / 2, top, &msg, s, BLACK);
+        draw_text(
+            img,
+            (layout.width as i64 - tw as i64) / 2,
+            top,
+            &msg,
+            s,
+            BLACK,
+        );
         return;
     }
     let span = (right - left).max(1);
@@ -413,10 +435,13 @@ fn draw_colorbar(img: &mut RgbImage, layout: &ChainLayout, fmax: f64, units: &st
         );
         let label = format_tick(v, step);
         let (tw, _) = text_size(&label, s);
-        let lx = (x.round() as i64 - tw as i64 / 2).clamp(0, (layout.width as i64 - tw as i64).max(0));
+        let lx = (snap(x) - tw as i64 / 2).clamp(0, (layout.width as i64 - tw as i64).max(0));
         draw_text(img, lx, top + bar_h + th / 2 + 2, &label, s, BLACK);
     }
-    let title = format!("contact force |f| [{units}], max {}", format_tick(fmax, fmax / 1000.0));
+    let title = format!(
+        "contact force |f| [{units}], max {}",
+        format_tick(fmax, fmax / 1000.0)
+    );
     let (tw, _) = text_size(&title, s);
     draw_text(
         img,

@@ -147,8 +147,13 @@ impl Score {
 
     /// Fraction of tensile contacts, when known (0 for no contacts).
     pub fn tensile_fraction(&self) -> Option<f64> {
-        self.tensile_contacts
-            .map(|n| if self.contacts == 0 { 0.0 } else { n as f64 / self.contacts as f64 })
+        self.tensile_contacts.map(|n| {
+            if self.contacts == 0 {
+                0.0
+            } else {
+                n as f64 / self.contacts as f64
+            }
+        })
     }
 
     /// The score of all frames together: errors over all stacked components, the
@@ -165,7 +170,11 @@ impl Score {
             .filter_map(|s| s.coulomb.clone())
             .reduce(|worst, c| CoulombViolation {
                 checked: worst.checked + c.checked,
-                ..if c.relative > worst.relative { c.clone() } else { worst.clone() }
+                ..if c.relative > worst.relative {
+                    c.clone()
+                } else {
+                    worst.clone()
+                }
             });
         let tensile: Option<usize> = frames.iter().map(|s| s.tensile_contacts).sum();
         Score {
@@ -232,7 +241,11 @@ pub fn score(scene: &Scene, truth: &[Vec3], inferred: &[Vec3]) -> Result<Score> 
         };
         let (normal, tangential) = split(c.normal, *f);
         let excess = (norm(tangential) - mu * (-normal)).max(0.0);
-        let relative = if mean_force > 0.0 { excess / mean_force } else { 0.0 };
+        let relative = if mean_force > 0.0 {
+            excess / mean_force
+        } else {
+            0.0
+        };
         let entry = coulomb.get_or_insert(CoulombViolation {
             relative: 0.0,
             contact: None,
@@ -306,7 +319,10 @@ pub fn score(scene: &Scene, truth: &[Vec3], inferred: &[Vec3]) -> Result<Score> 
 /// (n·f, f − (n·f) n).
 fn split(n: Vec3, f: Vec3) -> (f64, Vec3) {
     let fn_ = dot(n, f);
-    (fn_, [f[0] - fn_ * n[0], f[1] - fn_ * n[1], f[2] - fn_ * n[2]])
+    (
+        fn_,
+        [f[0] - fn_ * n[0], f[1] - fn_ * n[1], f[2] - fn_ * n[2]],
+    )
 }
 
 /// The score that needs no scene: the relative error only.

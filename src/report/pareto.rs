@@ -92,7 +92,12 @@ pub fn read_pareto_csv(path: &Path) -> Result<(Vec<ParetoPoint>, Option<usize>)>
         let number = |i: usize, name: &str| -> Result<f64> {
             let text = record.get(i).unwrap_or("");
             let value: f64 = text.parse().map_err(|_| {
-                Error::data(path, Some(line), Some(name), format!("`{text}` is not a number"))
+                Error::data(
+                    path,
+                    Some(line),
+                    Some(name),
+                    format!("`{text}` is not a number"),
+                )
             })?;
             if !value.is_finite() || value < 0.0 {
                 return Err(Error::data(
