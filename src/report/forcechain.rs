@@ -284,8 +284,8 @@ pub fn draw_force_chains(
             let (tw, th) = text_size(&g.id, s);
             draw_text(
                 &mut img,
-                x.round() as i64 - tw as i64 / 2,
-                y.round() as i64 - th as i64 / 2,
+                snap(x) - tw as i64 / 2,
+                snap(y) - th as i64 / 2,
                 &g.id,
                 s,
                 Rgb([20, 60, 160]),
@@ -314,6 +314,12 @@ pub fn draw_force_chains(
     });
     draw_colorbar(&mut img, &layout, fmax, &units, forces.is_empty());
     Ok(img)
+}
+
+/// A text position in whole pixels. The small bias keeps exact half-pixel
+/// positions from flipping with rounding noise (e.g. after a shift of origin).
+fn snap(v: f64) -> i64 {
+    (v + 1e-3).round() as i64
 }
 
 /// Each wall as a line through its contact points, perpendicular to their mean
@@ -376,14 +382,7 @@ fn draw_walls(scene: &Scene, layout: &ChainLayout, img: &mut RgbImage) {
         let ly = a.1 + gap * normal_px.1 - th as f64 / 2.0 + 8.0 * tangent_px.1;
         let lx = lx.clamp(1.0, (layout.width as f64 - tw as f64 - 1.0).max(1.0));
         let ly = ly.clamp(1.0, (layout.height as f64 - th as f64 - 1.0).max(1.0));
-        draw_text(
-            img,
-            lx.round() as i64,
-            ly.round() as i64,
-            &wall.name,
-            1,
-            WALL,
-        );
+        draw_text(img, snap(lx), snap(ly), &wall.name, 1, WALL);
     }
 }
 
@@ -436,8 +435,7 @@ fn draw_colorbar(
         );
         let label = format_tick(v, step);
         let (tw, _) = text_size(&label, s);
-        let lx =
-            (x.round() as i64 - tw as i64 / 2).clamp(0, (layout.width as i64 - tw as i64).max(0));
+        let lx = (snap(x) - tw as i64 / 2).clamp(0, (layout.width as i64 - tw as i64).max(0));
         draw_text(img, lx, top + bar_h + th / 2 + 2, &label, s, BLACK);
     }
     let title = format!(

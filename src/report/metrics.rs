@@ -56,6 +56,16 @@ fn finite_or_text<S: serde::Serializer>(x: &f64, s: S) -> std::result::Result<S:
     }
 }
 
+fn optional_finite_or_text<S: serde::Serializer>(
+    x: &Option<f64>,
+    s: S,
+) -> std::result::Result<S::Ok, S::Error> {
+    match x {
+        Some(v) => finite_or_text(v, s),
+        None => s.serialize_none(),
+    }
+}
+
 /// An error and what it is relative to.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct ErrorNorm {
@@ -112,6 +122,7 @@ pub struct WallMismatch {
     /// ‖measured − inferred‖ (None without a measurement).
     pub absolute: Option<f64>,
     /// absolute / ‖measured‖ with the module's zero convention.
+    #[serde(serialize_with = "optional_finite_or_text")]
     pub relative: Option<f64>,
 }
 

@@ -156,9 +156,9 @@ pub fn pareto_chart(points: &[ParetoPoint], knee: Option<usize>) -> Chart {
         .map(|p| (p.stress_residual, p.momentum_residual))
         .collect();
     let mut chart = Chart::new(900, 620)
-        .title("Pareto front of the lambda sweep")
-        .x_axis("stress residual |K_s f - b_s|", Scale::Log)
-        .y_axis("momentum residual |K_m f - b_m|", Scale::Log)
+        .title("Pareto front of the λ sweep")
+        .x_axis("stress residual ‖K_s f − b_s‖", Scale::Log)
+        .y_axis("momentum residual ‖K_m f − b_m‖", Scale::Log)
         .line("", &xy, PALETTE[0])
         .scatter("", &xy, PALETTE[0]);
     // Label about five points spread along the front, plus both ends.
@@ -172,7 +172,7 @@ pub fn pareto_chart(points: &[ParetoPoint], knee: Option<usize>) -> Chart {
             chart = chart.note(
                 p.stress_residual,
                 p.momentum_residual,
-                &format!("lambda={}", format_lambda(p.lambda)),
+                &format!("λ={}", format_lambda(p.lambda)),
             );
         }
     }
@@ -180,7 +180,7 @@ pub fn pareto_chart(points: &[ParetoPoint], knee: Option<usize>) -> Chart {
         chart = chart.mark(
             p.stress_residual,
             p.momentum_residual,
-            &format!("knee lambda={}", format_lambda(p.lambda)),
+            &format!("knee λ={}", format_lambda(p.lambda)),
         );
     }
     chart
