@@ -2,6 +2,7 @@
 
 use clap::{Parser, Subcommand};
 
+mod bench;
 mod dem;
 mod detect;
 mod export;
@@ -52,6 +53,8 @@ enum Command {
     Export(export::Args),
     /// Force-network statistics of a scene and its forces.
     Stats(stats::Args),
+    /// Measure the speed/accuracy trade of the methods on synthetic scenes.
+    Bench(bench::Args),
 }
 
 pub fn main() -> std::process::ExitCode {
@@ -68,6 +71,7 @@ pub fn main() -> std::process::ExitCode {
         Command::Import(a) => import::run(a),
         Command::Export(a) => export::run(a),
         Command::Stats(a) => stats::run(a),
+        Command::Bench(a) => bench::run(a),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
