@@ -1,6 +1,7 @@
 //! Solver back-ends: clarabel for the constrained QP/SOCP, faer for the sparse
 //! equality-constrained least squares (the fast floor).
 
+pub mod sparse_ls;
 /// A sparse matrix in triplet form (duplicates add up), the common currency
 /// between assembly and the back-ends.
 #[derive(Debug, Clone, Default, PartialEq)]
