@@ -145,7 +145,12 @@ pub(crate) fn gram_upper_values(
 }
 
 /// y = T B S x (CSR B).
-pub(crate) fn mul_scaled(csr: &Compressed, row_scale: &[f64], col_scale: &[f64], x: &[f64]) -> Vec<f64> {
+pub(crate) fn mul_scaled(
+    csr: &Compressed,
+    row_scale: &[f64],
+    col_scale: &[f64],
+    x: &[f64],
+) -> Vec<f64> {
     (0..csr.nmajor)
         .map(|r| {
             let s: f64 = csr
@@ -181,7 +186,12 @@ pub(crate) fn mul_t_scaled(
 }
 
 /// |T B S| |x| (CSR B) — used for componentwise residual bounds.
-pub(crate) fn abs_mul_scaled(csr: &Compressed, row_scale: &[f64], col_scale: &[f64], x: &[f64]) -> Vec<f64> {
+pub(crate) fn abs_mul_scaled(
+    csr: &Compressed,
+    row_scale: &[f64],
+    col_scale: &[f64],
+    x: &[f64],
+) -> Vec<f64> {
     (0..csr.nmajor)
         .map(|r| {
             let s: f64 = csr

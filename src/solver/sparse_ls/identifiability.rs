@@ -1,8 +1,8 @@
 //! Is the least-squares solution unique, i.e. is N(A) ∩ N(C) = {0}?
 //!
-//! Method: equilibrate B = [A; C] (unit rows, then unit columns — neither changes
-//! the dimension of the null space, and it makes the answer independent of
-//! units), estimate the largest eigenvalue of M = BᵀB by power iteration and the
+//! Method: equilibrate B = [A; C] (Ruiz scaling of rows and columns, then unit
+//! columns — diagonal scalings do not change the dimension of the null space, and
+//! they make the answer independent of units and row weights), estimate the largest eigenvalue of M = BᵀB by power iteration and the
 //! smallest ones by block inverse iteration with a sparse Cholesky factor of
 //! M + εI (ε = 1e-12·λ_max) followed by Rayleigh–Ritz. The Ritz values are upper
 //! bounds of the smallest eigenvalues and are computed as ‖B v‖², so an exact null
@@ -22,7 +22,9 @@ use faer::{Conj, MatMut, Par, Side};
 use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
 
-use super::compressed::{gram_upper_pattern, gram_upper_values, mul_scaled, mul_t_scaled, Compressed};
+use super::compressed::{
+    gram_upper_pattern, gram_upper_values, mul_scaled, mul_t_scaled, Compressed,
+};
 use super::{check_finite, check_pair, norm2};
 use crate::solver::Triplets;
 use crate::{Error, Result};
@@ -34,6 +36,7 @@ pub const EIGENVALUE_RATIO_THRESHOLD: f64 = 1e-10;
 const BLOCK_SIZE: usize = 8;
 const POWER_STEPS: usize = 40;
 const MAX_INVERSE_STEPS: usize = 8;
+const RUIZ_PASSES: usize = 12;
 
 #[derive(Debug, Clone)]
 pub struct Identifiability {
@@ -62,7 +65,12 @@ pub fn identifiability(a: &Triplets, c: &Triplets) -> Result<Identifiability> {
     }
     // B = [A; C].
     let m = a.nrows + c.nrows;
-    let rows: Vec<usize> = a.rows.iter().copied().chain(c.rows.iter().map(|r| r + a.nrows)).collect();
+    let rows: Vec<usize> = a
+        .rows
+        .iter()
+        .copied()
+        .chain(c.rows.iter().map(|r| r + a.nrows))
+        .collect();
     let cols: Vec<usize> = a.cols.iter().chain(&c.cols).copied().collect();
     let vals: Vec<f64> = a.vals.iter().chain(&c.vals).copied().collect();
     let mut csr = Compressed::from_entries(m, n, &rows, &cols);
@@ -70,21 +78,49 @@ pub fn identifiability(a: &Triplets, c: &Triplets) -> Result<Identifiability> {
     csr.refill(&vals);
     csc.refill(&vals);
 
-    let mut row_scale = vec![0.0; m];
-    for (r, t) in row_scale.iter_mut().enumerate() {
-        let sq: f64 = csr.range(r).map(|q| csr.val[q] * csr.val[q]).sum();
-        *t = if sq > 0.0 { 1.0 / sq.sqrt() } else { 1.0 };
+    // Ruiz equilibration (∞-norms of rows and columns driven to 1) makes the
+    // answer independent of the units of rows and unknowns; a last column 2-norm
+    // pass gives diag(BᵀB) = 1.
+    let mut row_scale = vec![1.0; m];
+    let mut col_scale = vec![1.0; n];
+    for _ in 0..RUIZ_PASSES {
+        let mut row_max = vec![0.0f64; m];
+        let mut col_max = vec![0.0f64; n];
+        for r in 0..m {
+            for q in csr.range(r) {
+                let v = (csr.val[q] * row_scale[r] * col_scale[csr.idx[q]]).abs();
+                row_max[r] = row_max[r].max(v);
+                col_max[csr.idx[q]] = col_max[csr.idx[q]].max(v);
+            }
+        }
+        for (t, mx) in row_scale.iter_mut().zip(&row_max) {
+            if *mx > 0.0 {
+                *t /= mx.sqrt();
+            }
+        }
+        for (s, mx) in col_scale.iter_mut().zip(&col_max) {
+            if *mx > 0.0 {
+                *s /= mx.sqrt();
+            }
+        }
     }
     let mut col_sq = vec![0.0; n];
     for r in 0..m {
         for q in csr.range(r) {
-            col_sq[csr.idx[q]] += (csr.val[q] * row_scale[r]).powi(2);
+            let j = csr.idx[q];
+            col_sq[j] += (csr.val[q] * row_scale[r] * col_scale[j]).powi(2);
+        }
+    }
+    for (s, sq) in col_scale.iter_mut().zip(&col_sq) {
+        if *sq > 0.0 {
+            *s /= sq.sqrt();
         }
     }
     let zero_columns: Vec<usize> = (0..n).filter(|&j| col_sq[j] == 0.0).collect();
-    let col_scale: Vec<f64> = col_sq.iter().map(|&s| if s > 0.0 { 1.0 / s.sqrt() } else { 1.0 }).collect();
     if row_scale.iter().chain(&col_scale).any(|v| !v.is_finite()) {
-        return Err(Error::Solver("[A; C] cannot be equilibrated: entries overflow when squared".into()));
+        return Err(Error::Solver(
+            "[A; C] cannot be equilibrated: entries overflow when squared".into(),
+        ));
     }
     let apply_m = |v: &[f64]| -> Vec<f64> {
         let bv = mul_scaled(&csr, &row_scale, &col_scale, v);
@@ -96,7 +132,8 @@ pub fn identifiability(a: &Triplets, c: &Triplets) -> Result<Identifiability> {
     };
 
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0x5eed_1d);
-    let mut random_vector = |len: usize| -> Vec<f64> { (0..len).map(|_| StandardNormal.sample(&mut rng)).collect() };
+    let mut random_vector =
+        |len: usize| -> Vec<f64> { (0..len).map(|_| StandardNormal.sample(&mut rng)).collect() };
 
     // Largest eigenvalue (power iteration; converges from below, a few % is enough).
     let mut v = random_vector(n);
@@ -128,23 +165,51 @@ pub fn identifiability(a: &Triplets, c: &Triplets) -> Result<Identifiability> {
     let (col_ptr, row_idx) = gram_upper_pattern(&csr, &csc);
     let mut values = vec![0.0; row_idx.len()];
     let mut work = vec![0.0; n];
-    gram_upper_values(&csr, &csc, &row_scale, &col_scale, &col_ptr, &row_idx, &mut values, &mut work);
+    gram_upper_values(
+        &csr,
+        &csc,
+        &row_scale,
+        &col_scale,
+        &col_ptr,
+        &row_idx,
+        &mut values,
+        &mut work,
+    );
     let eps = 1e-12 * lambda_max;
     for j in 0..n {
         values[col_ptr[j + 1] - 1] += eps;
     }
     let pattern = SymbolicSparseColMatRef::new_checked(n, n, &col_ptr, None, &row_idx);
-    let symbolic = factorize_symbolic_cholesky(pattern, Side::Upper, SymmetricOrdering::Amd, Default::default())
-        .map_err(|e| Error::Solver(format!("symbolic Cholesky of the {n}×{n} Gram matrix failed: {e:?}")))?;
-    let par = if n >= 200_000 { Par::rayon(0) } else { Par::Seq };
+    let symbolic = factorize_symbolic_cholesky(
+        pattern,
+        Side::Upper,
+        SymmetricOrdering::Amd,
+        Default::default(),
+    )
+    .map_err(|e| {
+        Error::Solver(format!(
+            "symbolic Cholesky of the {n}×{n} Gram matrix failed: {e:?}"
+        ))
+    })?;
+    let par = if n >= 200_000 {
+        Par::rayon(0)
+    } else {
+        Par::Seq
+    };
     let k = BLOCK_SIZE.min(n);
     let scratch = symbolic
         .factorize_numeric_llt_scratch::<f64>(par, Default::default())
         .or(symbolic.solve_in_place_scratch::<f64>(k, par));
-    let mut stack_buf = MemBuffer::try_new(scratch)
-        .map_err(|_| Error::Solver(format!("out of memory for the Cholesky workspace ({n} unknowns)")))?;
+    let mut stack_buf = MemBuffer::try_new(scratch).map_err(|_| {
+        Error::Solver(format!(
+            "out of memory for the Cholesky workspace ({n} unknowns)"
+        ))
+    })?;
     let mut l_values = vec![0.0; symbolic.len_val()];
-    let matrix = SparseColMatRef::new(SymbolicSparseColMatRef::new_checked(n, n, &col_ptr, None, &row_idx), &values);
+    let matrix = SparseColMatRef::new(
+        SymbolicSparseColMatRef::new_checked(n, n, &col_ptr, None, &row_idx),
+        &values,
+    );
     let regularization = LltRegularization {
         dynamic_regularization_delta: eps,
         dynamic_regularization_epsilon: 0.5 * eps,
@@ -159,7 +224,11 @@ pub fn identifiability(a: &Triplets, c: &Triplets) -> Result<Identifiability> {
             MemStack::new(&mut stack_buf),
             Default::default(),
         )
-        .map_err(|e| Error::Solver(format!("Cholesky of the {n}×{n} shifted Gram matrix failed: {e:?}")))?;
+        .map_err(|e| {
+            Error::Solver(format!(
+                "Cholesky of the {n}×{n} shifted Gram matrix failed: {e:?}"
+            ))
+        })?;
     let llt = LltRef::<usize, f64>::new(&symbolic, &l_values);
 
     // Block inverse iteration with Rayleigh–Ritz (V is n×k, column-major).
@@ -174,19 +243,28 @@ pub fn identifiability(a: &Triplets, c: &Triplets) -> Result<Identifiability> {
             MemStack::new(&mut stack_buf),
         );
         if block.iter().any(|x| !x.is_finite()) {
-            return Err(Error::Solver("inverse iteration produced non-finite values".into()));
+            return Err(Error::Solver(
+                "inverse iteration produced non-finite values".into(),
+            ));
         }
         orthonormalise(&mut block, n, k, &mut random_vector);
-        let images: Vec<Vec<f64>> =
-            block.chunks(n).map(|col| mul_scaled(&csr, &row_scale, &col_scale, col)).collect();
-        let gram = nalgebra::DMatrix::from_fn(k, k, |i, j| images[i].iter().zip(&images[j]).map(|(p, q)| p * q).sum());
+        let images: Vec<Vec<f64>> = block
+            .chunks(n)
+            .map(|col| mul_scaled(&csr, &row_scale, &col_scale, col))
+            .collect();
+        let gram = nalgebra::DMatrix::from_fn(k, k, |i, j| {
+            images[i].iter().zip(&images[j]).map(|(p, q)| p * q).sum()
+        });
         let eig: nalgebra::SymmetricEigen<f64, nalgebra::Dyn> = nalgebra::SymmetricEigen::new(gram);
         let mut order: Vec<usize> = (0..k).collect();
         order.sort_by(|&i, &j| eig.eigenvalues[i].total_cmp(&eig.eigenvalues[j]));
         let mut rotated = vec![0.0; n * k];
         for (new_col, &old) in order.iter().enumerate() {
             for (src_col, coeff) in eig.eigenvectors.column(old).iter().enumerate() {
-                let (dst, src) = (&mut rotated[new_col * n..(new_col + 1) * n], &block[src_col * n..(src_col + 1) * n]);
+                let (dst, src) = (
+                    &mut rotated[new_col * n..(new_col + 1) * n],
+                    &block[src_col * n..(src_col + 1) * n],
+                );
                 dst.iter_mut().zip(src).for_each(|(d, s)| *d += coeff * s);
             }
         }
@@ -204,10 +282,17 @@ pub fn identifiability(a: &Triplets, c: &Triplets) -> Result<Identifiability> {
 
     let ratio_min = ritz[0] / lambda_max;
     let unique = ratio_min > EIGENVALUE_RATIO_THRESHOLD && zero_columns.is_empty();
-    let small = ritz.iter().filter(|&&t| t / lambda_max <= EIGENVALUE_RATIO_THRESHOLD).count();
+    let small = ritz
+        .iter()
+        .filter(|&&t| t / lambda_max <= EIGENVALUE_RATIO_THRESHOLD)
+        .count();
     let null_vector = (!unique).then(|| {
         let mut x: Vec<f64> = if ratio_min <= EIGENVALUE_RATIO_THRESHOLD {
-            block[..n].iter().zip(&col_scale).map(|(v, s)| v * s).collect()
+            block[..n]
+                .iter()
+                .zip(&col_scale)
+                .map(|(v, s)| v * s)
+                .collect()
         } else {
             let mut e = vec![0.0; n];
             e[zero_columns[0]] = 1.0;
@@ -219,7 +304,11 @@ pub fn identifiability(a: &Triplets, c: &Triplets) -> Result<Identifiability> {
     Ok(Identifiability {
         unique,
         sigma_min_relative: ratio_min.max(0.0).sqrt(),
-        null_dimension_estimate: if unique { 0 } else { small.max(zero_columns.len()).max(1) },
+        null_dimension_estimate: if unique {
+            0
+        } else {
+            small.max(zero_columns.len()).max(1)
+        },
         null_vector,
     })
 }
@@ -233,7 +322,12 @@ fn normalise(v: &mut [f64]) {
 
 /// Classical Gram–Schmidt applied twice (stable enough for k ≤ 8); a column that
 /// collapses is replaced by a fresh random one.
-fn orthonormalise(block: &mut [f64], n: usize, k: usize, random_vector: &mut impl FnMut(usize) -> Vec<f64>) {
+fn orthonormalise(
+    block: &mut [f64],
+    n: usize,
+    k: usize,
+    random_vector: &mut impl FnMut(usize) -> Vec<f64>,
+) {
     for j in 0..k {
         for attempt in 0..3 {
             let (done, rest) = block.split_at_mut(j * n);
