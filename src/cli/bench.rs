@@ -4,5 +4,7 @@
 pub struct Args {}
 
 pub fn run(_args: Args) -> grainforce::Result<()> {
-    Err(grainforce::Error::Invalid("`bench` is not available yet".into()))
+    Err(grainforce::Error::Invalid(
+        "`bench` is not available yet".into(),
+    ))
 }
