@@ -25,6 +25,11 @@ pub struct Options {
     pub chain_angle_deg: f64,
     /// Shortest chain reported, in contacts (2 contacts = 3 grains).
     pub min_chain_contacts: usize,
+    /// A grain with fewer force-carrying contacts is a rattler; `None`: d + 1
+    /// (the count a frictional grain needs without gravity; under gravity, d
+    /// contacts can hold a grain, and the d + 1 rule may remove most of a small
+    /// packing).
+    pub rattler_min_contacts: Option<usize>,
 }
 
 impl Default for Options {
@@ -33,6 +38,7 @@ impl Default for Options {
             bin_width: 0.2,
             chain_angle_deg: 45.0,
             min_chain_contacts: 2,
+            rattler_min_contacts: None,
         }
     }
 }
@@ -76,8 +82,11 @@ pub struct FrameStats {
     pub coordination: f64,
     /// The same over non-rattlers, counting only contacts between them (and walls).
     pub coordination_without_rattlers: f64,
-    /// Grains with fewer than d + 1 force-carrying contacts, found iteratively.
+    /// Grains with fewer than [`Options::rattler_min_contacts`] force-carrying
+    /// contacts, found iteratively.
     pub rattlers: usize,
+    /// The contact count below which a grain was a rattler.
+    pub rattler_min_contacts: usize,
     /// Σ n⊗n / N_c over force-carrying grain–grain contacts, [`Sym`] order.
     pub fabric: Sym,
     /// Deviatoric fabric anisotropy: 2D a = 2(λ₁ − λ₂) (Rothenburg–Bathurst
@@ -171,7 +180,9 @@ pub fn frame_stats(scene: &Scene, forces: &[Vec3], options: &Options) -> Result<
         0.0
     };
 
-    let (coordination, coordination_without_rattlers, rattlers) = coordination(scene, &carrying);
+    let min_contacts = options.rattler_min_contacts.unwrap_or(dim + 1);
+    let (coordination, coordination_without_rattlers, rattlers) =
+        coordination(scene, &carrying, min_contacts);
     let mut fabric = [0.0; 6];
     for &c in &active {
         let t = scene::sym_outer(scene.contacts[c].normal, scene.contacts[c].normal);
@@ -195,6 +206,7 @@ pub fn frame_stats(scene: &Scene, forces: &[Vec3], options: &Options) -> Result<
         coordination,
         coordination_without_rattlers,
         rattlers,
+        rattler_min_contacts: min_contacts,
         fabric,
         fabric_anisotropy,
         stress,
@@ -254,7 +266,7 @@ pub fn distribution(x: &[f64], bin_width: f64) -> (Histogram, Option<TailFit>) {
 }
 
 /// (Z, Z without rattlers, number of rattlers).
-fn coordination(scene: &Scene, carrying: &[bool]) -> (f64, f64, usize) {
+fn coordination(scene: &Scene, carrying: &[bool], min_contacts: usize) -> (f64, f64, usize) {
     let n = scene.grains.len();
     if n == 0 {
         return (0.0, 0.0, 0);
@@ -285,7 +297,7 @@ fn coordination(scene: &Scene, carrying: &[bool]) -> (f64, f64, usize) {
         let k = count(&alive);
         let mut changed = false;
         for g in 0..n {
-            if alive[g] && k[g] < scene.dim + 1 {
+            if alive[g] && k[g] < min_contacts {
                 alive[g] = false;
                 changed = true;
             }
@@ -510,8 +522,8 @@ pub fn summary(s: &FrameStats) -> String {
     );
     let _ = writeln!(
         out,
-        "  coordination Z = {:.3}; without the {} rattlers Z = {:.3}",
-        s.coordination, s.rattlers, s.coordination_without_rattlers
+        "  coordination Z = {:.3}; without the {} rattlers (< {} contacts) Z = {:.3}",
+        s.coordination, s.rattlers, s.rattler_min_contacts, s.coordination_without_rattlers
     );
     let _ = writeln!(
         out,
