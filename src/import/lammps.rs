@@ -163,7 +163,7 @@ fn atom_id(path: &Path, row: &DumpRow, col: usize, name: &str) -> Result<i64> {
 /// Builds the grains (and wall contacts) of one atoms snapshot.
 pub(crate) fn atoms_frame(path: &Path, frame: &DumpFrame, dim: usize) -> Result<AtomsFrame> {
     let axes = ["x", "y", "z"];
-    for k in 0..dim {
+    for (k, axis) in axes.iter().enumerate().take(dim) {
         if frame.periodic[k] {
             return Err(Error::data(
                 path,
@@ -173,7 +173,7 @@ pub(crate) fn atoms_frame(path: &Path, frame: &DumpFrame, dim: usize) -> Result<
                     "the box is periodic in {}: periodic boundaries are not supported \
                      (the scene format has no periodic images); use fixed or shrink-wrapped \
                      boundaries (f, s or m) or walls",
-                    axes[k]
+                    axis
                 ),
             ));
         }

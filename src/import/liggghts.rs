@@ -27,7 +27,7 @@ use crate::scene::{Body, Contact, Vec3};
 use std::collections::HashMap;
 use std::path::Path;
 
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, Default)]
 pub struct Options {
     /// Keywords of `compute pair/gran/local`, in the order of the columns.
     /// `None`: `pos,id,force` for 12 columns, `id,force` for 6.
@@ -36,17 +36,6 @@ pub struct Options {
     pub history: usize,
     pub dim: Option<usize>,
     pub gravity: Option<Vec3>,
-}
-
-impl Default for Options {
-    fn default() -> Self {
-        Options {
-            keywords: None,
-            history: 0,
-            dim: None,
-            gravity: None,
-        }
-    }
 }
 
 fn width(keyword: &str, history: usize) -> Option<usize> {
@@ -169,9 +158,7 @@ pub fn import(atoms: &Path, local: &Path, options: &Options) -> Result<ImportedS
                 ));
             }
             let mut f = [0.0; 3];
-            for k in 0..dim {
-                f[k] = row.values[force_at + k];
-            }
+            f[..dim].copy_from_slice(&row.values[force_at..force_at + dim]);
             let (ga, gb) = (&scene.grains[a], &scene.grains[b]);
             let Some((mid, normal)) = sphere_contact(
                 ga.position,
@@ -189,9 +176,7 @@ pub fn import(atoms: &Path, local: &Path, options: &Options) -> Result<ImportedS
             let point = match point_at {
                 Some(p) => {
                     let mut x = [0.0; 3];
-                    for k in 0..dim {
-                        x[k] = row.values[p + k];
-                    }
+                    x[..dim].copy_from_slice(&row.values[p..p + dim]);
                     x
                 }
                 None => mid,

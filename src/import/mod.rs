@@ -41,8 +41,7 @@ impl ImportedScene {
                 rows: Vec::new(),
             };
             for (frame, f) in self.frames.iter().zip(forces) {
-                all.rows
-                    .extend(scene::Forces::from_scene(frame, f).rows.into_iter());
+                all.rows.extend(scene::Forces::from_scene(frame, f).rows);
             }
             scene::write_forces(&dir.join("forces.csv"), &all)?;
         }
@@ -163,9 +162,10 @@ pub(crate) fn check_radius(path: &Path, line: usize, column: &str, r: f64) -> Re
 
 /// Reads a CSV with the scene layer's conventions (header, `#` comments) into
 /// rows of (line, record) and the header map.
-pub(crate) fn read_csv(
-    path: &Path,
-) -> Result<(HashMap<String, usize>, Vec<(usize, csv::StringRecord)>)> {
+/// A CSV's header map and its rows with their line numbers.
+pub(crate) type CsvTable = (HashMap<String, usize>, Vec<(usize, csv::StringRecord)>);
+
+pub(crate) fn read_csv(path: &Path) -> Result<CsvTable> {
     let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
     let mut reader = csv::ReaderBuilder::new()
         .trim(csv::Trim::All)

@@ -107,7 +107,7 @@ pub fn frame_stats(scene: &Scene, forces: &[Vec3], options: &Options) -> Result<
             scene.contacts.len()
         )));
     }
-    if !(options.bin_width > 0.0) {
+    if options.bin_width.is_nan() || options.bin_width <= 0.0 {
         return Err(Error::Invalid("the bin width must be positive".into()));
     }
     let dim = scene.dim;
@@ -321,8 +321,8 @@ pub fn anisotropy(dim: usize, fabric: &Sym) -> f64 {
         return 0.0;
     }
     let mut dev = *fabric;
-    for k in 0..dim {
-        dev[k] -= trace / dim as f64;
+    for d in dev.iter_mut().take(dim) {
+        *d -= trace / dim as f64;
     }
     // F′:F′ with off-diagonal terms counted twice.
     let comps = scene::sym::components(dim);
