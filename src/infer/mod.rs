@@ -331,12 +331,14 @@ fn solve_system(
         Vec::new()
     };
     if !opts.allow_infeasible && (opts.exact_first || !with_cones) {
-        let ls = least_squares(system, lambda)?;
+        let (ls, converged) = least_squares(system, lambda)?;
         if !with_cones {
             return Ok((ls.x.clone(), Some(ls)));
         }
-        if let Some(x) = feasible_as_is(&ls.x, &cone_list) {
-            return Ok((x, Some(ls)));
+        if converged {
+            if let Some(x) = feasible_as_is(&ls.x, &cone_list) {
+                return Ok((x, Some(ls)));
+            }
         }
     }
     let mut problem = ConicProblem {
@@ -387,7 +389,8 @@ pub(crate) fn feasible_as_is(x: &[f64], cones: &[Cone]) -> Option<Vec<f64>> {
 }
 
 /// min ‖K_st x − b‖² + λ²‖x‖² s.t. K_eq x = b_eq by sparse LDLᵀ (faer).
-pub(crate) fn least_squares(system: &System, lambda: f64) -> Result<conic::ConicSolution> {
+/// Also says whether refinement converged (only then is the shortcut trusted).
+pub(crate) fn least_squares(system: &System, lambda: f64) -> Result<(conic::ConicSolution, bool)> {
     let start = Instant::now();
     let mut ls = sparse_ls::EqualityLeastSquares::new(&system.stress, &system.momentum)?;
     let sol = ls.solve(
@@ -404,15 +407,19 @@ pub(crate) fn least_squares(system: &System, lambda: f64) -> Result<conic::Conic
             sol.kkt_residual
         ));
     }
-    Ok(conic::ConicSolution {
-        x: sol.x,
-        status: "LeastSquares".into(),
-        iterations: sol.refinement_steps as u32,
-        solve_time: start.elapsed().as_secs_f64(),
-        attempts: vec!["equality-constrained least squares (faer)".into()],
-        softened: false,
-        warnings,
-    })
+    let converged = sol.converged;
+    Ok((
+        conic::ConicSolution {
+            x: sol.x,
+            status: "LeastSquares".into(),
+            iterations: sol.refinement_steps as u32,
+            solve_time: start.elapsed().as_secs_f64(),
+            attempts: vec!["equality-constrained least squares (faer)".into()],
+            softened: false,
+            warnings,
+        },
+        converged,
+    ))
 }
 
 /// Whether the data determine the forces: N(K_st) ∩ N(K_eq) = {0} in every cluster.

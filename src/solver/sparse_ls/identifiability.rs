@@ -131,7 +131,7 @@ pub fn identifiability(a: &Triplets, c: &Triplets) -> Result<Identifiability> {
         bv.iter().map(|x| x * x).sum()
     };
 
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0x5eed_1d);
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0x005e_ed1d);
     let mut random_vector =
         |len: usize| -> Vec<f64> { (0..len).map(|_| StandardNormal.sample(&mut rng)).collect() };
 
