@@ -85,20 +85,12 @@ impl Interaction {
         };
         let normal = (spring + self.damp_n * (mstar * damper_k).sqrt() * vn).max(0.0);
 
-        // Keep the history in the current tangent plane, preserving its length.
+        // Keep the history in the current tangent plane. Projection only: it
+        // never adds elastic energy (rescaling to the old length can pump
+        // energy into a spinning grain and keep a packing from settling).
         let along = xi[0] * n[0] + xi[1] * n[1] + xi[2] * n[2];
-        if along != 0.0 {
-            let before = norm2(*xi);
-            for k in 0..3 {
-                xi[k] -= along * n[k];
-            }
-            let after = norm2(*xi);
-            if after > 0.0 {
-                let scale = (before / after).sqrt();
-                for x in xi.iter_mut() {
-                    *x *= scale;
-                }
-            }
+        for k in 0..3 {
+            xi[k] -= along * n[k];
         }
         for k in 0..3 {
             xi[k] += vt[k] * dt;

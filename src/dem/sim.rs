@@ -217,7 +217,7 @@ impl System {
             dt,
             local_damping: 0.0,
             viscous_damping: 0.0,
-            servo_gain: 0.05,
+            servo_gain: 0.01,
             nlist: NeighbourList {
                 skin,
                 ..Default::default()
@@ -746,7 +746,10 @@ impl System {
             let load = self.wall_normal_force(k);
             let vmax = self.walls[k].servo_speed;
             let stiffness = self.walls[k].stiffness;
-            let speed = if stiffness > 0.0 {
+            // Far below the target the packing is loose and the contact
+            // stiffness says nothing about how far the wall must travel:
+            // approach at full speed, then let the stiffness-scaled law settle it.
+            let speed = if stiffness > 0.0 && load > 0.5 * target {
                 (self.servo_gain * (target - load) / (stiffness * dt)).clamp(-vmax, vmax)
             } else {
                 vmax
