@@ -22,7 +22,7 @@ pub enum ContactLaw {
 
 /// Mechanical parameters of one kind of contact, already per unit thickness in 2D.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub(crate) struct Interaction {
+pub struct Interaction {
     pub law: ContactLaw,
     /// Linear: k_n [N/m]. Hertz: E* [Pa].
     pub normal: f64,
@@ -36,7 +36,7 @@ pub(crate) struct Interaction {
 }
 
 /// What one contact evaluation gives.
-pub(crate) struct ContactForce {
+pub struct ContactForce {
     /// Normal force magnitude (≥ 0, repulsive).
     pub normal: f64,
     /// Tangential force on the first body.
@@ -46,6 +46,28 @@ pub(crate) struct ContactForce {
 }
 
 impl Interaction {
+    /// A contact of this law: `normal`/`tangential` are k_n/k_t (linear) or
+    /// E*/G* (Hertz), per unit thickness in 2D; the dashpot gives restitution
+    /// `restitution`; `tangential_damping` scales it for the tangential dashpot.
+    pub fn new(
+        law: ContactLaw,
+        normal: f64,
+        tangential: f64,
+        restitution: f64,
+        tangential_damping: f64,
+        mu: f64,
+    ) -> Interaction {
+        let damp_n = damping_for_restitution(law, restitution);
+        Interaction {
+            law,
+            normal,
+            tangential,
+            damp_n,
+            damp_t: tangential_damping * damp_n,
+            mu,
+        }
+    }
+
     /// Force for overlap `delta` > 0, effective radius and mass, normal overlap
     /// rate `vn` (> 0 approaching), tangential relative velocity `vt` of the
     /// first body, normal `n`. The history `xi` (tangential displacement of the
@@ -148,13 +170,13 @@ fn norm2(v: Vec3) -> f64 {
 }
 
 /// Effective modulus E* of two bodies (an infinite modulus is rigid).
-pub(crate) fn effective_young(e1: f64, nu1: f64, e2: f64, nu2: f64) -> f64 {
+pub fn effective_young(e1: f64, nu1: f64, e2: f64, nu2: f64) -> f64 {
     let c = |e: f64, nu: f64| if e.is_infinite() { 0.0 } else { (1.0 - nu * nu) / e };
     1.0 / (c(e1, nu1) + c(e2, nu2))
 }
 
 /// Effective shear modulus G* of two bodies.
-pub(crate) fn effective_shear(e1: f64, nu1: f64, e2: f64, nu2: f64) -> f64 {
+pub fn effective_shear(e1: f64, nu1: f64, e2: f64, nu2: f64) -> f64 {
     let c = |e: f64, nu: f64| {
         if e.is_infinite() {
             0.0
@@ -201,7 +223,7 @@ fn rebound(law: ContactLaw, a: f64) -> f64 {
 }
 
 /// Dimensionless damping that gives restitution `e` (0 < e ≤ 1).
-pub(crate) fn damping_for_restitution(law: ContactLaw, e: f64) -> f64 {
+pub fn damping_for_restitution(law: ContactLaw, e: f64) -> f64 {
     if e >= 1.0 {
         return 0.0;
     }

@@ -89,7 +89,7 @@ pub struct Wall {
     pub velocity: Vec3,
     pub acceleration: Vec3,
     pub motion: Motion,
-    pub(crate) law: Interaction,
+    pub law: Interaction,
     /// Per grain: the history of its contact with this wall.
     pub(crate) history: Vec<History>,
     /// Total force this wall exerts on the grains (last evaluation).
@@ -151,7 +151,7 @@ pub struct System {
     pub mass: Vec<f64>,
     pub inertia: Vec<f64>,
     pub walls: Vec<Wall>,
-    pub(crate) grain_law: Interaction,
+    pub grain_law: Interaction,
     pub gravity: Vec3,
     pub dt: f64,
     /// Cundall local non-viscous damping coefficient (0: off).
@@ -175,8 +175,10 @@ pub struct System {
 }
 
 impl System {
+    /// Grains at `x` with radii and density (mass per unit thickness in 2D),
+    /// all at rest; `skin` is the Verlet-list margin.
     #[allow(clippy::too_many_arguments)]
-    pub(crate) fn new(
+    pub fn new(
         dim: usize,
         x: Vec<Vec3>,
         radius: Vec<f64>,
@@ -241,8 +243,9 @@ impl System {
         self.x.is_empty()
     }
 
+    /// Adds a wall; returns its index.
     #[allow(clippy::too_many_arguments)]
-    pub(crate) fn add_wall(
+    pub fn add_wall(
         &mut self,
         name: &str,
         shape: WallShape,
@@ -414,7 +417,7 @@ impl System {
     /// Evaluates all contact forces at the current positions with the current
     /// velocities. `advance` adds this step's tangential increment to the
     /// histories (false: evaluate the state without moving the springs).
-    pub(crate) fn compute_forces(&mut self, advance: bool) {
+    pub fn compute_forces(&mut self, advance: bool) {
         if self.needs_rebuild() {
             self.rebuild();
         }
@@ -628,7 +631,7 @@ impl System {
     /// Evaluates forces at the present state (histories not advanced) and sets
     /// the accelerations from them; used before the first step and to sample
     /// a state without moving it.
-    pub(crate) fn evaluate(&mut self) {
+    pub fn evaluate(&mut self) {
         self.compute_forces(false);
         self.update_accelerations();
     }
