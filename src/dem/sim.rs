@@ -761,14 +761,36 @@ impl System {
         }
     }
 
-    /// Stops every servo wall where it is.
-    pub fn freeze_servos(&mut self) {
-        for wall in &mut self.walls {
+    /// Stops every servo wall where it is; returns what to give [`System::resume_servos`].
+    pub fn freeze_servos(&mut self) -> Vec<(usize, Motion)> {
+        let mut frozen = Vec::new();
+        for (k, wall) in self.walls.iter_mut().enumerate() {
             if let Motion::Servo { .. } = wall.motion {
+                frozen.push((k, wall.motion));
                 wall.motion = Motion::Prescribed;
                 wall.velocity = [0.0; 3];
             }
         }
+        frozen
+    }
+
+    /// Restarts the servos stopped by [`System::freeze_servos`].
+    pub fn resume_servos(&mut self, frozen: &[(usize, Motion)]) {
+        for &(k, motion) in frozen {
+            self.walls[k].motion = motion;
+        }
+    }
+
+    /// Largest relative error of the load of the given (frozen or active) servo walls.
+    pub fn load_error(&self, servos: &[(usize, Motion)]) -> f64 {
+        let mut worst: f64 = 0.0;
+        for &(k, motion) in servos {
+            if let Motion::Servo { stress } = motion {
+                let target = stress * self.wall_area(k);
+                worst = worst.max((self.wall_normal_force(k) - target).abs() / target);
+            }
+        }
+        worst
     }
 
     /// Out-of-balance measures: (mean |Σf + m g| over grains / mean |f| over
