@@ -404,6 +404,15 @@ pub fn simulate(config: &DemConfig) -> Result<DemRun> {
     presets::run(config)
 }
 
+/// Builds the configured preset and relaxes it to the gate without writing
+/// frames: the relaxed [`sim::System`] (for benchmarks or further driving)
+/// and the gate figures. For the dynamic presets this is the settled packing
+/// before the impact.
+pub fn prepare(config: &DemConfig) -> Result<(sim::System, GateReport)> {
+    config.validate()?;
+    presets::prepare(config).map(|(s, r, _)| (s, r))
+}
+
 /// Writes a run as a scene folder (grains.csv, contacts.csv, walls.csv,
 /// scene.json) plus forces.csv (the exact forces) and dem_report.json.
 pub fn write_run(dir: &Path, run: &DemRun) -> Result<()> {

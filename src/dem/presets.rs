@@ -537,7 +537,10 @@ fn law_name(l: ContactLaw) -> &'static str {
     }
 }
 
-pub(super) fn run(c: &DemConfig) -> Result<DemRun> {
+/// Builds the preset and relaxes it to the gate (for dynamic presets: the
+/// settled packing before the impact). Returns the system, the gate part of
+/// the report and the steps per frame.
+pub(super) fn prepare(c: &DemConfig) -> Result<(System, GateReport, u64)> {
     let started = std::time::Instant::now();
     let Built {
         mut sys,
@@ -576,6 +579,20 @@ pub(super) fn run(c: &DemConfig) -> Result<DemRun> {
                 .push((sys.walls[k].name.clone(), sys.wall_normal_force(k) / area));
         }
     }
+    report.steps = sys.steps;
+    report.simulated_time = sys.time;
+    report.contacts = sys.contact_count;
+    report.max_overlap = sys.max_overlap;
+    report.seconds = started.elapsed().as_secs_f64();
+    Ok((sys, report, frame_steps))
+}
+
+pub(super) fn run(c: &DemConfig) -> Result<DemRun> {
+    let started = std::time::Instant::now();
+    let (mut sys, mut report, frame_steps) = prepare(c)?;
+    let gate_force = report.unbalanced_ratio;
+    let gate_moment = report.moment_ratio;
+    let passed = report.passed;
     let (frames, forces, max_overlap) = if !c.preset.is_dynamic() {
         let text = format!(
             "grainforce dem {} ({}D, {} grains, seed {}, {} law): quasi-static state, \
@@ -585,15 +602,15 @@ pub(super) fn run(c: &DemConfig) -> Result<DemRun> {
             c.grains,
             c.seed,
             law_name(c.law),
-            gate.force,
-            gate.moment,
+            gate_force,
+            gate_moment,
             c.gate,
-            if gate.passed { "" } else { ", NOT reached" }
+            if passed { "" } else { ", NOT reached" }
         );
         let (scene, f) = snapshot(&sys, &settings(c, text), None, false, true);
         (vec![scene], vec![f], sys.max_overlap)
     } else {
-        impact(&mut sys, c, frame_steps, gate.force)?
+        impact(&mut sys, c, frame_steps, gate_force)?
     };
     let mut worst_f: f64 = 0.0;
     let mut worst_m: f64 = 0.0;
