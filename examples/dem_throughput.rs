@@ -53,7 +53,9 @@ fn main() {
             targets.push(100_000);
         }
         for target in targets {
-            let k = ((target as f64 / base.len() as f64).powf(1.0 / dim as f64)).round().max(1.0) as usize;
+            let k = ((target as f64 / base.len() as f64).powf(1.0 / dim as f64))
+                .round()
+                .max(1.0) as usize;
             let mut sys = tile(&base, k, config.density, config.sizes.max_radius());
             // About 3·10⁷ particle-steps per case.
             let steps = ((3e7 / sys.len() as f64) as u64).clamp(100, 30_000);
@@ -93,7 +95,9 @@ fn main() {
     println!("| dim | grains | contacts/grain | steps | grainforce [particle-steps/s] | LAMMPS [particle-steps/s] | ratio |");
     println!("|---|---|---|---|---|---|---|");
     for case in &cases {
-        let theirs = lammps.as_ref().and_then(|lmp| run_lammps(lmp, &case.input, case.grains));
+        let theirs = lammps
+            .as_ref()
+            .and_then(|lmp| run_lammps(lmp, &case.input, case.grains));
         let (t, r) = match theirs {
             Some(v) => (format!("{v:.3e}"), format!("{:.2}", case.ours / v)),
             None => ("–".into(), "–".into()),
@@ -139,7 +143,16 @@ fn tile(base: &System, k: usize, density: f64, rmax: f64) -> System {
             }
         }
     }
-    let mut sys = System::new(dim, x, radius, density, base.grain_law, [0.0; 3], base.dt, 0.3 * rmax);
+    let mut sys = System::new(
+        dim,
+        x,
+        radius,
+        density,
+        base.grain_law,
+        [0.0; 3],
+        base.dt,
+        0.3 * rmax,
+    );
     for wall in &base.walls {
         let WallShape::Plane { normal } = wall.shape else {
             continue;
@@ -150,7 +163,15 @@ fn tile(base: &System, k: usize, density: f64, rmax: f64) -> System {
                 position[a] = lo[a] + k as f64 * span[a];
             }
         }
-        sys.add_wall(&wall.name, wall.shape, position, [0.0; 3], Motion::Prescribed, wall.law, 0.0);
+        sys.add_wall(
+            &wall.name,
+            wall.shape,
+            position,
+            [0.0; 3],
+            Motion::Prescribed,
+            wall.law,
+            0.0,
+        );
     }
     sys.evaluate();
     sys
@@ -182,7 +203,11 @@ fn write_lammps(dir: &Path, sys: &System, steps: u64, mu: f64) -> PathBuf {
     }
     let rmax = sys.radius.iter().cloned().fold(0.0, f64::max);
     let mut data = String::new();
-    writeln!(data, "grainforce box {dim}D, {n} grains\n\n{n} atoms\n1 atom types\n").unwrap();
+    writeln!(
+        data,
+        "grainforce box {dim}D, {n} grains\n\n{n} atoms\n1 atom types\n"
+    )
+    .unwrap();
     for a in 0..3 {
         let (l, h) = if a < dim {
             (lo[a] - 2.0 * rmax, hi[a] + 2.0 * rmax)
@@ -227,9 +252,18 @@ fn write_lammps(dir: &Path, sys: &System, steps: u64, mu: f64) -> PathBuf {
         gamma(kn, law.damp_n, 0.5 * mean_mass)
     )
     .unwrap();
-    writeln!(input, "neighbor {:e} bin\nneigh_modify delay 0 every 1 check yes", 0.3 * rmax).unwrap();
+    writeln!(
+        input,
+        "neighbor {:e} bin\nneigh_modify delay 0 every 1 check yes",
+        0.3 * rmax
+    )
+    .unwrap();
     if dim == 2 {
-        writeln!(input, "fix integrate all nve/sphere disc\nfix planar all enforce2d").unwrap();
+        writeln!(
+            input,
+            "fix integrate all nve/sphere disc\nfix planar all enforce2d"
+        )
+        .unwrap();
     } else {
         writeln!(input, "fix integrate all nve/sphere").unwrap();
     }
@@ -247,7 +281,12 @@ fn write_lammps(dir: &Path, sys: &System, steps: u64, mu: f64) -> PathBuf {
         )
         .unwrap();
     }
-    writeln!(input, "timestep {:e}\nthermo {}\nrun 20\nrun {steps}", sys.dt, steps).unwrap();
+    writeln!(
+        input,
+        "timestep {:e}\nthermo {}\nrun 20\nrun {steps}",
+        sys.dt, steps
+    )
+    .unwrap();
     let path = dir.join(format!("{tag}.in"));
     std::fs::write(&path, input).unwrap();
     path
@@ -259,11 +298,21 @@ fn run_lammps(lmp: &Path, input: &Path, grains: usize) -> Option<f64> {
     let log = format!("{}.log", input.file_stem()?.to_str()?);
     let output = std::process::Command::new(lmp)
         .current_dir(dir)
-        .args(["-in", input.file_name()?.to_str()?, "-log", &log, "-screen", "none"])
+        .args([
+            "-in",
+            input.file_name()?.to_str()?,
+            "-log",
+            &log,
+            "-screen",
+            "none",
+        ])
         .output()
         .ok()?;
     let text = std::fs::read_to_string(dir.join(&log)).ok()?;
-    let line = text.lines().filter(|l| l.starts_with("Loop time of")).last()?;
+    let line = text
+        .lines()
+        .filter(|l| l.starts_with("Loop time of"))
+        .last()?;
     let words: Vec<&str> = line.split_whitespace().collect();
     let seconds: f64 = words.get(3)?.parse().ok()?;
     let steps: f64 = words.get(8)?.parse().ok()?;

@@ -49,7 +49,10 @@ fn hertz_force_overlap_law_peak_overlap_and_duration() {
                 (got - expected).abs() <= 1e-12 * expected,
                 "force {got} vs Hertz {expected} at overlap {d}"
             );
-            assert!(s.f[0][0] < 0.0, "the force must push grain 0 away from grain 1");
+            assert!(
+                s.f[0][0] < 0.0,
+                "the force must push grain 0 away from grain 1"
+            );
             checked += 1;
         } else if start.is_some() && end.is_none() {
             end = Some(s.time);
@@ -106,7 +109,11 @@ fn restitution(dim: usize, law: ContactLaw, e: f64) -> f64 {
 
 #[test]
 fn binary_collision_restitution_matches_the_configured_coefficient() {
-    for (dim, law) in [(2, ContactLaw::Linear), (3, ContactLaw::Hertz), (3, ContactLaw::Linear)] {
+    for (dim, law) in [
+        (2, ContactLaw::Linear),
+        (3, ContactLaw::Hertz),
+        (3, ContactLaw::Linear),
+    ] {
         for e in [0.3, 0.7, 0.95] {
             let got = restitution(dim, law, e);
             assert!(
@@ -129,7 +136,16 @@ fn oblique(tangential: f64, normal: f64, mu: f64, e: f64) -> ([f64; 3], [f64; 3]
         0.0,
         mu,
     );
-    let mut s = System::new(3, vec![[0.0, r + 1e-6, 0.0]], vec![r], rho, grain, [0.0; 3], 1e-7, 0.5 * r);
+    let mut s = System::new(
+        3,
+        vec![[0.0, r + 1e-6, 0.0]],
+        vec![r],
+        rho,
+        grain,
+        [0.0; 3],
+        1e-7,
+        0.5 * r,
+    );
     s.add_wall(
         "bottom",
         WallShape::Plane {
@@ -162,12 +178,23 @@ fn oblique_impact_gross_sliding_and_sticking() {
     // Steep incidence: the contact slides throughout, so the tangential
     // impulse is μ times the normal one (Chung & Ooi, test 3/4 sliding branch).
     let (v, w) = oblique(5.0, vn, mu, e);
-    assert!((v[1] - e * vn).abs() / (e * vn) < 3e-3, "normal rebound {}", v[1]);
+    assert!(
+        (v[1] - e * vn).abs() / (e * vn) < 3e-3,
+        "normal rebound {}",
+        v[1]
+    );
     let dvt = 5.0 - v[0];
     let expected = mu * (1.0 + e) * vn;
-    assert!((dvt - expected).abs() / expected < 5e-3, "Δv_t {dvt} vs {expected}");
+    assert!(
+        (dvt - expected).abs() / expected < 5e-3,
+        "Δv_t {dvt} vs {expected}"
+    );
     let spin = 5.0 * mu * (1.0 + e) * vn / (2.0 * r);
-    assert!((w[2] + spin).abs() / spin < 5e-3, "spin {} vs −{spin}", w[2]);
+    assert!(
+        (w[2] + spin).abs() / spin < 5e-3,
+        "spin {} vs −{spin}",
+        w[2]
+    );
     // Shallow incidence: the contact sticks, the tangential impulse stays
     // below the Coulomb bound and the grain leaves rolling-ish (contact-point
     // slip far below the incident tangential speed).
@@ -188,7 +215,16 @@ fn incline(theta: f64, mu: f64, t: f64) -> (f64, f64, f64) {
     let gravity = [g * theta.sin(), -g * theta.cos(), 0.0];
     let delta = m * g * theta.cos() / k;
     let dt = 0.02 * (m / k).sqrt();
-    let mut s = System::new(2, vec![[0.0, r - delta, 0.0]], vec![r], rho, grain, gravity, dt, 0.5 * r);
+    let mut s = System::new(
+        2,
+        vec![[0.0, r - delta, 0.0]],
+        vec![r],
+        rho,
+        grain,
+        gravity,
+        dt,
+        0.5 * r,
+    );
     s.add_wall(
         "bottom",
         WallShape::Plane {
@@ -215,18 +251,30 @@ fn disk_on_incline_rolls_below_and_slips_above_tan_theta_3mu() {
     let theta = 0.25f64.atan();
     let (x, slip, t) = incline(theta, mu, 0.1);
     let expected = g * t * t * theta.sin() / 3.0;
-    assert!((x - expected).abs() / expected < 5e-3, "rolling: {x} vs {expected}");
+    assert!(
+        (x - expected).abs() / expected < 5e-3,
+        "rolling: {x} vs {expected}"
+    );
     assert!(slip.abs() < 1e-3 * (g * t), "rolling disk slips at {slip}");
     // tan θ = 0.9 > 3μ: slips, x = g t² (sin θ − μ cos θ) / 2.
     let theta = 0.9f64.atan();
     let (x, slip, t) = incline(theta, mu, 0.1);
     let expected = 0.5 * g * t * t * (theta.sin() - mu * theta.cos());
-    assert!((x - expected).abs() / expected < 5e-3, "slipping: {x} vs {expected}");
-    assert!(slip > 0.1 * g * t * theta.sin(), "slipping disk does not slip ({slip})");
+    assert!(
+        (x - expected).abs() / expected < 5e-3,
+        "slipping: {x} vs {expected}"
+    );
+    assert!(
+        slip > 0.1 * g * t * theta.sin(),
+        "slipping disk does not slip ({slip})"
+    );
     // Just above and below the threshold the regimes switch.
     let below = incline((0.9 * 3.0 * mu).atan(), mu, 0.05).1;
     let above = incline((1.2 * 3.0 * mu).atan(), mu, 0.05).1;
-    assert!(below.abs() < 1e-3 && above > 1e-2, "slip speeds {below} / {above}");
+    assert!(
+        below.abs() < 1e-3 && above > 1e-2,
+        "slip speeds {below} / {above}"
+    );
 }
 
 fn gas(dim: usize, law: Interaction, n_side: usize, seed: u64, walls: bool) -> System {
@@ -260,7 +308,15 @@ fn gas(dim: usize, law: Interaction, n_side: usize, seed: u64, walls: bool) -> S
                 normal[axis] = sign;
                 let mut p = [0.0; 3];
                 p[axis] = at;
-                s.add_wall(&format!("w{axis}{at}"), WallShape::Plane { normal }, p, [0.0; 3], Motion::Prescribed, law, 0.0);
+                s.add_wall(
+                    &format!("w{axis}{at}"),
+                    WallShape::Plane { normal },
+                    p,
+                    [0.0; 3],
+                    Motion::Prescribed,
+                    law,
+                    0.0,
+                );
             }
         }
     }
@@ -271,8 +327,14 @@ fn gas(dim: usize, law: Interaction, n_side: usize, seed: u64, walls: bool) -> S
 #[test]
 fn energy_is_conserved_without_damping_or_friction() {
     for (dim, law) in [
-        (2, Interaction::new(ContactLaw::Linear, 1e5, 1e5, 1.0, 0.0, 0.0)),
-        (3, Interaction::new(ContactLaw::Hertz, 1e7, 4e6, 1.0, 0.0, 0.0)),
+        (
+            2,
+            Interaction::new(ContactLaw::Linear, 1e5, 1e5, 1.0, 0.0, 0.0),
+        ),
+        (
+            3,
+            Interaction::new(ContactLaw::Hertz, 1e7, 4e6, 1.0, 0.0, 0.0),
+        ),
     ] {
         let mut s = gas(dim, law, 5, 7, true);
         let e0 = s.kinetic_energy() + s.potential_energy();
@@ -286,7 +348,10 @@ fn energy_is_conserved_without_damping_or_friction() {
             let e = s.kinetic_energy() + s.potential_energy();
             worst = worst.max((e - e0).abs() / e0);
         }
-        assert!(collisions > 1000, "{dim}D: too few steps with contacts ({collisions})");
+        assert!(
+            collisions > 1000,
+            "{dim}D: too few steps with contacts ({collisions})"
+        );
         assert!(worst < 1e-4, "{dim}D: energy drift {worst}");
     }
 }
@@ -307,18 +372,29 @@ fn momentum_is_conserved_to_round_off() {
         let p0 = s.momentum();
         let l0 = s.angular_momentum();
         let scale: f64 = (0..s.len()).map(|i| s.mass[i] * norm(s.v[i])).sum();
-        let lscale: f64 = (0..s.len()).map(|i| s.mass[i] * norm(s.v[i]) * norm(s.x[i])).sum();
+        let lscale: f64 = (0..s.len())
+            .map(|i| s.mass[i] * norm(s.v[i]) * norm(s.x[i]))
+            .sum();
         let mut contacts = 0;
         for _ in 0..20_000 {
             s.step();
             contacts += s.contact_count;
         }
-        assert!(contacts > 500, "{dim}D: too few collisions ({contacts} contact-steps)");
+        assert!(
+            contacts > 500,
+            "{dim}D: too few collisions ({contacts} contact-steps)"
+        );
         let p = s.momentum();
         let l = s.angular_momentum();
         for k in 0..3 {
-            assert!((p[k] - p0[k]).abs() < 1e-13 * scale, "{dim}D momentum {p:?} vs {p0:?}");
-            assert!((l[k] - l0[k]).abs() < 1e-12 * lscale, "{dim}D angular momentum {l:?} vs {l0:?}");
+            assert!(
+                (p[k] - p0[k]).abs() < 1e-13 * scale,
+                "{dim}D momentum {p:?} vs {p0:?}"
+            );
+            assert!(
+                (l[k] - l0[k]).abs() < 1e-12 * lscale,
+                "{dim}D angular momentum {l:?} vs {l0:?}"
+            );
         }
     }
 }

@@ -24,14 +24,26 @@ fn check_contract(s: &scene::Scene, forces: &[[f64; 3]]) {
         // Cohesionless and within the Coulomb cone.
         let fn_ = scene::dot(*f, c.normal);
         assert!(fn_ <= 1e-12 * scene::norm(*f), "contact {} pulls", c.id);
-        let ft = scene::norm([f[0] - fn_ * c.normal[0], f[1] - fn_ * c.normal[1], f[2] - fn_ * c.normal[2]]);
+        let ft = scene::norm([
+            f[0] - fn_ * c.normal[0],
+            f[1] - fn_ * c.normal[1],
+            f[2] - fn_ * c.normal[2],
+        ]);
         let mu = c.mu.expect("every contact has mu");
-        assert!(ft <= mu * (-fn_) * (1.0 + 1e-9) + 1e-12, "contact {} outside its cone", c.id);
+        assert!(
+            ft <= mu * (-fn_) * (1.0 + 1e-9) + 1e-12,
+            "contact {} outside its cone",
+            c.id
+        );
         // The contact point lies on the line of centres / the normal from the centroid.
         let a = &s.grains[c.a];
         let r = scene::sub(c.point, a.position);
         let cr = scene::cross(r, c.normal);
-        assert!(scene::norm(cr) < 1e-9 * scene::norm(r), "contact {} point off the line of centres", c.id);
+        assert!(
+            scene::norm(cr) < 1e-9 * scene::norm(r),
+            "contact {} point off the line of centres",
+            c.id
+        );
         assert!(scene::dot(r, c.normal) > 0.0);
         if let Body::Grain(b) = c.b {
             let d = scene::sub(s.grains[b].position, a.position);
@@ -84,7 +96,10 @@ fn oedometer_2d_and_3d_pass_the_gate_and_read_back_consistent() {
         let measured = s.walls[top].measured_force.unwrap();
         assert!((load - measured[1]).abs() < 1e-9 * load.abs());
         let stress = r.wall_stress.iter().find(|(n, _)| n == "top").unwrap().1;
-        assert!((stress - r.target_stress).abs() < 0.05 * r.target_stress, "top stress {stress}");
+        assert!(
+            (stress - r.target_stress).abs() < 0.05 * r.target_stress,
+            "top stress {stress}"
+        );
         for (c, f) in s.contacts.iter().zip(&forces[0]) {
             if let Body::Wall(_) = c.b {
                 assert_eq!(c.mu, Some(0.0));
@@ -93,8 +108,15 @@ fn oedometer_2d_and_3d_pass_the_gate_and_read_back_consistent() {
         }
         // Ids as the contract asks.
         assert_eq!(s.grains[0].id, "0");
-        assert!(s.contacts.iter().enumerate().all(|(k, c)| c.id == format!("c{k}")));
-        assert!(s.grains.iter().all(|g| g.mass.is_some() && g.radius.is_some() && g.inertia.is_some()));
+        assert!(s
+            .contacts
+            .iter()
+            .enumerate()
+            .all(|(k, c)| c.id == format!("c{k}")));
+        assert!(s
+            .grains
+            .iter()
+            .all(|g| g.mass.is_some() && g.radius.is_some() && g.inertia.is_some()));
         // Compressed grains: negative mean stress.
         let mean: f64 = s.grains.iter().map(|g| g.stress[0] + g.stress[1]).sum();
         assert!(mean < 0.0);
@@ -108,7 +130,10 @@ fn same_seed_same_scene_other_seed_other_scene() {
     assert_eq!(a.frames, b.frames);
     assert_eq!(a.forces, b.forces);
     let c = oedometer(2, 6);
-    assert_ne!(a.frames[0].grains[0].position, c.frames[0].grains[0].position);
+    assert_ne!(
+        a.frames[0].grains[0].position,
+        c.frames[0].grains[0].position
+    );
 }
 
 #[test]
@@ -145,7 +170,10 @@ fn check_dynamic(run: &dem::DemRun, gravity: bool) {
         busy += 1;
         // Kinematic accelerations: Σ f = m (a − g) and Σ r × f = I α to round-off.
         let b = balance_residuals(s, f);
-        assert!(b.max_force < 1e-9 && b.max_moment < 1e-9, "frame {k}: {b:?}");
+        assert!(
+            b.max_force < 1e-9 && b.max_moment < 1e-9,
+            "frame {k}: {b:?}"
+        );
     }
     assert!(busy > 3);
     // Something actually happened: some grain accelerates far beyond gravity.
@@ -164,7 +192,10 @@ fn impact_frames_balance_momentum_to_round_off() {
     assert_eq!(run.frames.len(), 51);
     assert!(run.report.max_momentum_residual < 1e-9);
     let impactor = run.frames[20].wall_index("impactor").unwrap();
-    assert!(run.frames[20].contacts.iter().any(|c| c.b == Body::Wall(impactor)));
+    assert!(run.frames[20]
+        .contacts
+        .iter()
+        .any(|c| c.b == Body::Wall(impactor)));
     check_dynamic(&run, true);
 }
 
@@ -191,7 +222,11 @@ fn hertz_and_polydisperse_variants_run() {
     let run = dem::simulate(&c).unwrap();
     assert!(run.report.passed, "{:?}", run.report);
     check_contract(&run.frames[0], &run.forces[0]);
-    let radii: Vec<f64> = run.frames[0].grains.iter().map(|g| g.radius.unwrap()).collect();
+    let radii: Vec<f64> = run.frames[0]
+        .grains
+        .iter()
+        .map(|g| g.radius.unwrap())
+        .collect();
     assert!(radii.iter().all(|&r| (1.5e-3..=4e-3).contains(&r)));
 }
 

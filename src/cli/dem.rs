@@ -37,22 +37,24 @@ pub enum SizesArg {
     InverseSquare,
 }
 
-/// Runs a DEM preset and writes a scene folder with the exact contact forces.
-///
-/// Writes grains.csv (centroid, volume, stress from V σ = Σ sym(r ⊗ f) with r
-/// from the centroid, tension positive, radius, mass, inertia), contacts.csv
-/// (point on the line of centres, normal from a to b, per-contact mu),
-/// walls.csv (force of each wall on the grains), scene.json, forces.csv (the
-/// DEM's contact forces, force on `a` by `b`) and dem_report.json (what the
-/// quasi-static gate reached, residuals, time step). Quasi-static presets relax
-/// until the unbalanced-force ratio (mean net force on grains / mean contact
-/// force), the moment ratio and the kinetic/elastic energy ratio are all below
-/// --gate. Dynamic presets write a `frame` column with kinematic accelerations
-/// (gravity included: Σ f = m (a − g)) and angular accelerations.
-/// In 2D everything is per unit thickness; contact laws act on a disk of
-/// --thickness and are divided by it.
+const DETAILS: &str = "\
+Runs a DEM preset and writes a scene folder with the exact contact forces.
+
+Writes grains.csv (centroid, volume, stress from V σ = Σ sym(r ⊗ f) with r
+from the centroid, tension positive, radius, mass, inertia), contacts.csv
+(point on the line of centres, normal from a to b, per-contact mu),
+walls.csv (force of each wall on the grains), scene.json, forces.csv (the
+DEM's contact forces, force on `a` by `b`) and dem_report.json (what the
+quasi-static gate reached, residuals, time step). Quasi-static presets relax
+until the unbalanced-force ratio (mean net force on grains / mean contact
+force), the moment ratio and the kinetic/elastic energy ratio are all below
+--gate. Dynamic presets write a `frame` column with kinematic accelerations
+(gravity included: Σ f = m (a − g)) and angular accelerations.
+In 2D everything is per unit thickness; contact laws act on a disk of
+--thickness and are divided by it.";
+
 #[derive(clap::Args)]
-#[command(verbatim_doc_comment)]
+#[command(after_help = DETAILS)]
 pub struct Args {
     /// Which scene to prepare.
     #[arg(value_enum)]
@@ -70,43 +72,43 @@ pub struct Args {
     #[arg(long, default_value_t = 2)]
     dim: usize,
     /// Quasi-static gate on the out-of-balance ratios (use ~1e-10 for inference tests).
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     gate: Option<f64>,
     /// Contact law (default: linear for oedometer/box, Hertz for the impacts).
     #[arg(long, value_enum)]
     law: Option<LawArg>,
     /// 2D out-of-plane thickness [m] (recorded in scene.json).
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     thickness: Option<f64>,
     /// Dynamic presets: steps between frames (default: from the frame rate).
     #[arg(long)]
     frames_every: Option<u64>,
     /// Dynamic presets: simulated time after the impact [s].
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     duration: Option<f64>,
     /// Grain–grain friction coefficient.
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     mu: Option<f64>,
     /// Wall friction coefficient (0: frictionless).
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     wall_mu: Option<f64>,
     /// Target stress of the servo walls [Pa].
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     pressure: Option<f64>,
     /// Coefficient of restitution of grain–grain contacts.
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     restitution: Option<f64>,
     /// Size distribution (with --radius-min and --radius-max).
     #[arg(long, value_enum)]
     sizes: Option<SizesArg>,
     /// Smallest grain radius [m].
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     radius_min: Option<f64>,
     /// Largest grain radius [m].
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     radius_max: Option<f64>,
     /// Time step as a fraction of √(m_min/k_max).
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     safety: Option<f64>,
     /// Step limit for the relaxation.
     #[arg(long)]

@@ -5,20 +5,22 @@ use grainforce::scene;
 use grainforce::Error;
 use std::path::PathBuf;
 
-/// Adds measurement noise to a scene (or every frame of a sequence).
-///
-/// The stress model is exactly the original study's (eq. 2.16): every stress
-/// component b becomes b + (BIAS + N(0, NOISE))·b, one draw per component;
-/// `--stress-bias 0.15 --stress-noise 0.1` reproduces it. Other noises are
-/// independent Gaussian: centroid coordinates (--position-noise, metres),
-/// the tilt of each contact normal (--normal-noise, degrees), each
-/// acceleration component (--accel-noise, m/s²); --drop-contacts removes each
-/// contact with that probability.
-///
-/// forces.csv in SCENE (the ground truth) is copied unchanged into OUT, so the
-/// noisy scene can be scored against the true forces; dem_report.json too.
+const DETAILS: &str = "\
+Adds measurement noise to a scene (or every frame of a sequence).
+
+The stress model is exactly the original study's (eq. 2.16): every stress
+component b becomes b + (BIAS + N(0, NOISE))·b, one draw per component;
+`--stress-bias 0.15 --stress-noise 0.1` reproduces it. Other noises are
+independent Gaussian: centroid coordinates (--position-noise, metres),
+the tilt of each contact normal (--normal-noise, degrees), each
+acceleration component (--accel-noise, m/s²); --drop-contacts removes each
+contact with that probability.
+
+forces.csv in SCENE (the ground truth) is copied unchanged into OUT, so the
+noisy scene can be scored against the true forces; dem_report.json too.";
+
 #[derive(clap::Args)]
-#[command(verbatim_doc_comment)]
+#[command(after_help = DETAILS)]
 pub struct Args {
     /// Scene folder to perturb.
     scene: PathBuf,

@@ -154,7 +154,9 @@ impl Interaction {
     /// Elastic energy stored in a contact (normal + tangential springs).
     pub fn energy(&self, delta: f64, rstar: f64, xi: Vec3) -> f64 {
         match self.law {
-            ContactLaw::Linear => 0.5 * self.normal * delta * delta + 0.5 * self.tangential * norm2(xi),
+            ContactLaw::Linear => {
+                0.5 * self.normal * delta * delta + 0.5 * self.tangential * norm2(xi)
+            }
             ContactLaw::Hertz => {
                 let s = (rstar * delta).sqrt();
                 (8.0 / 15.0) * self.normal * s * delta * delta
@@ -171,7 +173,13 @@ fn norm2(v: Vec3) -> f64 {
 
 /// Effective modulus E* of two bodies (an infinite modulus is rigid).
 pub fn effective_young(e1: f64, nu1: f64, e2: f64, nu2: f64) -> f64 {
-    let c = |e: f64, nu: f64| if e.is_infinite() { 0.0 } else { (1.0 - nu * nu) / e };
+    let c = |e: f64, nu: f64| {
+        if e.is_infinite() {
+            0.0
+        } else {
+            (1.0 - nu * nu) / e
+        }
+    };
     1.0 / (c(e1, nu1) + c(e2, nu2))
 }
 
@@ -207,8 +215,14 @@ fn rebound(law: ContactLaw, a: f64) -> f64 {
     for _ in 0..200_000 {
         // RK4
         let (k1x, k1v) = (v, accel(x, v));
-        let (k2x, k2v) = (v + 0.5 * h * k1v, accel(x + 0.5 * h * k1x, v + 0.5 * h * k1v));
-        let (k3x, k3v) = (v + 0.5 * h * k2v, accel(x + 0.5 * h * k2x, v + 0.5 * h * k2v));
+        let (k2x, k2v) = (
+            v + 0.5 * h * k1v,
+            accel(x + 0.5 * h * k1x, v + 0.5 * h * k1v),
+        );
+        let (k3x, k3v) = (
+            v + 0.5 * h * k2v,
+            accel(x + 0.5 * h * k2x, v + 0.5 * h * k2v),
+        );
         let (k4x, k4v) = (v + h * k3v, accel(x + h * k3x, v + h * k3v));
         x += h / 6.0 * (k1x + 2.0 * k2x + 2.0 * k3x + k4x);
         v += h / 6.0 * (k1v + 2.0 * k2v + 2.0 * k3v + k4v);
@@ -252,7 +266,11 @@ mod tests {
         let e: f64 = 0.95;
         let zeta = -e.ln() / (std::f64::consts::PI.powi(2) + e.ln().powi(2)).sqrt();
         let a = damping_for_restitution(ContactLaw::Linear, e);
-        assert!((a - 2.0 * zeta).abs() / (2.0 * zeta) < 0.05, "{a} vs {}", 2.0 * zeta);
+        assert!(
+            (a - 2.0 * zeta).abs() / (2.0 * zeta) < 0.05,
+            "{a} vs {}",
+            2.0 * zeta
+        );
         assert!((rebound(ContactLaw::Linear, a) - e).abs() < 1e-6);
         let ah = damping_for_restitution(ContactLaw::Hertz, 0.5);
         assert!((rebound(ContactLaw::Hertz, ah) - 0.5).abs() < 1e-6);

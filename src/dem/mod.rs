@@ -12,8 +12,8 @@
 //! accelerations, so Σ f = m (a − g) and Σ r × f = I α hold to round-off.
 
 pub mod law;
-pub mod perturb;
 mod output;
+pub mod perturb;
 mod presets;
 pub mod sim;
 
@@ -259,7 +259,9 @@ impl DemConfig {
             )));
         }
         if self.grains == 0 {
-            return Err(Error::Invalid("the number of grains must be at least 1".into()));
+            return Err(Error::Invalid(
+                "the number of grains must be at least 1".into(),
+            ));
         }
         if self.grains > 50_000_000 {
             return Err(Error::Invalid(format!(
@@ -297,13 +299,19 @@ impl DemConfig {
                 }
             }
             if !(m.restitution > 0.0 && m.restitution <= 1.0) {
-                return Err(bad(&format!("the {who} restitution (must lie in (0, 1])"), m.restitution));
+                return Err(bad(
+                    &format!("the {who} restitution (must lie in (0, 1])"),
+                    m.restitution,
+                ));
             }
             if !(m.mu >= 0.0 && m.mu.is_finite()) {
                 return Err(bad(&format!("the {who} friction coefficient"), m.mu));
             }
             if !(m.tangential_damping >= 0.0 && m.tangential_damping.is_finite()) {
-                return Err(bad(&format!("the {who} tangential damping"), m.tangential_damping));
+                return Err(bad(
+                    &format!("the {who} tangential damping"),
+                    m.tangential_damping,
+                ));
             }
         }
         if !(self.pressure > 0.0 && self.pressure.is_finite()) {
@@ -311,17 +319,25 @@ impl DemConfig {
         }
         if let Some(g) = self.gravity {
             if g.iter().any(|x| !x.is_finite()) || (self.dim == 2 && g[2] != 0.0) {
-                return Err(Error::Invalid(format!("gravity must be finite and in-plane in 2D (got {g:?})")));
+                return Err(Error::Invalid(format!(
+                    "gravity must be finite and in-plane in 2D (got {g:?})"
+                )));
             }
         }
         if !(self.safety > 0.0 && self.safety <= 0.5) {
-            return Err(bad("the time-step safety fraction (must lie in (0, 0.5])", self.safety));
+            return Err(bad(
+                "the time-step safety fraction (must lie in (0, 0.5])",
+                self.safety,
+            ));
         }
         if !(self.overlap_ref > 0.0 && self.overlap_ref < 1.0) {
             return Err(bad("the reference overlap", self.overlap_ref));
         }
         if !(0.0..1.0).contains(&self.local_damping) {
-            return Err(bad("the local damping (must lie in [0, 1))", self.local_damping));
+            return Err(bad(
+                "the local damping (must lie in [0, 1))",
+                self.local_damping,
+            ));
         }
         if !(self.stress_tolerance > 0.0 && self.stress_tolerance < 1.0) {
             return Err(bad("the stress tolerance", self.stress_tolerance));
@@ -340,7 +356,9 @@ impl DemConfig {
                 return Err(Error::Invalid("--frames-every must be at least 1".into()));
             }
             if !(self.impactor_radius > 0.0 && self.impactor_mass > 0.0) {
-                return Err(Error::Invalid("the impactor needs a positive radius and mass".into()));
+                return Err(Error::Invalid(
+                    "the impactor needs a positive radius and mass".into(),
+                ));
             }
             if self.impact_velocity.iter().any(|x| !x.is_finite()) {
                 return Err(Error::Invalid("the impact velocity must be finite".into()));
@@ -426,8 +444,8 @@ pub fn write_run(dir: &Path, run: &DemRun) -> Result<()> {
             .extend(scene::Forces::from_scene(frame, forces).rows);
     }
     scene::write_forces(&dir.join("forces.csv"), &all)?;
-    let text = serde_json::to_string_pretty(&run.report)
-        .map_err(|e| Error::Invalid(e.to_string()))?;
+    let text =
+        serde_json::to_string_pretty(&run.report).map_err(|e| Error::Invalid(e.to_string()))?;
     let path = dir.join("dem_report.json");
     std::fs::write(&path, text + "\n").map_err(|e| Error::io(&path, e))?;
     Ok(())

@@ -227,7 +227,13 @@ fn grain_mass(c: &DemConfig, r: f64) -> f64 {
 /// Places grains row by row (x), rows across z in 3D, then layers up y, inside
 /// lateral extents `width` (x) and `depth` (z), starting at y = 0; returns the
 /// positions and the height used.
-fn row_pack(c: &DemConfig, radii: &[f64], width: f64, depth: f64, rng: &mut ChaCha8Rng) -> (Vec<Vec3>, f64) {
+fn row_pack(
+    c: &DemConfig,
+    radii: &[f64],
+    width: f64,
+    depth: f64,
+    rng: &mut ChaCha8Rng,
+) -> (Vec<Vec3>, f64) {
     let gap = 0.02;
     let mut pos = Vec::with_capacity(radii.len());
     let rmax = c.sizes.max_radius();
@@ -260,7 +266,9 @@ fn row_pack(c: &DemConfig, radii: &[f64], width: f64, depth: f64, rng: &mut ChaC
 }
 
 fn radii(c: &DemConfig, rng: &mut ChaCha8Rng) -> Vec<f64> {
-    (0..c.grains).map(|_| c.sizes.sample(rng.gen::<f64>())).collect()
+    (0..c.grains)
+        .map(|_| c.sizes.sample(rng.gen::<f64>()))
+        .collect()
 }
 
 fn axis(k: usize, sign: f64) -> Vec3 {
@@ -273,7 +281,13 @@ fn axis(k: usize, sign: f64) -> Vec3 {
 fn mean_volume(c: &DemConfig, radii: &[f64]) -> f64 {
     radii
         .iter()
-        .map(|&r| if c.dim == 2 { PI * r * r } else { 4.0 / 3.0 * PI * r * r * r })
+        .map(|&r| {
+            if c.dim == 2 {
+                PI * r * r
+            } else {
+                4.0 / 3.0 * PI * r * r * r
+            }
+        })
         .sum::<f64>()
         / radii.len() as f64
 }
@@ -360,7 +374,10 @@ fn build(c: &DemConfig) -> Result<Built> {
                     [r + 2.0 * r * col as f64, r + 2.0 * r * row as f64, 0.0]
                 })
                 .collect();
-            (pos, vec![("left", 0, 0.0, 1.0, false), ("bottom", 1, 0.0, 1.0, false)])
+            (
+                pos,
+                vec![("left", 0, 0.0, 1.0, false), ("bottom", 1, 0.0, 1.0, false)],
+            )
         }
         Preset::BedImpact => {
             let width = 1.22;
@@ -415,7 +432,10 @@ fn relax(sys: &mut System, c: &DemConfig, tc: f64, started: std::time::Instant) 
     // free-flying grains and rattlers, which local damping cannot reach.
     sys.viscous_damping = 0.01 / tc;
     sys.evaluate();
-    let has_servo = sys.walls.iter().any(|w| matches!(w.motion, Motion::Servo { .. }));
+    let has_servo = sys
+        .walls
+        .iter()
+        .any(|w| matches!(w.motion, Motion::Servo { .. }));
     let servo_ratio = c.gate.max(1e-6);
     let mut next_print = 0u64;
     let verbose = c.verbose;
@@ -440,12 +460,27 @@ fn relax(sys: &mut System, c: &DemConfig, tc: f64, started: std::time::Instant) 
                         w.stiffness
                     );
                 }
-                eprintln!("    KE {:.3e} contacts {}", sys.kinetic_energy(), sys.contact_count);
+                eprintln!(
+                    "    KE {:.3e} contacts {}",
+                    sys.kinetic_energy(),
+                    sys.contact_count
+                );
                 let mut idx: Vec<usize> = (0..sys.len()).collect();
-                let net = |i: usize| (0..3).map(|k| (sys.f[i][k] + sys.mass[i] * sys.gravity[k]).powi(2)).sum::<f64>().sqrt();
+                let net = |i: usize| {
+                    (0..3)
+                        .map(|k| (sys.f[i][k] + sys.mass[i] * sys.gravity[k]).powi(2))
+                        .sum::<f64>()
+                        .sqrt()
+                };
                 idx.sort_by(|&a, &b| net(b).total_cmp(&net(a)));
                 for &i in &idx[..3] {
-                    eprintln!("    grain {i}: net {:.3e} torque {:?} v {:?} w {:?}", net(i), sys.t[i], sys.v[i], sys.w[i]);
+                    eprintln!(
+                        "    grain {i}: net {:.3e} torque {:?} v {:?} w {:?}",
+                        net(i),
+                        sys.t[i],
+                        sys.v[i],
+                        sys.w[i]
+                    );
                 }
             }
             *next = sys.steps + 20_000;
@@ -471,7 +506,10 @@ fn relax(sys: &mut System, c: &DemConfig, tc: f64, started: std::time::Instant) 
                 }
                 progress(sys, "servo", &mut next_print);
                 let (f, m) = sys.unbalanced();
-                if sys.load_error(&servos) < c.stress_tolerance && f < servo_ratio && m < servo_ratio {
+                if sys.load_error(&servos) < c.stress_tolerance
+                    && f < servo_ratio
+                    && m < servo_ratio
+                {
                     break;
                 }
             }
@@ -511,7 +549,11 @@ fn gate_figures(sys: &System, gate: f64) -> Gate {
     let (force, moment) = sys.unbalanced();
     let kinetic = sys.kinetic_energy();
     let elastic = sys.elastic_energy();
-    let kinetic_ratio = if elastic > 0.0 { kinetic / elastic } else { f64::INFINITY };
+    let kinetic_ratio = if elastic > 0.0 {
+        kinetic / elastic
+    } else {
+        f64::INFINITY
+    };
     Gate {
         passed: force < gate && moment < gate && kinetic_ratio < gate,
         force,
@@ -568,7 +610,11 @@ pub(super) fn prepare(c: &DemConfig) -> Result<(System, GateReport, u64)> {
         kinetic_energy: gate.kinetic,
         kinetic_ratio: gate.kinetic_ratio,
         time_step: sys.dt,
-        target_stress: if c.preset.is_dynamic() { 0.0 } else { c.pressure },
+        target_stress: if c.preset.is_dynamic() {
+            0.0
+        } else {
+            c.pressure
+        },
         ..Default::default()
     };
     for k in 0..sys.walls.len() {
@@ -643,7 +689,11 @@ fn impact(sys: &mut System, c: &DemConfig, frame_steps: u64, settled: f64) -> Re
         Preset::Impact => {
             // Strike the grain farthest from the corner along the direction of travel.
             let dir = if speed > 0.0 {
-                [c.impact_velocity[0] / speed, c.impact_velocity[1] / speed, 0.0]
+                [
+                    c.impact_velocity[0] / speed,
+                    c.impact_velocity[1] / speed,
+                    0.0,
+                ]
             } else {
                 [-1.0, 0.0, 0.0]
             };
@@ -656,7 +706,10 @@ fn impact(sys: &mut System, c: &DemConfig, frame_steps: u64, settled: f64) -> Re
                 .unwrap_or(0);
             let reach = sys.radius[target] + c.impactor_radius + 5e-4;
             let x = sys.x[target];
-            ("impactor", [x[0] - dir[0] * reach, x[1] - dir[1] * reach, 0.0])
+            (
+                "impactor",
+                [x[0] - dir[0] * reach, x[1] - dir[1] * reach, 0.0],
+            )
         }
         _ => {
             // Above the middle of the bed, 2 mm above the height where it
@@ -722,7 +775,10 @@ fn impact(sys: &mut System, c: &DemConfig, frame_steps: u64, settled: f64) -> Re
         frames.push(s);
         forces.push(f);
         if c.verbose && frame % 20 == 0 {
-            eprintln!("  impact: frame {frame}/{frames_total}, {} contacts", frames.last().map(|s| s.contacts.len()).unwrap_or(0));
+            eprintln!(
+                "  impact: frame {frame}/{frames_total}, {} contacts",
+                frames.last().map(|s| s.contacts.len()).unwrap_or(0)
+            );
         }
     }
     Ok((frames, forces, max_overlap))

@@ -284,13 +284,10 @@ impl System {
             return true;
         }
         let limit = 0.25 * self.nlist.skin * self.nlist.skin;
-        self.x
-            .iter()
-            .zip(&self.nlist.reference)
-            .any(|(x, r)| {
-                let d = sub(*x, *r);
-                dot(d, d) > limit
-            })
+        self.x.iter().zip(&self.nlist.reference).any(|(x, r)| {
+            let d = sub(*x, *r);
+            dot(d, d) > limit
+        })
     }
 
     /// Rebuilds the pair list with a cell grid (O(N)), keeping the history of
@@ -553,7 +550,9 @@ impl System {
                     hist.id = *next_id;
                     *next_id += 1;
                 }
-                let cf = wall.law.force(delta, rstar, mstar, vn, vt, n, &mut hist.xi, dt);
+                let cf = wall
+                    .law
+                    .force(delta, rstar, mstar, vn, vt, n, &mut hist.xi, dt);
                 let fa = [
                     -cf.normal * n[0] + cf.tangential[0],
                     -cf.normal * n[1] + cf.tangential[1],
@@ -860,7 +859,9 @@ impl System {
                 }
                 let ri = self.radius[i];
                 let (delta, rstar) = match wall.shape {
-                    WallShape::Plane { normal } => (ri - dot(sub(self.x[i], wall.position), normal), ri),
+                    WallShape::Plane { normal } => {
+                        (ri - dot(sub(self.x[i], wall.position), normal), ri)
+                    }
                     WallShape::Ball { radius } => {
                         let d = sub(wall.position, self.x[i]);
                         (ri + radius - dot(d, d).sqrt(), ri * radius / (ri + radius))
