@@ -309,10 +309,7 @@ fn run_lammps(lmp: &Path, input: &Path, grains: usize) -> Option<f64> {
         .output()
         .ok()?;
     let text = std::fs::read_to_string(dir.join(&log)).ok()?;
-    let line = text
-        .lines()
-        .filter(|l| l.starts_with("Loop time of"))
-        .last()?;
+    let line = text.lines().rev().find(|l| l.starts_with("Loop time of"))?;
     let words: Vec<&str> = line.split_whitespace().collect();
     let seconds: f64 = words.get(3)?.parse().ok()?;
     let steps: f64 = words.get(8)?.parse().ok()?;

@@ -292,6 +292,9 @@ fn mean_volume(c: &DemConfig, radii: &[f64]) -> f64 {
         / radii.len() as f64
 }
 
+/// A plane wall to add: name, axis, position along it, normal sign, servo-controlled.
+type PlaneSpec = (&'static str, usize, f64, f64, bool);
+
 struct Built {
     sys: System,
     /// √(m_min / k_max): the time scale the step is a fraction of.
@@ -338,7 +341,7 @@ fn build(c: &DemConfig) -> Result<Built> {
     // at that speed overlaps by at most 2 % of the smallest radius.
     let servo_speed = (0.02 * rmin / tc).min(0.1 * (c.pressure / c.density).sqrt());
     let mean_v = mean_volume(c, &radii);
-    let (positions, walls): (Vec<Vec3>, Vec<(&str, usize, f64, f64, bool)>) = match c.preset {
+    let (positions, walls): (Vec<Vec3>, Vec<PlaneSpec>) = match c.preset {
         Preset::Oedometer | Preset::Box => {
             // Lateral size: the oedometer keeps the original's aspect (58
             // disks in 39 mm, 77 spheres in 5 mm × 5 mm); the box starts
