@@ -121,7 +121,23 @@ fn solve_one(
         regularized: 0,
         cones: cone_list,
     };
-    let sol = conic::solve(&problem, &opts.conic)?;
+    let mut sol = conic::solve(&problem, &opts.conic)?;
+    if opts.polish {
+        let objective = super::polish::Objective {
+            terms: vec![
+                (&system.stress, system.stress_rhs.as_slice(), 1.0),
+                (&system.momentum, system.momentum_rhs.as_slice(), lambda),
+            ],
+            equalities: Vec::new(),
+            tikhonov: 0.0,
+        };
+        if (1e-6..=1e6).contains(&lambda) {
+            if let Some(x) = super::polish::polish(system, &objective, &problem.cones, &sol.x)? {
+                sol.x = x;
+                sol.status = format!("{}+polished", sol.status);
+            }
+        }
+    }
     Ok((sol.x.clone(), sol))
 }
 

@@ -12,6 +12,7 @@
 pub mod dynamic;
 pub mod kinematics;
 mod lambda;
+mod polish;
 mod report;
 
 pub use dynamic::{DynamicOptions, Front, LambdaRule};
@@ -77,6 +78,8 @@ pub struct InferOptions {
     pub exact_first: bool,
     /// Check uniqueness (N(K_st) ∩ N(K_eq) = {0}) up to this many unknowns.
     pub identifiability_limit: usize,
+    /// Refine interior-point answers by solving exactly on their active set.
+    pub polish: bool,
 }
 
 impl Default for InferOptions {
@@ -94,6 +97,7 @@ impl Default for InferOptions {
             dynamic_front: false,
             exact_first: true,
             identifiability_limit: 200_000,
+            polish: true,
         }
     }
 }
@@ -362,7 +366,20 @@ fn solve_system(
         });
     }
     match conic::solve(&problem, &opts.conic) {
-        Ok(sol) => Ok((sol.x.clone(), Some(sol))),
+        Ok(mut sol) => {
+            if opts.polish && !sol.softened && !opts.allow_infeasible {
+                let objective = polish::Objective {
+                    terms: vec![(&system.stress, system.stress_rhs.as_slice(), 1.0)],
+                    equalities: vec![(&system.momentum, system.momentum_rhs.as_slice())],
+                    tikhonov: lambda * lambda,
+                };
+                if let Some(x) = polish::polish(system, &objective, &problem.cones, &sol.x)? {
+                    sol.x = x;
+                    sol.status = format!("{}+polished", sol.status);
+                }
+            }
+            Ok((sol.x.clone(), Some(sol)))
+        }
         Err(Error::Infeasible(_)) => Err(diagnose_infeasible(system, opts, &problem)),
         Err(e) => Err(e),
     }
