@@ -73,37 +73,49 @@ fn knee_of_degenerate_fronts() {
 /// A 2D packing whose forces are out of balance: each grain accelerates as
 /// Newton says, and the scene carries mass, acceleration, inertia and α.
 fn accelerating_packing() -> (Scene, Vec<Vec3>) {
-    let (mut s, truth) = square_2d(5, 4, 0.5);
+    let (s, truth) = square_2d(5, 4, 0.5);
+    unbalance(s, truth)
+}
+
+/// Scales each contact force by its own factor and gives every grain the
+/// acceleration and angular acceleration that the net force and moment imply.
+fn unbalance(mut s: Scene, truth: Vec<Vec3>) -> (Scene, Vec<Vec3>) {
     let forces: Vec<Vec3> = truth
         .iter()
         .enumerate()
         .map(|(i, f)| {
             let k = 1.0 + 0.2 * ((i as f64) * 1.7).sin();
-            [f[0] * k, f[1] * k, 0.0]
+            [f[0] * k, f[1] * k, f[2] * k]
         })
         .collect();
-    let mut net = vec![([0.0; 3], 0.0); s.grains.len()];
+    let mut net = vec![([0.0; 3], [0.0; 3]); s.grains.len()];
     for (c, f) in s.contacts.iter().zip(&forces) {
         let mut sides = vec![(c.a, *f)];
         if let Body::Grain(b) = c.b {
-            sides.push((b, [-f[0], -f[1], 0.0]));
+            sides.push((b, [-f[0], -f[1], -f[2]]));
         }
         for (p, fp) in sides {
             let r = scene::sub(c.point, s.grains[p].position);
-            for k in 0..2 {
+            let m = scene::cross(r, fp);
+            for k in 0..3 {
                 net[p].0[k] += fp[k];
+                net[p].1[k] += m[k];
             }
-            net[p].1 += scene::cross(r, fp)[2];
         }
     }
+    let dim = s.dim;
     for (g, (force, moment)) in s.grains.iter_mut().zip(net) {
         let m = 2650.0 * g.volume;
         let r = g.radius.unwrap();
-        let i = 0.5 * m * r * r;
+        let i = if dim == 2 {
+            0.5 * m * r * r
+        } else {
+            0.4 * m * r * r
+        };
         g.mass = Some(m);
-        g.acceleration = Some([force[0] / m, force[1] / m, 0.0]);
+        g.acceleration = Some([force[0] / m, force[1] / m, force[2] / m]);
         g.inertia = Some(Inertia::Scalar(i));
-        g.angular_acceleration = Some([0.0, 0.0, moment / i]);
+        g.angular_acceleration = Some([moment[0] / i, moment[1] / i, moment[2] / i]);
     }
     set_stresses(&mut s, &forces);
     (s, forces)
@@ -169,4 +181,58 @@ fn lambda_at_both_ends_tends_to_the_right_limits() {
     let r = infer(&s, &dynamic(LambdaRule::Fixed(1e-12))).unwrap();
     assert!(r.forces_or_zero().iter().flatten().all(|x| x.is_finite()));
     assert!(r.report.stress_residual <= 1e-6, "{}", r.report);
+}
+
+#[test]
+fn accelerating_sphere_stack_3d() {
+    let mut s = Scene::new(3);
+    let r = 0.0006;
+    for k in 0..2 {
+        for j in 0..2 {
+            for i in 0..2 {
+                let id = format!("{}", s.grains.len());
+                s.grains.push(grain(
+                    &id,
+                    [
+                        r + 2.0 * r * i as f64,
+                        r + 2.0 * r * j as f64,
+                        r + 2.0 * r * k as f64,
+                    ],
+                    r,
+                    3,
+                ));
+            }
+        }
+    }
+    for a in 0..8 {
+        for b in a + 1..8 {
+            if scene::norm(scene::sub(s.grains[a].position, s.grains[b].position))
+                < 2.0 * r * 1.0001
+            {
+                touch(&mut s, a, b, Some(0.5));
+            }
+        }
+    }
+    for a in 0..8 {
+        let p = s.grains[a].position;
+        for axis in 0..3 {
+            let mut n = [0.0; 3];
+            n[axis] = if p[axis] < 1.5 * r { -1.0 } else { 1.0 };
+            wall(&mut s, a, &format!("w{axis}{}", n[axis]), n, Some(0.0));
+        }
+    }
+    let guess = compressive_guess(&s, 70.0, 0.2);
+    let truth = equilibrate(&s, &guess);
+    let (s, truth) = unbalance(s, truth);
+    for rule in [
+        LambdaRule::Hard,
+        LambdaRule::Weights {
+            stress_sd: 0.1,
+            momentum_sd: 0.01,
+        },
+    ] {
+        let r = infer(&s, &dynamic(rule)).unwrap();
+        let e = relerr(&truth, &r.forces_or_zero());
+        assert!(e <= 1e-4, "{rule:?}: relerr {e}\n{}", r.report);
+    }
 }
