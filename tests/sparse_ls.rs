@@ -1,7 +1,12 @@
 //! Sparse equality-constrained least squares and the identifiability test,
 //! checked against dense nalgebra solutions and planted structure.
 
-use grainforce::solver::sparse_ls::{identifiability, EqualityLeastSquares};
+use std::path::Path;
+
+use grainforce::assemble::{assemble, AssembleOptions};
+use grainforce::dem::{simulate, DemConfig, Preset};
+use grainforce::scene::read_scene;
+use grainforce::solver::sparse_ls::{identifiability, EqualityLeastSquares, CONVERGED_TOL};
 use grainforce::solver::Triplets;
 use grainforce::Error;
 use nalgebra::{DMatrix, DVector};
@@ -644,4 +649,151 @@ fn invalid_inputs_are_errors_not_panics() {
     ragged.vals.push(1.0);
     assert!(invalid(EqualityLeastSquares::new(&a, &ragged).map(|_| ())));
     assert!(invalid(identifiability(&a, &ragged).map(|_| ())));
+}
+
+/// Dense reference by the null-space method, independent of the KKT route: x =
+/// x_p + N w with x_p = C⁺ d and N a basis of N(C) (both from the SVD of C padded
+/// to square, so redundant rows of C, as in 3D GEM systems, are fine), then w
+/// from the least-squares problem ‖[A N; λ N] w − [b − A x_p; −λ x_p]‖ by QR.
+fn dense_nullspace_solution(
+    a: &Triplets,
+    c: &Triplets,
+    b: &[f64],
+    d: &[f64],
+    lambda: f64,
+) -> Vec<f64> {
+    let n = a.ncols;
+    let (ad, cd) = (dense(a), dense(c));
+    let mut padded = DMatrix::zeros(n.max(c.nrows), n);
+    padded.view_mut((0, 0), (c.nrows, n)).copy_from(&cd);
+    let svd = padded.svd(true, true);
+    let (u, v_t) = (svd.u.as_ref().unwrap(), svd.v_t.as_ref().unwrap());
+    let cutoff = 1e-12 * svd.singular_values.max();
+    let mut d_padded = DVector::zeros(u.nrows());
+    d_padded.rows_mut(0, c.nrows).copy_from_slice(d);
+    let mut x_p = DVector::zeros(n);
+    let mut null_rows = Vec::new();
+    for (k, &sigma) in svd.singular_values.iter().enumerate() {
+        if sigma > cutoff {
+            x_p += v_t.row(k).transpose() * (u.column(k).dot(&d_padded) / sigma);
+        } else {
+            null_rows.push(k);
+        }
+    }
+    let null_basis = v_t.select_rows(&null_rows).transpose();
+    let k = null_basis.ncols();
+    let mut m = DMatrix::zeros(a.nrows + n, k);
+    m.view_mut((0, 0), (a.nrows, k))
+        .copy_from(&(&ad * &null_basis));
+    m.view_mut((a.nrows, 0), (n, k))
+        .copy_from(&(&null_basis * lambda));
+    let mut rhs = DVector::zeros(a.nrows + n);
+    rhs.rows_mut(0, a.nrows)
+        .copy_from(&(DVector::from_column_slice(b) - &ad * &x_p));
+    rhs.rows_mut(a.nrows, n).copy_from(&(&x_p * -lambda));
+    let qr = m.qr();
+    let w = qr
+        .r()
+        .solve_upper_triangular(&(qr.q().transpose() * rhs))
+        .expect("A is full rank on N(C)");
+    (x_p + null_basis * w).iter().copied().collect()
+}
+
+/// Every GEM system of a DEM scene (stress rows underdetermined, momentum rows
+/// completing them) must agree with a dense solution to ~round-off and say so.
+fn check_gem_systems(label: &str, scene: &grainforce::scene::Scene) {
+    let options = AssembleOptions {
+        prune_single_contacts: true,
+        ..Default::default()
+    };
+    let assembly = assemble(scene, &options).unwrap();
+    assert!(!assembly.systems.is_empty(), "{label}: no system");
+    for (k, s) in assembly.systems.iter().enumerate() {
+        let (a, c) = (&s.stress, &s.momentum);
+        assert!(
+            a.nrows < s.n,
+            "{label}/{k}: stress rows alone should be underdetermined"
+        );
+        let id = identifiability(a, c).unwrap();
+        assert!(id.unique, "{label}/{k}: {id:?}");
+        let mut solver = EqualityLeastSquares::new(a, c).unwrap();
+        for lambda in [0.0, 0.1] {
+            let sol = solver
+                .solve(a, c, &s.stress_rhs, &s.momentum_rhs, lambda)
+                .unwrap();
+            let reference = dense_nullspace_solution(a, c, &s.stress_rhs, &s.momentum_rhs, lambda);
+            let diff = rel_diff(&sol.x, &reference);
+            assert!(
+                sol.converged && sol.kkt_residual <= CONVERGED_TOL,
+                "{label}/{k} λ = {lambda}: converged {} kkt residual {:e} after {} steps (rel diff {diff:e})",
+                sol.converged,
+                sol.kkt_residual,
+                sol.refinement_steps
+            );
+            assert!(
+                diff <= 1e-12,
+                "{label}/{k} λ = {lambda}: sparse vs dense rel diff {diff:e}"
+            );
+            assert!(
+                sol.equality_residual <= 1e-13 * (1.0 + norm(&s.momentum_rhs)),
+                "{label}/{k} λ = {lambda}: ‖Cx−d‖∞ = {:e}",
+                sol.equality_residual
+            );
+        }
+    }
+}
+
+fn regression_scene(name: &str) -> grainforce::scene::Scene {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("fixtures/regression")
+        .join(name);
+    read_scene(&dir).unwrap()
+}
+
+#[test]
+fn gem_systems_match_dense_solution() {
+    // 2D oedometer whose system has a single-entry momentum row with zero target:
+    // it used to stop refinement at the first solve (7e-7 off, converged: false).
+    check_gem_systems(
+        "oedometer 2D seed 1",
+        &regression_scene("oedometer2d_seed1"),
+    );
+    // 3D: redundant momentum rows, same saturated-row symptom (converged: false).
+    check_gem_systems(
+        "oedometer 3D seed 1",
+        &regression_scene("oedometer3d_seed1"),
+    );
+    // A fresh 2D DEM run (~1 s in the dev profile).
+    let run = simulate(&DemConfig::preset(Preset::Oedometer, 2).seed(2).gate(1e-10)).unwrap();
+    check_gem_systems("oedometer 2D seed 2", run.frames.last().unwrap());
+}
+
+#[test]
+fn constraint_pinning_an_unknown_to_zero_converges() {
+    // Minimal form of the GEM case above: A underdetermined, C completes it, and
+    // one row of C pins an unknown to 0. The computed unknown is ~1e-17, never
+    // exactly 0, so that row's own terms are pure round-off.
+    let mut rng = ChaCha8Rng::seed_from_u64(11);
+    let n = 24;
+    for lambda in [0.0, 0.1] {
+        let a = random_sparse(&mut rng, 14, n, 0.3);
+        let mut c = random_sparse(&mut rng, 9, n, 0.3);
+        c.nrows = 10;
+        c.push(9, 5, 0.7);
+        assert!(identifiability(&a, &c).unwrap().unique);
+        let b = random_vec(&mut rng, 14);
+        let mut d = random_vec(&mut rng, 10);
+        d[9] = 0.0;
+        let mut solver = EqualityLeastSquares::new(&a, &c).unwrap();
+        let sol = solver.solve(&a, &c, &b, &d, lambda).unwrap();
+        let reference = dense_solution(&a, &c, &b, &d, lambda);
+        let diff = rel_diff(&sol.x, &reference);
+        assert!(
+            sol.converged,
+            "λ = {lambda}: kkt residual {:e} (rel diff {diff:e})",
+            sol.kkt_residual
+        );
+        assert!(diff <= 1e-12, "λ = {lambda}: rel diff {diff:e}");
+        assert!(sol.x[5].abs() <= 1e-14 * norm(&sol.x));
+    }
 }

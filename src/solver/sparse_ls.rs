@@ -53,6 +53,9 @@ const MAX_REFINEMENT_STEPS: usize = 60;
 const EQUILIBRATION_PASSES: usize = 4;
 /// Consecutive steps without a 10 % decrease before refinement gives up.
 const STALL_STEPS: usize = 3;
+/// Constraint rows whose terms |C_i||y| + |d_i| fall below this × (KKT size) × u
+/// × (‖C_i‖∞‖y‖∞ + |d_i|) are at round-off level (Arioli–Demmel–Duff's τ).
+const ADD_FACTOR: f64 = 1000.0;
 /// Below this many KKT unknowns faer runs sequentially by default.
 const PARALLEL_MIN_SIZE: usize = 200_000;
 
@@ -72,7 +75,10 @@ pub struct LsSolution {
     pub converged: bool,
     /// Final relative KKT residual in the equilibrated system: the larger of the
     /// stationarity residual ‖r‖∞ / ‖|K||z| + |rhs|‖∞ and the worst constraint row
-    /// |C_i x − d_i| / (|C_i||x| + |d_i|).
+    /// |C_i x − d_i| / (|C_i||x| + |d_i|). Rows whose own terms are at round-off
+    /// level relative to the solution (e.g. a single-entry row with d_i = 0, which
+    /// pins one unknown to zero) add ‖C_i‖∞‖x‖∞ to that denominator (Arioli,
+    /// Demmel & Duff 1989), since no solve resolves them better than round-off.
     pub kkt_residual: f64,
 }
 
@@ -117,6 +123,8 @@ struct Numeric {
     c_row_scale: Vec<f64>,
     /// λ² s_j², the Tikhonov term in scaled variables.
     lambda2_s2: Vec<f64>,
+    /// ‖row i of T C S‖∞, for the round-off-level rows of the primal residual.
+    c_row_max: Vec<f64>,
     l_values: Vec<f64>,
 }
 
@@ -432,6 +440,14 @@ impl EqualityLeastSquares {
         }
         c_row_scale = row_inverse_norms(&self.c_csr, &col_scale);
         let lambda2_s2: Vec<f64> = col_scale.iter().map(|s| lambda * lambda * s * s).collect();
+        let c_row_max: Vec<f64> = (0..mc)
+            .map(|i| {
+                let scaled = |q: usize| {
+                    (self.c_csr.val[q] * col_scale[self.c_csr.idx[q]] * c_row_scale[i]).abs()
+                };
+                self.c_csr.range(i).map(scaled).fold(0.0, f64::max)
+            })
+            .collect();
 
         let size = n + mc;
         let mut values = vec![0.0; self.kkt_row_idx.len()];
@@ -517,6 +533,7 @@ impl EqualityLeastSquares {
             col_scale,
             c_row_scale,
             lambda2_s2,
+            c_row_max,
             l_values,
         });
         Ok(())
@@ -562,7 +579,11 @@ impl EqualityLeastSquares {
             r.push(g);
         }
         // Constraints are checked row by row (componentwise): each equation must
-        // hold to round-off relative to its own terms.
+        // hold to round-off relative to its own terms. A row whose terms are
+        // themselves round-off of the solution (d_i = 0 and C_i y ≈ 0, e.g. one
+        // entry pinning y_j = 0) cannot do better than |y_j| ~ u‖y‖, and the pure
+        // componentwise ratio would then read 1 forever; such rows are measured
+        // against ‖C_i‖∞‖y‖∞ as well (Arioli, Demmel & Duff, SIMAX 1989).
         let ratio = |num: f64, den: f64| {
             if num == 0.0 {
                 0.0
@@ -570,10 +591,19 @@ impl EqualityLeastSquares {
                 (num / den).min(1.0)
             }
         };
+        let y_max = y.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        let roundoff_level = ADD_FACTOR * z.len() as f64 * f64::EPSILON;
         let mut primal = 0.0f64;
         for i in 0..d_hat.len() {
             let rc = d_hat[i] - cy[i];
-            primal = primal.max(ratio(rc.abs(), primal_bound[i] + d_hat[i].abs()));
+            let own_terms = primal_bound[i] + d_hat[i].abs();
+            let normwise = num.c_row_max[i] * y_max;
+            let den = if own_terms > roundoff_level * (normwise + d_hat[i].abs()) {
+                own_terms
+            } else {
+                own_terms + normwise
+            };
+            primal = primal.max(ratio(rc.abs(), den));
             r.push(rc);
         }
         (r, ratio(dual_num, dual_den), primal)
