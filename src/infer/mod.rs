@@ -334,6 +334,23 @@ fn solve_system(
     } else {
         Vec::new()
     };
+    // Fit of the stress rows relative to fitting them with zero forces.
+    let fit = |x: &[f64]| {
+        let b2: f64 = system.stress_rhs.iter().map(|v| v * v).sum();
+        let r2: f64 = system
+            .stress
+            .mul(x)
+            .iter()
+            .zip(&system.stress_rhs)
+            .map(|(a, b)| (a - b).powi(2))
+            .sum();
+        if b2 > 0.0 {
+            r2 / b2
+        } else {
+            0.0
+        }
+    };
+    let mut unconstrained_fit = None;
     if !opts.allow_infeasible && (opts.exact_first || !with_cones) {
         let (ls, converged) = least_squares(system, lambda)?;
         if !with_cones {
@@ -344,6 +361,8 @@ fn solve_system(
                 return Ok((x, Some(ls)));
             }
         }
+        // Even unconverged, it shows how well the data can be fitted.
+        unconstrained_fit = Some(fit(&ls.x));
     }
     let mut problem = ConicProblem {
         n: system.n,
@@ -366,6 +385,42 @@ fn solve_system(
         });
     }
     match conic::solve(&problem, &opts.conic) {
+        Ok(sol) if !opts.allow_infeasible && degenerate(fit(&sol.x), unconstrained_fit) => {
+            // Equilibrium and the cones leave almost no room (data slightly out
+            // of balance with contacts at their friction limit): the hard answer
+            // fits far worse than the data allow. Try momentum as a heavy penalty
+            // and keep it if it balances to data precision and fits clearly better.
+            let hard_fit = fit(&sol.x);
+            let mut soft_problem = problem.clone();
+            soft_problem.equalities.clear();
+            soft_problem.terms.push(Term {
+                matrix: &system.momentum,
+                rhs: &system.momentum_rhs,
+                weight: COLLAPSE_WEIGHT,
+            });
+            let mut soft = conic::solve(&soft_problem, &opts.conic)?;
+            let residual = system
+                .momentum
+                .mul(&soft.x)
+                .iter()
+                .zip(&system.momentum_rhs)
+                .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+            let mean = mean_magnitude(system, &soft.x);
+            if residual <= BALANCE_PRECISION * mean && fit(&soft.x) < 0.1 * hard_fit {
+                soft.softened = true;
+                soft.warnings.push(format!(
+                    "momentum balance and the friction cones leave almost no room (data slightly out of balance \
+                     with contacts at their friction limit): with momentum exact the stress rows fit {:.1e}, with \
+                                          momentum as a penalty {:.1e} at a momentum residual of {:.1e} of the mean force; the latter is returned",
+                    hard_fit.sqrt(),
+                    fit(&soft.x).sqrt(),
+                    residual / mean
+                ));
+                Ok((soft.x.clone(), Some(soft)))
+            } else {
+                Ok((sol.x.clone(), Some(sol)))
+            }
+        }
         Ok(mut sol) => {
             if opts.polish && !sol.softened && !opts.allow_infeasible {
                 let objective = polish::Objective {
@@ -383,6 +438,26 @@ fn solve_system(
         Err(Error::Infeasible(_)) => Err(diagnose_infeasible(system, opts, &problem)),
         Err(e) => Err(e),
     }
+}
+
+/// Weight of the momentum rows when the hard-equality feasible set collapses.
+const COLLAPSE_WEIGHT: f64 = 1e6;
+
+/// Largest momentum residual (relative to the mean contact force) accepted from
+/// the penalty form: beyond it the data are not "slightly" out of balance.
+const BALANCE_PRECISION: f64 = 1e-2;
+
+/// Mean magnitude of the (dimensionless) contact forces of a solution.
+fn mean_magnitude(system: &System, x: &[f64]) -> f64 {
+    let forces = system.forces(x);
+    let total: f64 = forces.iter().map(|(_, f)| crate::scene::norm(*f)).sum();
+    (total / forces.len().max(1) as f64 / system.scales.force).max(f64::MIN_POSITIVE)
+}
+
+/// The constrained fit (relative, squared) is far worse than the unconstrained
+/// one: the feasible set is (nearly) degenerate.
+fn degenerate(constrained: f64, unconstrained: Option<f64>) -> bool {
+    constrained > 1e-12 && unconstrained.is_some_and(|u| constrained > 100.0 * u)
 }
 
 /// Relative size of a cone violation treated as round-off of an exact answer.

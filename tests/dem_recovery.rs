@@ -1,0 +1,76 @@
+//! Exact DEM data → the DEM's forces, 2D and 3D, oedometer and box presets.
+
+use grainforce::dem::{simulate, DemConfig, Preset};
+use grainforce::infer::{infer, InferOptions};
+use grainforce::report::metrics::relative_error;
+use grainforce::scene::{read_forces, read_scene, Scene, Vec3};
+use std::path::Path;
+
+fn fixture(name: &str) -> (Scene, Vec<Vec3>) {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("fixtures")
+        .join(name);
+    let scene = read_scene(&dir).unwrap();
+    let truth = read_forces(&dir.join("forces.csv"))
+        .unwrap()
+        .for_scene(&scene, &dir)
+        .unwrap();
+    (scene, truth)
+}
+
+fn qs_relerr(scene: &Scene, truth: &[Vec3]) -> (f64, grainforce::infer::InferenceReport) {
+    let r = infer(scene, &InferOptions::default()).unwrap();
+    (relative_error(truth, &r.forces_or_zero()), r.report)
+}
+
+#[test]
+fn oedometer_2d_and_3d() {
+    for name in ["oedometer", "regression/oedometer3d_seed1"] {
+        let (scene, truth) = fixture(name);
+        let (e, report) = qs_relerr(&scene, &truth);
+        eprintln!("{name}: relerr {e:.2e}");
+        assert!(e <= 1e-6, "{name}: relerr {e}\n{report}");
+        assert_eq!(report.unique, Some(true));
+    }
+}
+
+#[test]
+fn box_2d_fresh_from_the_dem() {
+    let run = simulate(
+        &DemConfig::preset(Preset::Box, 2)
+            .grains(150)
+            .seed(4)
+            .gate(1e-10),
+    )
+    .unwrap();
+    assert!(run.report.passed, "gate not reached");
+    let (e, report) = qs_relerr(&run.frames[0], &run.forces[0]);
+    assert!(e <= 1e-6, "relerr {e}\n{report}");
+}
+
+#[test]
+fn box_3d_near_balance() {
+    // The 3D box stops at its step limit short of the 1e-10 gate (unbalanced
+    // ratio 1e-8, contacts sliding): the hard-equality answer would fit the
+    // stresses to only 6e-2; the penalty form recovers the DEM to the data's precision.
+    let (scene, truth) = fixture("regression/box3d_seed1");
+    let (e, report) = qs_relerr(&scene, &truth);
+    assert!(e <= 1e-4, "relerr {e}\n{report}");
+    assert!(
+        report.warnings.iter().any(|w| w.contains("almost no room")),
+        "{report}"
+    );
+}
+
+#[test]
+fn collapsed_feasible_set_is_detected() {
+    // Slightly out of balance (unbalanced ratio 2.4e-7) with contacts sliding:
+    // the hard-equality feasible set is almost {0}. The answer must not be zero.
+    let (scene, truth) = fixture("regression/box3d_ungated");
+    let (e, report) = qs_relerr(&scene, &truth);
+    assert!(e <= 1e-3, "relerr {e}\n{report}");
+    assert!(
+        report.warnings.iter().any(|w| w.contains("almost no room")),
+        "{report}"
+    );
+}
