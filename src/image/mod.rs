@@ -11,11 +11,13 @@
 
 pub mod contacts;
 pub mod detect;
+pub mod dic;
 pub mod elastic;
 mod font;
 pub mod io;
 pub mod overlay;
 pub mod render;
+pub mod strain;
 pub mod synthetic;
 pub mod track;
 
@@ -30,7 +32,8 @@ pub use contacts::{find_contacts, ContactBody, PixelContact, WallLine};
 pub use detect::{detect_disks, DetectOptions, Disk, Polarity};
 pub use elastic::{Elasticity, PlaneCondition};
 pub use io::{load_gray, load_gray_sequence, save_gray};
-pub use render::{render_scene, RenderOptions, RenderedPair};
+pub use render::{render_scene, render_sequence, RenderOptions, RenderedPair, RenderedSequence};
+pub use strain::{measure_stresses, StrainOptions, StrainReport};
 pub use track::{track_sequence, TrackOptions, Tracker};
 
 /// Where an image sits in the scene: its scale and the scene coordinates of its
