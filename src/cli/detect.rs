@@ -1,7 +1,7 @@
 //! `grainforce detect`: photographs → scene folder.
 
 use grainforce::image::{
-    detect_images, overlay, DetectSettings, Polarity, WallLine, WallSource, FRAME_FILE,
+    detect_images, overlay, DetectSettings, PixelFrame, Polarity, WallLine, WallSource, FRAME_FILE,
 };
 use grainforce::scene::write_sequence;
 use grainforce::{Error, Result};
@@ -19,8 +19,12 @@ pub struct Args {
     #[arg(long, value_parser = parse_range)]
     radius: (f64, f64),
     /// Pixels per metre. Without it, lengths stay in pixels (1 px = 1 m).
-    #[arg(long)]
+    #[arg(long, conflicts_with = "frame")]
     scale: Option<f64>,
+    /// Pixel frame (image-frame.json, as `render` writes it): scale and the
+    /// scene position of the image, so detected positions match the scene's.
+    #[arg(long)]
+    frame: Option<PathBuf>,
     /// Out-of-plane thickness of the disks [m] (recorded in scene.json).
     #[arg(long)]
     thickness: Option<f64>,
@@ -89,14 +93,17 @@ fn overlay_path(base: &Path, frame: usize, count: usize) -> PathBuf {
 }
 
 pub fn run(args: Args) -> Result<()> {
-    let px_per_m = match args.scale {
-        Some(s) => s,
-        None => {
+    let frame = args.frame.as_deref().map(PixelFrame::read).transpose()?;
+    let px_per_m = match (args.scale, frame) {
+        (Some(s), _) => s,
+        (None, Some(f)) => f.px_per_m,
+        (None, None) => {
             eprintln!("note: no --scale given; lengths are written in pixels (1 px = 1 m)");
             1.0
         }
     };
     let mut settings = DetectSettings::new(args.radius.0, args.radius.1, px_per_m);
+    settings.frame = frame;
     settings.gap_px = args.gap;
     settings.thickness = args.thickness;
     settings.walls = walls(&args.walls)?;

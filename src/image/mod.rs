@@ -186,6 +186,9 @@ pub struct DetectSettings {
     pub gap_px: f64,
     pub walls: WallSource,
     pub px_per_m: f64,
+    /// A known placement of the images in the scene (e.g. the one `render`
+    /// wrote); overrides `px_per_m` and must match the images' size.
+    pub frame: Option<PixelFrame>,
     /// Out-of-plane thickness [m], recorded in scene.json.
     pub thickness: Option<f64>,
     pub track: TrackOptions,
@@ -198,6 +201,7 @@ impl DetectSettings {
             gap_px: 2.0,
             walls: WallSource::None,
             px_per_m,
+            frame: None,
             thickness: None,
             track: TrackOptions::new(radius_min),
         }
@@ -255,7 +259,24 @@ pub fn detect_images(
         match &first {
             Some(f) => io::check_same_size(f, &paths[0], &image, path)?,
             None => {
-                let frame = PixelFrame::at_origin(settings.px_per_m, image.width(), image.height());
+                let frame = match settings.frame {
+                    Some(f) if (f.width, f.height) != image.dimensions() => {
+                        return Err(Error::data(
+                            path,
+                            None,
+                            None,
+                            format!(
+                                "the image is {}×{} px but its pixel frame says {}×{}",
+                                image.width(),
+                                image.height(),
+                                f.width,
+                                f.height
+                            ),
+                        ))
+                    }
+                    Some(f) => f,
+                    None => PixelFrame::at_origin(settings.px_per_m, image.width(), image.height()),
+                };
                 frame.validate()?;
                 pixel_frame = Some(frame);
                 walls = match &settings.walls {
