@@ -395,3 +395,72 @@ fn bad_images_give_clear_errors() {
     let e = detect_disks(&empty, &DetectOptions::new(30.0, 10.0)).unwrap_err();
     assert!(e.to_string().contains("radius range"), "{e}");
 }
+
+#[test]
+fn wall_contacts_from_a_scene_and_from_image_edges() {
+    use grainforce::image::contacts::{edge_walls, walls_from_scene_contacts};
+    use grainforce::scene::{Contact, Grain};
+    // Three disks resting on a floor at y = 0.03 m, a fourth 5 mm above it.
+    let mut scene = Scene::new(2);
+    let floor = scene.wall_or_insert("floor");
+    for (k, (x, r, lift)) in [
+        (0.07, 0.04, 0.0),
+        (0.16, 0.045, 0.0),
+        (0.26, 0.04, 0.0),
+        (0.36, 0.035, 0.005),
+    ]
+    .iter()
+    .enumerate()
+    {
+        let mut g = Grain::new(
+            k.to_string(),
+            [*x, 0.03 + r + lift, 0.0],
+            std::f64::consts::PI * r * r,
+            [0.0; 6],
+        );
+        g.radius = Some(*r);
+        scene.grains.push(g);
+        if *lift == 0.0 {
+            scene.contacts.push(Contact {
+                id: k.to_string(),
+                a: k,
+                b: Body::Wall(floor),
+                point: [*x, 0.03, 0.0],
+                normal: [0.0, -1.0, 0.0],
+                mu: None,
+            });
+        }
+    }
+    let rendered = render_scene(&scene, &RenderOptions::new(1000.0, rubber())).unwrap();
+    let walls = walls_from_scene_contacts(&scene, &rendered.frame);
+    assert_eq!(walls.len(), 1);
+    let disks = detect_disks(&rendered.deformed, &DetectOptions::new(25.0, 55.0)).unwrap();
+    assert_eq!(disks.len(), 4);
+    let contacts = find_contacts(&disks, &walls, 2.0);
+    let on_floor: Vec<_> = contacts
+        .iter()
+        .filter(|c| c.b == ContactBody::Wall(0))
+        .collect();
+    assert_eq!(on_floor.len(), 3, "{contacts:?}");
+    for c in on_floor {
+        let n = rendered.frame.direction_to_scene(c.normal);
+        assert!(
+            (n[0]).abs() < 1e-9 && (n[1] + 1.0).abs() < 1e-9,
+            "normal {n:?} points into the floor"
+        );
+        let p = rendered.frame.to_scene(c.point);
+        assert!(
+            (p[1] - 0.03).abs() < 0.5e-3,
+            "contact point at y = {}",
+            p[1]
+        );
+    }
+    // The image edges as walls: the renderer left a 20 px margin, so with a
+    // 25 px threshold the disks nearest each side touch it, and with 15 px none do.
+    let edges = edge_walls(rendered.frame.width, rendered.frame.height);
+    let near = find_contacts(&disks, &edges, 25.0);
+    assert!(near.iter().any(|c| matches!(c.b, ContactBody::Wall(_))));
+    assert!(find_contacts(&disks, &edges, 15.0)
+        .iter()
+        .all(|c| !matches!(c.b, ContactBody::Wall(_))));
+}

@@ -46,6 +46,16 @@ impl WallLine {
         WallLine::new(name.trim(), [v[0], v[1]], [v[2], v[3]])
     }
 
+    /// A wall given in scene coordinates [m], placed in the image by `frame`.
+    pub fn from_scene(
+        name: impl Into<String>,
+        p0: [f64; 2],
+        p1: [f64; 2],
+        frame: &super::PixelFrame,
+    ) -> Result<Self> {
+        WallLine::new(name, frame.to_pixel(p0), frame.to_pixel(p1))
+    }
+
     /// Unit normal of the line and its offset: points q on it satisfy n·q = d.
     fn normal_form(&self) -> ([f64; 2], f64) {
         let t = [self.p1[0] - self.p0[0], self.p1[1] - self.p0[1]];
@@ -164,5 +174,41 @@ pub fn find_contacts(disks: &[Disk], walls: &[WallLine], gap_px: f64) -> Vec<Pix
             },
         )
     });
+    out
+}
+
+/// The wall lines implied by a scene's wall contacts (e.g. a DEM's): for each
+/// wall, the line through its mean contact point, perpendicular to its mean
+/// normal, in the pixels of `frame`. Walls without contacts are skipped.
+pub fn walls_from_scene_contacts(
+    scene: &crate::scene::Scene,
+    frame: &super::PixelFrame,
+) -> Vec<WallLine> {
+    use crate::scene::Body;
+    let mut out = Vec::new();
+    for (w, wall) in scene.walls.iter().enumerate() {
+        let (mut point, mut normal, mut n) = ([0.0; 2], [0.0; 2], 0usize);
+        for c in scene.contacts.iter().filter(|c| c.b == Body::Wall(w)) {
+            for k in 0..2 {
+                point[k] += c.point[k];
+                normal[k] += c.normal[k];
+            }
+            n += 1;
+        }
+        if n == 0 {
+            continue;
+        }
+        let point = [point[0] / n as f64, point[1] / n as f64];
+        let length = normal[0].hypot(normal[1]);
+        if length == 0.0 {
+            continue;
+        }
+        let tangent = [-normal[1] / length, normal[0] / length];
+        let p0 = [point[0] - tangent[0], point[1] - tangent[1]];
+        let p1 = [point[0] + tangent[0], point[1] + tangent[1]];
+        if let Ok(line) = WallLine::from_scene(wall.name.clone(), p0, p1, frame) {
+            out.push(line);
+        }
+    }
     out
 }

@@ -4,7 +4,7 @@
 //!    the deformed image by zero-normalised cross-correlation (ZNCC) at integer
 //!    shifts; this finds the grain's rigid motion, hence its reference centre.
 //! 2. Subsets on a grid inside the disk (fully inside, with a margin): each
-//!    starts from the seed's affine warp, checks ±2 px of integer ZNCC around
+//!    starts from the seed's affine warp, checks ±1 px of integer ZNCC around
 //!    that prediction, then is refined by inverse-compositional Gauss–Newton
 //!    (first-order shape function, ZNSSD criterion) on a cubic B-spline
 //!    interpolant of the deformed image.
@@ -146,6 +146,19 @@ impl Prepared {
         let (wy, _) = weights(y - fy);
         let (ix, iy) = (fx as i64 - 1, fy as i64 - 1);
         let mut v = 0.0;
+        if ix >= 0 && iy >= 0 && ix + 3 < self.width as i64 && iy + 3 < self.height as i64 {
+            // The common case, without per-tap bounds checks.
+            let base = iy as usize * self.width + ix as usize;
+            for (b, wyb) in wy.iter().enumerate() {
+                let row = &self.coefficients[base + b * self.width..base + b * self.width + 4];
+                let r = wx[0] * row[0] as f64
+                    + wx[1] * row[1] as f64
+                    + wx[2] * row[2] as f64
+                    + wx[3] * row[3] as f64;
+                v += wyb * r;
+            }
+            return v;
+        }
         for (b, wyb) in wy.iter().enumerate() {
             let mut row = 0.0;
             for (a, wxa) in wx.iter().enumerate() {
