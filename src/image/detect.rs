@@ -40,6 +40,10 @@ pub struct DetectOptions {
     pub edge_smoothing_px: Option<f64>,
     /// Fraction of a disk's visible rays whose edge must lie on the fitted circle.
     pub min_support: f64,
+    /// Candidates with less support, down to this, are kept only when the
+    /// final model fit confirms an edge as sharp and as strong as the
+    /// confident disks' (small disks with many contacts show little rim).
+    pub min_support_confirmed: f64,
     /// Fraction of the circumference that must lie inside the image.
     pub min_visible: f64,
     /// Candidate centres: accumulator maxima above this fraction of the largest.
@@ -55,6 +59,7 @@ impl DetectOptions {
             smoothing_px: None,
             edge_smoothing_px: None,
             min_support: 0.45,
+            min_support_confirmed: 0.3,
             min_visible: 0.3,
             vote_threshold: 0.04,
         }
@@ -63,7 +68,7 @@ impl DetectOptions {
     /// The smoothing actually used.
     pub fn smoothing(&self) -> f64 {
         self.smoothing_px
-            .unwrap_or_else(|| (self.radius_min / 4.0).clamp(1.5, 6.0))
+            .unwrap_or_else(|| (self.radius_min / 5.0).clamp(1.5, 5.0))
     }
 }
 
@@ -159,11 +164,34 @@ pub fn detect_disks(image: &FloatImage, options: &DetectOptions) -> Result<Vec<D
             kept.push(d);
         }
     }
-    let polished: Vec<Disk> = (0..kept.len())
+    let fits: Vec<Option<ModelFit>> = (0..kept.len())
         .into_par_iter()
-        .map(|k| polish(image, &kept, k).unwrap_or(kept[k]))
+        .map(|k| polish(image, &kept, k))
         .collect();
-    let mut kept = polished;
+    // What a confirmed edge looks like: the confident disks' median fit.
+    let confident = |d: &Disk| d.support >= o.min_support;
+    let mut steps: Vec<f64> = Vec::new();
+    let mut widths: Vec<f64> = Vec::new();
+    for (d, f) in kept.iter().zip(&fits) {
+        if let (true, Some(f)) = (confident(d), f) {
+            steps.push(f.step.abs());
+            widths.push(f.width);
+        }
+    }
+    let (typical_step, typical_width) = (median(&mut steps), median(&mut widths));
+    let mut kept: Vec<Disk> = kept
+        .iter()
+        .zip(fits)
+        .filter_map(|(d, f)| match f {
+            Some(f) if confident(d) => Some(f.disk),
+            None if confident(d) => Some(*d),
+            Some(f) => (!steps.is_empty()
+                && f.step.abs() >= 0.5 * typical_step
+                && f.width <= 1.5 * typical_width + 0.3)
+                .then_some(f.disk),
+            None => None,
+        })
+        .collect();
     kept.sort_by(|a, b| a.y.total_cmp(&b.y).then(a.x.total_cmp(&b.x)));
     Ok(kept)
 }
@@ -175,7 +203,14 @@ pub fn detect_disks(image: &FloatImage, options: &DetectOptions) -> Result<Vec<D
 /// the disk only adds zero-mean scatter. Pixels on or near other disks are left
 /// out, so contacts do not pull the fit. `None` when the fit does not settle
 /// near the starting circle.
-fn polish(image: &FloatImage, disks: &[Disk], k: usize) -> Option<Disk> {
+struct ModelFit {
+    disk: Disk,
+    /// Intensity step b across the edge and the edge's width s [px].
+    step: f64,
+    width: f64,
+}
+
+fn polish(image: &FloatImage, disks: &[Disk], k: usize) -> Option<ModelFit> {
     let d = disks[k];
     let (w, h) = (image.width() as i64, image.height() as i64);
     let half = 3.5;
@@ -284,11 +319,15 @@ fn polish(image: &FloatImage, disks: &[Disk], k: usize) -> Option<Disk> {
     if !(shift < 2.0 && (p[2] - d.r).abs() < 2.0 && sign_ok && p.iter().all(|v| v.is_finite())) {
         return None;
     }
-    Some(Disk {
-        x: p[0],
-        y: p[1],
-        r: p[2],
-        ..d
+    Some(ModelFit {
+        disk: Disk {
+            x: p[0],
+            y: p[1],
+            r: p[2],
+            ..d
+        },
+        step: p[4],
+        width: p[5],
     })
 }
 
@@ -722,7 +761,10 @@ fn refine(
         .collect();
     let support = residuals.len() as f64 / visible_rays as f64;
     let visible = visible_rays as f64 / rays as f64;
-    if support < o.min_support || r < o.radius_min - 1.0 || r > o.radius_max + 1.0 {
+    if support < o.min_support_confirmed.min(o.min_support)
+        || r < o.radius_min - 1.0
+        || r > o.radius_max + 1.0
+    {
         return None;
     }
     // The step across the edge, measured outside the smoothing's reach.
