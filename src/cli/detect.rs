@@ -1,10 +1,152 @@
-//! `grainforce detect` (not built yet).
+//! `grainforce detect`: photographs → scene folder.
+
+use grainforce::image::{
+    detect_images, overlay, DetectSettings, PixelFrame, Polarity, WallLine, WallSource, FRAME_FILE,
+};
+use grainforce::scene::write_sequence;
+use grainforce::{Error, Result};
+use std::path::{Path, PathBuf};
 
 #[derive(clap::Args)]
-pub struct Args {}
+pub struct Args {
+    /// Images (grayscale or colour PNG, TIFF or BMP; 8- or 16-bit), one per frame.
+    #[arg(required = true)]
+    images: Vec<PathBuf>,
+    /// Scene folder to write (grains.csv, contacts.csv, scene.json, image-frame.json).
+    #[arg(short = 'o', long = "output")]
+    output: PathBuf,
+    /// Radius range of the disks, in pixels: MIN..MAX.
+    #[arg(long, value_parser = parse_range)]
+    radius: (f64, f64),
+    /// Pixels per metre. Without it, lengths stay in pixels (1 px = 1 m).
+    #[arg(long, conflicts_with = "frame")]
+    scale: Option<f64>,
+    /// Pixel frame (image-frame.json, as `render` writes it): scale and the
+    /// scene position of the image, so detected positions match the scene's.
+    #[arg(long)]
+    frame: Option<PathBuf>,
+    /// Out-of-plane thickness of the disks [m] (recorded in scene.json).
+    #[arg(long)]
+    thickness: Option<f64>,
+    /// Walls: `edges` for the image borders, or NAME=x0,y0,x1,y1 lines in pixels.
+    #[arg(long, num_args = 1..)]
+    walls: Vec<String>,
+    /// Largest gap between boundaries [px] that still counts as a contact.
+    #[arg(long, default_value_t = 2.0)]
+    gap: f64,
+    /// The disks are darker than their surroundings.
+    #[arg(long, conflicts_with = "either_polarity")]
+    dark_disks: bool,
+    /// Find both bright and dark disks.
+    #[arg(long)]
+    either_polarity: bool,
+    /// Gaussian smoothing before voting [px] (default: from the radius).
+    #[arg(long)]
+    smoothing: Option<f64>,
+    /// Overlay picture (PNG) of the detection; with several images one per
+    /// frame, numbered (overlay-0000.png, …).
+    #[arg(long)]
+    overlay: Option<PathBuf>,
+}
 
-pub fn run(_args: Args) -> grainforce::Result<()> {
-    Err(grainforce::Error::Invalid(
-        "`detect` is not available yet".into(),
+fn parse_range(s: &str) -> std::result::Result<(f64, f64), String> {
+    let (a, b) = s
+        .split_once("..")
+        .ok_or_else(|| format!("`{s}`: expected MIN..MAX, e.g. 20..35"))?;
+    let parse = |v: &str| {
+        v.trim()
+            .parse::<f64>()
+            .map_err(|_| format!("`{v}` is not a number"))
+    };
+    Ok((parse(a)?, parse(b)?))
+}
+
+fn walls(specs: &[String]) -> Result<WallSource> {
+    if specs.is_empty() {
+        return Ok(WallSource::None);
+    }
+    if specs.iter().any(|s| s == "edges") {
+        if specs.len() > 1 {
+            return Err(Error::Invalid(
+                "--walls edges cannot be combined with wall lines".into(),
+            ));
+        }
+        return Ok(WallSource::ImageEdges);
+    }
+    Ok(WallSource::Lines(
+        specs
+            .iter()
+            .map(|s| WallLine::parse(s))
+            .collect::<Result<_>>()?,
     ))
+}
+
+fn overlay_path(base: &Path, frame: usize, count: usize) -> PathBuf {
+    if count == 1 {
+        return base.to_owned();
+    }
+    let stem = base
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "overlay".into());
+    base.with_file_name(format!("{stem}-{frame:04}.png"))
+}
+
+pub fn run(args: Args) -> Result<()> {
+    let frame = args.frame.as_deref().map(PixelFrame::read).transpose()?;
+    let px_per_m = match (args.scale, frame) {
+        (Some(s), _) => s,
+        (None, Some(f)) => f.px_per_m,
+        (None, None) => {
+            eprintln!("note: no --scale given; lengths are written in pixels (1 px = 1 m)");
+            1.0
+        }
+    };
+    let mut settings = DetectSettings::new(args.radius.0, args.radius.1, px_per_m);
+    settings.frame = frame;
+    settings.gap_px = args.gap;
+    settings.thickness = args.thickness;
+    settings.walls = walls(&args.walls)?;
+    settings.detect.smoothing_px = args.smoothing;
+    settings.detect.polarity = if args.dark_disks {
+        Polarity::Dark
+    } else if args.either_polarity {
+        Polarity::Either
+    } else {
+        Polarity::Bright
+    };
+    let count = args.images.len();
+    let walls_for_overlay = match &settings.walls {
+        WallSource::Lines(l) => l.clone(),
+        _ => Vec::new(),
+    };
+    let detection = detect_images(&args.images, &settings, &mut |k, path, image, found| {
+        eprintln!(
+            "{}: {} disks, {} contacts",
+            path.display(),
+            found.disks.len(),
+            found.contacts.len()
+        );
+        if let Some(base) = &args.overlay {
+            let picture = overlay::draw_overlay(
+                image,
+                &found.disks,
+                &found.ids,
+                &found.contacts,
+                &walls_for_overlay,
+            );
+            overlay::save_overlay(&overlay_path(base, k, count), &picture)?;
+        }
+        Ok(())
+    })?;
+    let scenes: Vec<_> = detection.frames.iter().map(|f| f.scene.clone()).collect();
+    write_sequence(&args.output, &scenes)?;
+    detection.frame.write(&args.output.join(FRAME_FILE))?;
+    eprintln!(
+        "wrote {} ({} frame{})",
+        args.output.display(),
+        scenes.len(),
+        if scenes.len() == 1 { "" } else { "s" }
+    );
+    Ok(())
 }

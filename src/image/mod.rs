@@ -1,1 +1,331 @@
-//! (being built)
+//! Measurements from photographs: find disks ([`detect`]), their contacts
+//! ([`contacts`]) and identities over a sequence ([`track`]), their strains by
+//! digital image correlation ([`dic`], [`strain`]), and the reverse — draw a
+//! scene as a camera would see it ([`render`]) so that the whole chain can be
+//! tested against known answers.
+//!
+//! Pixel coordinates: `x_px` grows to the right along a row, `y_px` grows
+//! downward, and the centre of pixel (column j, row i) is at (j, i); the image
+//! covers [−0.5, W − 0.5] × [−0.5, H − 0.5]. Scene coordinates have y upward;
+//! [`PixelFrame`] converts between the two.
+
+pub mod contacts;
+pub mod detect;
+pub mod dic;
+pub mod elastic;
+mod font;
+pub mod io;
+pub mod overlay;
+pub mod render;
+pub mod strain;
+pub mod synthetic;
+pub mod track;
+
+use crate::error::{Error, Result};
+use crate::scene::{Body, Contact, Grain, Scene};
+use std::path::Path;
+
+/// A grayscale image with intensities in [0, 1] (8- and 16-bit inputs are scaled).
+pub type FloatImage = ::image::ImageBuffer<::image::Luma<f32>, Vec<f32>>;
+
+pub use contacts::{find_contacts, ContactBody, PixelContact, WallLine};
+pub use detect::{detect_disks, DetectOptions, Disk, Polarity};
+pub use elastic::{Elasticity, PlaneCondition};
+pub use io::{load_gray, load_gray_sequence, save_gray};
+pub use render::{render_scene, render_sequence, RenderOptions, RenderedPair, RenderedSequence};
+pub use strain::{measure_stresses, StrainOptions, StrainReport};
+pub use track::{track_sequence, TrackOptions, Tracker};
+
+/// Where an image sits in the scene: its scale and the scene coordinates of its
+/// bottom-left corner. Scene x = origin_x + (x_px + 0.5)/S and
+/// scene y = origin_y + (H − 0.5 − y_px)/S, with S pixels per metre.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct PixelFrame {
+    pub px_per_m: f64,
+    /// Scene coordinates [m] of the image's bottom-left corner (outer edge).
+    pub origin: [f64; 2],
+    pub width: u32,
+    pub height: u32,
+}
+
+impl PixelFrame {
+    /// The frame `detect` uses when nothing else is known: origin at the
+    /// bottom-left corner of the image.
+    pub fn at_origin(px_per_m: f64, width: u32, height: u32) -> Self {
+        PixelFrame {
+            px_per_m,
+            origin: [0.0, 0.0],
+            width,
+            height,
+        }
+    }
+
+    pub fn to_scene(&self, px: [f64; 2]) -> [f64; 2] {
+        [
+            self.origin[0] + (px[0] + 0.5) / self.px_per_m,
+            self.origin[1] + (self.height as f64 - 0.5 - px[1]) / self.px_per_m,
+        ]
+    }
+
+    pub fn to_pixel(&self, p: [f64; 2]) -> [f64; 2] {
+        [
+            (p[0] - self.origin[0]) * self.px_per_m - 0.5,
+            self.height as f64 - 0.5 - (p[1] - self.origin[1]) * self.px_per_m,
+        ]
+    }
+
+    /// A direction (e.g. a normal) from pixel to scene axes: y flips.
+    pub fn direction_to_scene(&self, d: [f64; 2]) -> [f64; 2] {
+        [d[0], -d[1]]
+    }
+
+    pub fn validate(&self) -> Result<()> {
+        if !(self.px_per_m.is_finite() && self.px_per_m > 0.0) {
+            return Err(Error::Invalid(format!(
+                "the image scale must be a positive number of pixels per metre, not {}",
+                self.px_per_m
+            )));
+        }
+        Ok(())
+    }
+
+    /// Reads `image-frame.json` as written by `detect` and `render`.
+    pub fn read(path: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let frame: PixelFrame = serde_json::from_str(&text)
+            .map_err(|e| Error::data(path, Some(e.line()), None, e.to_string()))?;
+        frame
+            .validate()
+            .map_err(|e| Error::data(path, None, Some("px_per_m"), e.to_string()))?;
+        Ok(frame)
+    }
+
+    pub fn write(&self, path: &Path) -> Result<()> {
+        let text = serde_json::to_string_pretty(self).expect("a frame always serialises");
+        std::fs::write(path, text + "\n").map_err(|e| Error::io(path, e))
+    }
+}
+
+/// The name of the file, beside a scene's CSV files, that records the pixel frame.
+pub const FRAME_FILE: &str = "image-frame.json";
+
+/// Builds a 2D scene from disks found in one image: grains with the given ids
+/// (area π r², `radius` column, zero stress), and contacts with grains or walls.
+/// Contact ids are their order, from 0.
+pub fn scene_from_detection(
+    disks: &[Disk],
+    ids: &[String],
+    contacts: &[PixelContact],
+    walls: &[WallLine],
+    frame: &PixelFrame,
+) -> Result<Scene> {
+    if ids.len() != disks.len() {
+        return Err(Error::Invalid(format!(
+            "{} ids given for {} disks",
+            ids.len(),
+            disks.len()
+        )));
+    }
+    frame.validate()?;
+    let s = frame.px_per_m;
+    let mut scene = Scene::new(2);
+    for (disk, id) in disks.iter().zip(ids) {
+        let p = frame.to_scene([disk.x, disk.y]);
+        let r = disk.r / s;
+        let mut grain = Grain::new(
+            id.clone(),
+            [p[0], p[1], 0.0],
+            std::f64::consts::PI * r * r,
+            [0.0; 6],
+        );
+        grain.radius = Some(r);
+        scene.grains.push(grain);
+    }
+    for (k, c) in contacts.iter().enumerate() {
+        let b = match c.b {
+            ContactBody::Disk(j) => Body::Grain(j),
+            ContactBody::Wall(w) => {
+                let name = &walls
+                    .get(w)
+                    .ok_or_else(|| {
+                        Error::Invalid(format!("contact {k} names wall {w}, not given"))
+                    })?
+                    .name;
+                Body::Wall(scene.wall_or_insert(name))
+            }
+        };
+        let p = frame.to_scene(c.point);
+        let n = frame.direction_to_scene(c.normal);
+        scene.contacts.push(Contact {
+            id: k.to_string(),
+            a: c.a,
+            b,
+            point: [p[0], p[1], 0.0],
+            normal: [n[0], n[1], 0.0],
+            mu: None,
+        });
+    }
+    Ok(scene)
+}
+
+/// Where the walls of a detection come from.
+#[derive(Debug, Clone, Default)]
+pub enum WallSource {
+    #[default]
+    None,
+    /// Lines the user gives, in pixels.
+    Lines(Vec<WallLine>),
+    /// The four image borders (`left`, `right`, `top`, `bottom`).
+    ImageEdges,
+}
+
+#[derive(Debug, Clone)]
+pub struct DetectSettings {
+    pub detect: DetectOptions,
+    /// Largest boundary gap [px] that still counts as a contact.
+    pub gap_px: f64,
+    pub walls: WallSource,
+    pub px_per_m: f64,
+    /// A known placement of the images in the scene (e.g. the one `render`
+    /// wrote); overrides `px_per_m` and must match the images' size.
+    pub frame: Option<PixelFrame>,
+    /// Out-of-plane thickness [m], recorded in scene.json.
+    pub thickness: Option<f64>,
+    pub track: TrackOptions,
+}
+
+impl DetectSettings {
+    pub fn new(radius_min: f64, radius_max: f64, px_per_m: f64) -> Self {
+        DetectSettings {
+            detect: DetectOptions::new(radius_min, radius_max),
+            gap_px: 2.0,
+            walls: WallSource::None,
+            px_per_m,
+            frame: None,
+            thickness: None,
+            track: TrackOptions::new(radius_min),
+        }
+    }
+}
+
+/// What one image gave.
+#[derive(Debug, Clone)]
+pub struct DetectedFrame {
+    pub disks: Vec<Disk>,
+    /// Grain ids, stable over the sequence.
+    pub ids: Vec<String>,
+    pub contacts: Vec<PixelContact>,
+    pub scene: Scene,
+}
+
+#[derive(Debug, Clone)]
+pub struct Detection {
+    pub frames: Vec<DetectedFrame>,
+    pub walls: Vec<WallLine>,
+    pub frame: PixelFrame,
+}
+
+/// Detects disks in each image of a sequence (one image: a single scene),
+/// tracks their ids, finds contacts and builds one scene per image. Images are
+/// read one at a time; `on_frame` sees each (e.g. to draw an overlay). Errors
+/// name the file: unreadable, of another size than the first, or without disks.
+pub fn detect_images(
+    paths: &[std::path::PathBuf],
+    settings: &DetectSettings,
+    on_frame: &mut dyn FnMut(usize, &Path, &FloatImage, &DetectedFrame) -> Result<()>,
+) -> Result<Detection> {
+    if paths.is_empty() {
+        return Err(Error::Invalid("no images given".into()));
+    }
+    if !(settings.gap_px.is_finite()) {
+        return Err(Error::Invalid(
+            "the contact gap must be a number of pixels".into(),
+        ));
+    }
+    if let Some(t) = settings.thickness {
+        if !(t.is_finite() && t > 0.0) {
+            return Err(Error::Invalid(format!(
+                "the thickness must be positive, not {t}"
+            )));
+        }
+    }
+    let mut tracker = track::Tracker::new(settings.track.clone())?;
+    let mut frames = Vec::with_capacity(paths.len());
+    let mut first: Option<FloatImage> = None;
+    let mut pixel_frame = None;
+    let mut walls = Vec::new();
+    for (k, path) in paths.iter().enumerate() {
+        let image = load_gray(path)?;
+        match &first {
+            Some(f) => io::check_same_size(f, &paths[0], &image, path)?,
+            None => {
+                let frame = match settings.frame {
+                    Some(f) if (f.width, f.height) != image.dimensions() => {
+                        return Err(Error::data(
+                            path,
+                            None,
+                            None,
+                            format!(
+                                "the image is {}×{} px but its pixel frame says {}×{}",
+                                image.width(),
+                                image.height(),
+                                f.width,
+                                f.height
+                            ),
+                        ))
+                    }
+                    Some(f) => f,
+                    None => PixelFrame::at_origin(settings.px_per_m, image.width(), image.height()),
+                };
+                frame.validate()?;
+                pixel_frame = Some(frame);
+                walls = match &settings.walls {
+                    WallSource::None => Vec::new(),
+                    WallSource::Lines(lines) => lines.clone(),
+                    WallSource::ImageEdges => contacts::edge_walls(image.width(), image.height()),
+                };
+                // Only its size is needed for the checks that follow.
+                first = Some(FloatImage::new(image.width(), image.height()));
+            }
+        }
+        let frame = pixel_frame.expect("set with the first image");
+        let disks = detect_disks(&image, &settings.detect)?;
+        if disks.is_empty() {
+            return Err(Error::data(
+                path,
+                None,
+                None,
+                format!(
+                    "no disks of radius {}..{} px found; check --radius (and the disks' polarity)",
+                    settings.detect.radius_min, settings.detect.radius_max
+                ),
+            ));
+        }
+        let ids: Vec<String> = tracker.assign(&disks).iter().map(u64::to_string).collect();
+        let contacts = find_contacts(&disks, &walls, settings.gap_px);
+        let mut scene = scene_from_detection(&disks, &ids, &contacts, &walls, &frame)?;
+        scene.settings.thickness = settings.thickness;
+        scene.settings.description = Some(format!(
+            "disks detected by grainforce in {}",
+            path.file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default()
+        ));
+        if paths.len() > 1 {
+            scene.frame = Some(k as i64);
+        }
+        let detected = DetectedFrame {
+            disks,
+            ids,
+            contacts,
+            scene,
+        };
+        on_frame(k, path, &image, &detected)?;
+        frames.push(detected);
+    }
+    Ok(Detection {
+        frames,
+        walls,
+        frame: pixel_frame.expect("at least one image"),
+    })
+}

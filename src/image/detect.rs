@@ -1,0 +1,1078 @@
+//! Finding disks in an image.
+//!
+//! 1. Smooth (Gaussian) and take Sobel gradients (imageproc).
+//! 2. Gradient-direction Hough voting: each edge pixel votes, weighted by its
+//!    gradient magnitude, for centres along its gradient over the radius range
+//!    (an accumulator padded so that centres of disks cut by the border count).
+//! 3. Local maxima of the smoothed accumulator are candidate centres.
+//! 4. Each candidate is refined: its radius from the mean radial intensity
+//!    derivative, then the edge located to sub-pixel precision along rays from
+//!    the centre and a circle fitted to those edge points by robust geometric
+//!    least squares (twice, the second time around the first fit).
+//! 5. A candidate is kept when enough of its visible rays agree with the fitted
+//!    circle (which rejects texture and noise) and the disk is brighter (or
+//!    darker) than its surroundings; duplicates are merged.
+
+use super::FloatImage;
+use crate::error::{Error, Result};
+use rayon::prelude::*;
+
+/// Whether the disks are brighter or darker than what surrounds them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Polarity {
+    Bright,
+    Dark,
+    Either,
+}
+
+#[derive(Debug, Clone)]
+pub struct DetectOptions {
+    /// Radius range [px] of the disks to find.
+    pub radius_min: f64,
+    pub radius_max: f64,
+    pub polarity: Polarity,
+    /// Gaussian smoothing before the voting gradients [px]; `None` picks it
+    /// from the radius (texture and noise must not outvote the boundary).
+    pub smoothing_px: Option<f64>,
+    /// Gaussian smoothing of the image the edges are located in [px]; `None`
+    /// picks it from the noise: 1 px on clean images (so the narrow gaps at
+    /// contacts keep their edges), more on noisy ones.
+    pub edge_smoothing_px: Option<f64>,
+    /// Fraction of a disk's visible rays whose edge must lie on the fitted circle.
+    pub min_support: f64,
+    /// Candidates with less support, down to this, are kept only when the
+    /// final model fit confirms an edge as sharp and as strong as the
+    /// confident disks' (small disks with many contacts show little rim).
+    pub min_support_confirmed: f64,
+    /// Fraction of the circumference that must lie inside the image.
+    pub min_visible: f64,
+    /// Candidate centres: accumulator maxima above this fraction of the largest.
+    pub vote_threshold: f64,
+}
+
+impl DetectOptions {
+    pub fn new(radius_min: f64, radius_max: f64) -> Self {
+        DetectOptions {
+            radius_min,
+            radius_max,
+            polarity: Polarity::Bright,
+            smoothing_px: None,
+            edge_smoothing_px: None,
+            min_support: 0.45,
+            min_support_confirmed: 0.3,
+            min_visible: 0.3,
+            vote_threshold: 0.04,
+        }
+    }
+
+    /// The smoothing actually used.
+    pub fn smoothing(&self) -> f64 {
+        self.smoothing_px
+            .unwrap_or_else(|| (self.radius_min / 5.0).clamp(1.5, 5.0))
+    }
+}
+
+/// A disk found in an image, in pixel coordinates (see the module docs of
+/// [`crate::image`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Disk {
+    pub x: f64,
+    pub y: f64,
+    pub r: f64,
+    /// Fraction of the visible rays whose edge lies on the fitted circle.
+    pub support: f64,
+    /// Fraction of the circumference inside the image.
+    pub visible: f64,
+    /// Intensity step across the edge (positive: as the polarity asked).
+    pub contrast: f64,
+    /// RMS distance of the inlying edge points from the circle [px].
+    pub rms: f64,
+}
+
+impl Disk {
+    /// Whether part of the disk lies outside the image.
+    pub fn cut_by_border(&self) -> bool {
+        self.visible < 0.999
+    }
+}
+
+/// Finds every disk whose radius lies in the given range. Returns them sorted
+/// by row, then column. An image without disks gives an empty list (the caller
+/// decides whether that is an error).
+pub fn detect_disks(image: &FloatImage, options: &DetectOptions) -> Result<Vec<Disk>> {
+    let o = options;
+    if !(o.radius_min.is_finite() && o.radius_max.is_finite())
+        || o.radius_min < 2.0
+        || o.radius_max < o.radius_min
+    {
+        return Err(Error::Invalid(format!(
+            "the radius range must satisfy 2 ≤ MIN ≤ MAX pixels, not {}..{}",
+            o.radius_min, o.radius_max
+        )));
+    }
+    let sigma = o.smoothing();
+    let (w, h) = image.dimensions();
+    if w < 8 || h < 8 {
+        return Err(Error::Invalid(format!(
+            "the image is only {w}×{h} px; too small to find disks in"
+        )));
+    }
+    let smooth = gaussian_blur(image, sigma);
+    let edge_sigma = o
+        .edge_smoothing_px
+        .unwrap_or_else(|| edge_smoothing_for_noise(image, &smooth, sigma));
+    if !(sigma.is_finite() && sigma > 0.0 && edge_sigma.is_finite() && edge_sigma > 0.0) {
+        return Err(Error::Invalid(format!(
+            "smoothing must be positive, not {sigma} and {edge_sigma} px"
+        )));
+    }
+    let edge_image = gaussian_blur(image, edge_sigma);
+    let plane = Plane {
+        data: edge_image.as_raw(),
+        w: w as usize,
+        h: h as usize,
+    };
+    let signs: &[f64] = match o.polarity {
+        Polarity::Bright => &[1.0],
+        Polarity::Dark => &[-1.0],
+        Polarity::Either => &[1.0, -1.0],
+    };
+    let accumulator = vote(&smooth, o, signs);
+    let mut candidates = peaks(&accumulator, o);
+    for &s in signs {
+        candidates.extend(distance_peaks(&smooth, s, o));
+    }
+    let mut found: Vec<Disk> = candidates
+        .par_iter()
+        .flat_map_iter(|&(cx, cy, hint)| {
+            let plane = &plane;
+            signs
+                .iter()
+                .filter_map(move |&s| refine(plane, [cx, cy], hint, s, edge_sigma, o))
+                .collect::<Vec<_>>()
+        })
+        .collect();
+    // Merge duplicates: the best-supported copy of each disk wins.
+    found.sort_by(|a, b| score(b).total_cmp(&score(a)));
+    let mut kept: Vec<Disk> = Vec::new();
+    for d in found {
+        let duplicate = kept.iter().any(|k| {
+            let dist = ((k.x - d.x).powi(2) + (k.y - d.y).powi(2)).sqrt();
+            dist < 0.7 * k.r.max(d.r)
+        });
+        if !duplicate {
+            kept.push(d);
+        }
+    }
+    let fits: Vec<Option<ModelFit>> = (0..kept.len())
+        .into_par_iter()
+        .map(|k| polish(image, &kept, k))
+        .collect();
+    // What a confirmed edge looks like: the confident disks' median fit.
+    let confident = |d: &Disk| d.support >= o.min_support;
+    let mut steps: Vec<f64> = Vec::new();
+    let mut widths: Vec<f64> = Vec::new();
+    for (d, f) in kept.iter().zip(&fits) {
+        if let (true, Some(f)) = (confident(d), f) {
+            steps.push(f.step.abs());
+            widths.push(f.width);
+        }
+    }
+    let (typical_step, typical_width) = (median(&mut steps), median(&mut widths));
+    let mut kept: Vec<Disk> = kept
+        .iter()
+        .zip(fits)
+        .filter_map(|(d, f)| match f {
+            Some(f) if confident(d) => Some(f.disk),
+            None if confident(d) => Some(*d),
+            Some(f) => (!steps.is_empty()
+                && f.step.abs() >= 0.5 * typical_step
+                && f.width <= 1.5 * typical_width + 0.3)
+                .then_some(f.disk),
+            None => None,
+        })
+        .collect();
+    kept.sort_by(|a, b| a.y.total_cmp(&b.y).then(a.x.total_cmp(&b.x)));
+    Ok(kept)
+}
+
+/// Final sub-pixel fit of a disk model to the raw pixels of a ring around the
+/// edge: I ≈ a + b / (1 + exp((|p − c| − r)/s)), by Levenberg–Marquardt over
+/// (cx, cy, r, a, b, s). Under white noise this least-squares fit uses every
+/// pixel's evidence (the ray edges use one point per ray), and texture inside
+/// the disk only adds zero-mean scatter. Pixels on or near other disks are left
+/// out, so contacts do not pull the fit. `None` when the fit does not settle
+/// near the starting circle.
+struct ModelFit {
+    disk: Disk,
+    /// Intensity step b across the edge and the edge's width s [px].
+    step: f64,
+    width: f64,
+}
+
+fn polish(image: &FloatImage, disks: &[Disk], k: usize) -> Option<ModelFit> {
+    let d = disks[k];
+    let (w, h) = (image.width() as i64, image.height() as i64);
+    let half = 3.5;
+    let neighbours: Vec<&Disk> = disks
+        .iter()
+        .enumerate()
+        .filter(|(j, e)| *j != k && (e.x - d.x).hypot(e.y - d.y) < d.r + e.r + 2.0 * half)
+        .map(|(_, e)| e)
+        .collect();
+    let mut pixels: Vec<(f64, f64, f64)> = Vec::new();
+    let reach = d.r + half + 1.0;
+    for i in ((d.y - reach).floor() as i64).max(0)..=((d.y + reach).ceil() as i64).min(h - 1) {
+        for j in ((d.x - reach).floor() as i64).max(0)..=((d.x + reach).ceil() as i64).min(w - 1) {
+            let (x, y) = (j as f64, i as f64);
+            let rho = (x - d.x).hypot(y - d.y);
+            if (rho - d.r).abs() > half {
+                continue;
+            }
+            if neighbours
+                .iter()
+                .any(|e| (x - e.x).hypot(y - e.y) < e.r + half)
+            {
+                continue;
+            }
+            pixels.push((x, y, image.get_pixel(j as u32, i as u32)[0] as f64));
+        }
+    }
+    if pixels.len() < 40 {
+        return None;
+    }
+    // Start: the two intensity levels from the pixels inside and outside.
+    let (mut inner, mut n_in, mut outer, mut n_out) = (0.0, 0, 0.0, 0);
+    for &(x, y, v) in &pixels {
+        if (x - d.x).hypot(y - d.y) < d.r - 1.5 {
+            inner += v;
+            n_in += 1;
+        } else if (x - d.x).hypot(y - d.y) > d.r + 1.5 {
+            outer += v;
+            n_out += 1;
+        }
+    }
+    if n_in < 10 || n_out < 10 {
+        return None;
+    }
+    let (a0, b0) = (
+        outer / n_out as f64,
+        inner / n_in as f64 - outer / n_out as f64,
+    );
+    let mut p = nalgebra::Vector6::new(d.x, d.y, d.r, a0, b0, 0.7);
+    let cost = |p: &nalgebra::Vector6<f64>| -> f64 {
+        pixels
+            .iter()
+            .map(|&(x, y, v)| {
+                let u = ((x - p[0]).hypot(y - p[1]) - p[2]) / p[5];
+                let m = p[3] + p[4] / (1.0 + u.clamp(-50.0, 50.0).exp());
+                (v - m) * (v - m)
+            })
+            .sum()
+    };
+    let mut current = cost(&p);
+    let mut lambda = 1e-3;
+    for _ in 0..20 {
+        let mut jtj = nalgebra::Matrix6::<f64>::zeros();
+        let mut jtr = nalgebra::Vector6::<f64>::zeros();
+        for &(x, y, v) in &pixels {
+            let (dx, dy) = (x - p[0], y - p[1]);
+            let rho = dx.hypot(dy).max(1e-9);
+            let u = (rho - p[2]) / p[5];
+            let l = 1.0 / (1.0 + u.clamp(-50.0, 50.0).exp());
+            let dl = -l * (1.0 - l); // dL/du
+            let m = p[3] + p[4] * l;
+            let g = p[4] * dl / p[5];
+            let j = nalgebra::Vector6::new(-g * dx / rho, -g * dy / rho, -g, 1.0, l, -g * u);
+            jtj += j * j.transpose();
+            jtr += j * (v - m);
+        }
+        let mut improved = false;
+        for _ in 0..10 {
+            let mut damped = jtj;
+            for a in 0..6 {
+                damped[(a, a)] *= 1.0 + lambda;
+            }
+            let Some(step) = damped.lu().solve(&jtr) else {
+                lambda *= 10.0;
+                continue;
+            };
+            let mut trial = p + step;
+            trial[5] = trial[5].clamp(0.2, 4.0);
+            let c = cost(&trial);
+            if c < current {
+                let moved = (trial - p).norm();
+                p = trial;
+                current = c;
+                lambda = (lambda * 0.3).max(1e-9);
+                improved = moved > 1e-4;
+                break;
+            }
+            lambda *= 10.0;
+        }
+        if !improved {
+            break;
+        }
+    }
+    let shift = (p[0] - d.x).hypot(p[1] - d.y);
+    let sign_ok = p[4] * (b0.signum()) > 0.0;
+    if !(shift < 2.0 && (p[2] - d.r).abs() < 2.0 && sign_ok && p.iter().all(|v| v.is_finite())) {
+        return None;
+    }
+    Some(ModelFit {
+        disk: Disk {
+            x: p[0],
+            y: p[1],
+            r: p[2],
+            ..d
+        },
+        step: p[4],
+        width: p[5],
+    })
+}
+
+/// Pixel noise σ by the median absolute response to the mask
+/// [1 −2 1; −2 4 −2; 1 −2 1] (Immerkær 1996, median form: edges and texture
+/// barely move it), which responds to white noise with standard deviation 6σ.
+pub fn noise_level(image: &FloatImage) -> f64 {
+    let (w, h) = (image.width() as usize, image.height() as usize);
+    if w < 3 || h < 3 {
+        return 0.0;
+    }
+    let d = image.as_raw();
+    let mut responses: Vec<f64> = (1..h - 1)
+        .flat_map(|i| (1..w - 1).map(move |j| (i, j)))
+        .step_by(3)
+        .map(|(i, j)| {
+            let at = |y: usize, x: usize| d[y * w + x] as f64;
+            let v = at(i - 1, j - 1) - 2.0 * at(i - 1, j) + at(i - 1, j + 1) - 2.0 * at(i, j - 1)
+                + 4.0 * at(i, j)
+                - 2.0 * at(i, j + 1)
+                + at(i + 1, j - 1)
+                - 2.0 * at(i + 1, j)
+                + at(i + 1, j + 1);
+            v.abs()
+        })
+        .collect();
+    1.4826 * median(&mut responses) / 6.0
+}
+
+/// Edge smoothing that brings the noise in the edge image down to a few
+/// percent of the image's contrast (the spread between its 10th and 90th
+/// percentiles once smoothed), between 1 px and the voting smoothing.
+fn edge_smoothing_for_noise(image: &FloatImage, smooth: &FloatImage, vote_sigma: f64) -> f64 {
+    let noise = noise_level(image);
+    let mut values: Vec<f64> = smooth
+        .as_raw()
+        .iter()
+        .step_by(7)
+        .map(|&v| v as f64)
+        .collect();
+    if values.len() < 10 {
+        return 1.0;
+    }
+    let n = values.len();
+    let p10 = *values
+        .select_nth_unstable_by(n / 10, |a, b| a.total_cmp(b))
+        .1;
+    let p90 = *values
+        .select_nth_unstable_by(9 * n / 10, |a, b| a.total_cmp(b))
+        .1;
+    let contrast = (p90 - p10).max(1e-6);
+    // Gaussian smoothing σ_s divides white noise by 2√π σ_s.
+    let needed = noise / (0.04 * contrast * 2.0 * std::f64::consts::PI.sqrt());
+    needed.clamp(1.0, vote_sigma.max(1.0))
+}
+
+/// Separable Gaussian blur (kernel to ±3σ, edges extended), rows and columns
+/// in parallel: the large σ used for voting makes this the costliest filter.
+pub fn gaussian_blur(image: &FloatImage, sigma: f64) -> FloatImage {
+    let (w, h) = (image.width() as usize, image.height() as usize);
+    let radius = (3.0 * sigma).ceil().max(1.0) as isize;
+    let mut kernel: Vec<f32> = (-radius..=radius)
+        .map(|k| (-(k * k) as f64 / (2.0 * sigma * sigma)).exp() as f32)
+        .collect();
+    let total: f32 = kernel.iter().sum();
+    kernel.iter_mut().for_each(|v| *v /= total);
+    let src = image.as_raw();
+    let mut rows = vec![0f32; w * h];
+    rows.par_chunks_mut(w).enumerate().for_each(|(i, out)| {
+        let line = &src[i * w..(i + 1) * w];
+        for (j, o) in out.iter_mut().enumerate() {
+            let mut acc = 0.0;
+            for (t, k) in kernel.iter().enumerate() {
+                let x = (j as isize + t as isize - radius).clamp(0, w as isize - 1) as usize;
+                acc += k * line[x];
+            }
+            *o = acc;
+        }
+    });
+    let mut out = vec![0f32; w * h];
+    out.par_chunks_mut(w).enumerate().for_each(|(i, line)| {
+        for (t, k) in kernel.iter().enumerate() {
+            let y = (i as isize + t as isize - radius).clamp(0, h as isize - 1) as usize;
+            let src_row = &rows[y * w..(y + 1) * w];
+            for (o, v) in line.iter_mut().zip(src_row) {
+                *o += k * v;
+            }
+        }
+    });
+    FloatImage::from_raw(w as u32, h as u32, out).expect("sized")
+}
+
+fn score(d: &Disk) -> f64 {
+    d.support * d.visible
+}
+
+struct Accumulator {
+    /// Magnitude of the phase-coded votes.
+    data: Vec<f32>,
+    /// Radius encoded in the votes' phase, per cell.
+    radius: Vec<f32>,
+    w: usize,
+    h: usize,
+    /// Accumulator cell (i, j) is the centre (j − pad, i − pad) in pixels.
+    pad: usize,
+}
+
+/// Sobel kernels (imageproc's) as f32, scaled to an intensity change per pixel.
+fn sobel(image: &FloatImage) -> (FloatImage, FloatImage) {
+    let kx: Vec<f32> = imageproc::gradients::HORIZONTAL_SOBEL
+        .iter()
+        .map(|&k| k as f32 / 8.0)
+        .collect();
+    let ky: Vec<f32> = imageproc::gradients::VERTICAL_SOBEL
+        .iter()
+        .map(|&k| k as f32 / 8.0)
+        .collect();
+    let gx: FloatImage = imageproc::filter::filter3x3::<_, f32, f32>(image, &kx);
+    let gy: FloatImage = imageproc::filter::filter3x3::<_, f32, f32>(image, &ky);
+    (gx, gy)
+}
+
+/// Phase-coded Hough voting (Atherton & Kerbyson 1999): a vote at distance t
+/// carries the phase 2π(t − r_min)/(r_max − r_min). Votes of one circle add
+/// coherently at its centre; the streaks that rays of neighbouring disks lay
+/// across it have mixed phases and largely cancel, which keeps the centres of
+/// touching disks apart. The phase of the peak also gives the radius.
+fn vote(smooth: &FloatImage, o: &DetectOptions, signs: &[f64]) -> Accumulator {
+    let (gx, gy) = sobel(smooth);
+    let (w, h) = (smooth.width() as usize, smooth.height() as usize);
+    let magnitude: Vec<f32> = gx
+        .as_raw()
+        .iter()
+        .zip(gy.as_raw())
+        .map(|(a, b)| (a * a + b * b).sqrt())
+        .collect();
+    // Ignore the weakest gradients: they carry noise, not edges, and cost time.
+    let mut sorted = magnitude.clone();
+    let k = ((sorted.len() as f64 * 0.995) as usize).min(sorted.len() - 1);
+    let high = *sorted.select_nth_unstable_by(k, |a, b| a.total_cmp(b)).1;
+    let floor = 0.1 * high;
+    // Thin the edges (non-maximum suppression across them, as Canny does), so
+    // each boundary point votes once and the votes' phases stay coherent.
+    let ridge: Vec<bool> = (0..w * h)
+        .into_par_iter()
+        .map(|p| {
+            let m = magnitude[p];
+            if m <= floor {
+                return false;
+            }
+            let (i, j) = ((p / w) as isize, (p % w) as isize);
+            let (dx, dy) = (gx.as_raw()[p] / m, gy.as_raw()[p] / m);
+            let (sx, sy) = (dx.round() as isize, dy.round() as isize);
+            let at = |y: isize, x: isize| {
+                if x < 0 || y < 0 || x >= w as isize || y >= h as isize {
+                    0.0
+                } else {
+                    magnitude[y as usize * w + x as usize]
+                }
+            };
+            m >= at(i + sy, j + sx) && m >= at(i - sy, j - sx)
+        })
+        .collect();
+    let pad = o.radius_max.ceil() as usize + 2;
+    let (aw, ah) = (w + 2 * pad, h + 2 * pad);
+    let (r0, r1) = (o.radius_min, o.radius_max);
+    let steps = ((r1 - r0) / 0.5).ceil() as usize + 1;
+    let span = (steps - 1).max(1) as f64;
+    let phases: Vec<(f64, f32, f32)> = (0..steps)
+        .map(|k| {
+            let t = r0 + (r1 - r0) * k as f64 / span;
+            let phase = std::f64::consts::TAU * k as f64 / steps as f64;
+            (t, phase.cos() as f32, phase.sin() as f32)
+        })
+        .collect();
+    let rows_per_chunk = (h / (4 * rayon::current_num_threads()).max(1)).max(8);
+    let (re, im) = (0..h)
+        .collect::<Vec<_>>()
+        .par_chunks(rows_per_chunk)
+        .fold(
+            || (vec![0f32; aw * ah], vec![0f32; aw * ah]),
+            |(mut re, mut im), rows| {
+                for &i in rows {
+                    for j in 0..w {
+                        let m = magnitude[i * w + j];
+                        if !ridge[i * w + j] {
+                            continue;
+                        }
+                        let (dx, dy) = (
+                            (gx.as_raw()[i * w + j] / m) as f64,
+                            (gy.as_raw()[i * w + j] / m) as f64,
+                        );
+                        for &s in signs {
+                            for &(t, c, sn) in &phases {
+                                let x = (j as f64 + s * t * dx + pad as f64).round();
+                                let y = (i as f64 + s * t * dy + pad as f64).round();
+                                if x >= 0.0 && y >= 0.0 && (x as usize) < aw && (y as usize) < ah {
+                                    let cell = y as usize * aw + x as usize;
+                                    re[cell] += m * c;
+                                    im[cell] += m * sn;
+                                }
+                            }
+                        }
+                    }
+                }
+                (re, im)
+            },
+        )
+        .reduce_with(|(mut a, mut b), (c, d)| {
+            a.iter_mut().zip(&c).for_each(|(x, y)| *x += y);
+            b.iter_mut().zip(&d).for_each(|(x, y)| *x += y);
+            (a, b)
+        })
+        .unwrap_or_else(|| (vec![0f32; aw * ah], vec![0f32; aw * ah]));
+    let blur = |v: Vec<f32>| {
+        let image = FloatImage::from_raw(aw as u32, ah as u32, v).expect("sized");
+        imageproc::filter::gaussian_blur_f32(&image, 1.0).into_raw()
+    };
+    let (re, im) = (blur(re), blur(im));
+    let data: Vec<f32> = re
+        .iter()
+        .zip(&im)
+        .map(|(a, b)| (a * a + b * b).sqrt())
+        .collect();
+    let radius: Vec<f32> = re
+        .iter()
+        .zip(&im)
+        .map(|(a, b)| {
+            let phase = (b.atan2(*a) as f64).rem_euclid(std::f64::consts::TAU);
+            (r0 + (r1 - r0) * phase / std::f64::consts::TAU * steps as f64
+                / (steps - 1).max(1) as f64) as f32
+        })
+        .collect();
+    Accumulator {
+        data,
+        radius,
+        w: aw,
+        h: ah,
+        pad,
+    }
+}
+
+/// Local maxima of the accumulator above the threshold, strongest first, as
+/// centres in pixel coordinates with the radius their phase suggests.
+fn peaks(acc: &Accumulator, o: &DetectOptions) -> Vec<(f64, f64, f64)> {
+    let max = acc.data.iter().fold(0f32, |m, &v| m.max(v));
+    if max <= 0.0 {
+        return Vec::new();
+    }
+    let threshold = (o.vote_threshold * max as f64) as f32;
+    let q = ((o.radius_min / 4.0).round() as isize).max(2);
+    let (w, h) = (acc.w as isize, acc.h as isize);
+    let mut found: Vec<(f32, usize, usize)> = (0..acc.h)
+        .into_par_iter()
+        .flat_map_iter(|i| {
+            let mut row = Vec::new();
+            for j in 0..acc.w {
+                let v = acc.data[i * acc.w + j];
+                if v < threshold {
+                    continue;
+                }
+                let mut is_max = true;
+                'window: for di in -q..=q {
+                    for dj in -q..=q {
+                        let (y, x) = (i as isize + di, j as isize + dj);
+                        if (di, dj) == (0, 0) || x < 0 || y < 0 || x >= w || y >= h {
+                            continue;
+                        }
+                        let u = acc.data[y as usize * acc.w + x as usize];
+                        // Ties go to the first in raster order.
+                        if u > v || (u == v && (di, dj) < (0, 0)) {
+                            is_max = false;
+                            break 'window;
+                        }
+                    }
+                }
+                if is_max {
+                    row.push((v, i, j));
+                }
+            }
+            row
+        })
+        .collect();
+    found.sort_by(|a, b| b.0.total_cmp(&a.0));
+    let pad = acc.pad as f64;
+    found
+        .into_iter()
+        .map(|(_, i, j)| {
+            (
+                j as f64 - pad,
+                i as f64 - pad,
+                acc.radius[i * acc.w + j] as f64,
+            )
+        })
+        .collect()
+}
+
+/// Second source of candidates: the smoothed image split at its Otsu level
+/// into disks and background, then the local maxima of the distance to the
+/// background, which sit at the centres of disks however many neighbours
+/// touch them (their voting peaks can be weak).
+fn distance_peaks(smooth: &FloatImage, sign: f64, o: &DetectOptions) -> Vec<(f64, f64, f64)> {
+    let (lo, hi) = smooth
+        .iter()
+        .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &v| {
+            (a.min(v), b.max(v))
+        });
+    if hi.partial_cmp(&lo) != Some(std::cmp::Ordering::Greater) {
+        return Vec::new();
+    }
+    let bytes = ::image::GrayImage::from_fn(smooth.width(), smooth.height(), |x, y| {
+        let v = (smooth.get_pixel(x, y)[0] - lo) / (hi - lo);
+        ::image::Luma([(v * 255.0).round() as u8])
+    });
+    let level = imageproc::contrast::otsu_level(&bytes);
+    // Background pixels are the "foreground" the distance transform measures to.
+    let background = ::image::GrayImage::from_fn(smooth.width(), smooth.height(), |x, y| {
+        let v = bytes.get_pixel(x, y)[0];
+        let is_disk = if sign > 0.0 { v > level } else { v <= level };
+        ::image::Luma([if is_disk { 0 } else { 255 }])
+    });
+    let distance = imageproc::distance_transform::euclidean_squared_distance_transform(&background);
+    let (w, h) = (smooth.width() as i64, smooth.height() as i64);
+    let q = ((o.radius_min / 3.0).round() as i64).max(2);
+    let (dmin, dmax) = ((0.5 * o.radius_min).powi(2), (1.3 * o.radius_max).powi(2));
+    let mut found = Vec::new();
+    for i in 0..h {
+        for j in 0..w {
+            let v = distance.get_pixel(j as u32, i as u32)[0];
+            if v < dmin || v > dmax {
+                continue;
+            }
+            let mut is_max = true;
+            'window: for di in -q..=q {
+                for dj in -q..=q {
+                    let (y, x) = (i + di, j + dj);
+                    if (di, dj) == (0, 0) || x < 0 || y < 0 || x >= w || y >= h {
+                        continue;
+                    }
+                    let u = distance.get_pixel(x as u32, y as u32)[0];
+                    if u > v || (u == v && (di, dj) < (0, 0)) {
+                        is_max = false;
+                        break 'window;
+                    }
+                }
+            }
+            if is_max {
+                found.push((j as f64, i as f64, v.sqrt()));
+            }
+        }
+    }
+    found
+}
+
+/// A borrowed image plane with bilinear sampling.
+pub(crate) struct Plane<'a> {
+    pub data: &'a [f32],
+    pub w: usize,
+    pub h: usize,
+}
+
+impl Plane<'_> {
+    /// Bilinear interpolation; `None` outside the pixel centres' hull.
+    pub fn sample(&self, x: f64, y: f64) -> Option<f64> {
+        if !(x >= 0.0 && y >= 0.0 && x <= (self.w - 1) as f64 && y <= (self.h - 1) as f64) {
+            return None;
+        }
+        let (x0, y0) = (
+            (x.floor() as usize).min(self.w - 2),
+            (y.floor() as usize).min(self.h - 2),
+        );
+        let (fx, fy) = (x - x0 as f64, y - y0 as f64);
+        let at = |i: usize, j: usize| self.data[i * self.w + j] as f64;
+        let top = at(y0, x0) * (1.0 - fx) + at(y0, x0 + 1) * fx;
+        let bottom = at(y0 + 1, x0) * (1.0 - fx) + at(y0 + 1, x0 + 1) * fx;
+        Some(top * (1.0 - fy) + bottom * fy)
+    }
+}
+
+/// One ray's edge: its point and whether the image gradient there points
+/// along the ray (as it does on a disk's boundary, and rarely on texture).
+struct Edge {
+    x: f64,
+    y: f64,
+    strength: f64,
+    aligned: bool,
+}
+
+const STEP: f64 = 0.25;
+/// Largest angle between the gradient and the ray at a boundary point: tan 25°.
+const ALIGNMENT: f64 = 0.466;
+
+/// Refines a candidate centre into a disk, or rejects it.
+fn refine(
+    img: &Plane,
+    centre: [f64; 2],
+    hint: f64,
+    sign: f64,
+    sigma: f64,
+    o: &DetectOptions,
+) -> Option<Disk> {
+    let r0 = radial_peak(img, centre, hint, sign, o)?;
+    let (mut c, mut r) = (centre, r0);
+    // Wide search windows first (the candidate may be a few pixels off), then
+    // narrower ones: the medium window judges support (wide enough that
+    // texture and noise cannot look like a circle), the narrow ones place the
+    // edge (close enough that texture inside the disk is not mistaken for it).
+    let narrow = (1.5 * sigma).max(1.25);
+    let windows = [0.25 * r0 + 2.0 * sigma, 2.0 * sigma + 2.0, narrow, narrow];
+    let mut judged = None;
+    for (pass, &half_window) in windows.iter().enumerate() {
+        let (edges, rays, visible_rays) = ray_edges(img, c, r, sign, half_window, sigma);
+        if visible_rays == 0 || (visible_rays as f64) < o.min_visible * rays as f64 {
+            return None;
+        }
+        let fit = robust_circle_fit(&edges, c, r)?;
+        if pass == 1 {
+            judged = Some((edges, fit, rays, visible_rays));
+        }
+        c = [fit[0], fit[1]];
+        r = fit[2];
+    }
+    let (edges, fit, rays, visible_rays) = judged?;
+    // Support is judged with a fixed tolerance so noise cannot widen it.
+    let tolerance = 1.0 + 0.02 * fit[2];
+    let residuals: Vec<f64> = edges
+        .iter()
+        .filter(|e| e.aligned)
+        .map(|e| ((e.x - fit[0]).powi(2) + (e.y - fit[1]).powi(2)).sqrt() - fit[2])
+        .filter(|res| res.abs() <= tolerance)
+        .collect();
+    let support = residuals.len() as f64 / visible_rays as f64;
+    let visible = visible_rays as f64 / rays as f64;
+    if support < o.min_support_confirmed.min(o.min_support)
+        || r < o.radius_min - 1.0
+        || r > o.radius_max + 1.0
+    {
+        return None;
+    }
+    // The step across the edge, measured outside the smoothing's reach.
+    let contrast = edge_contrast(img, c, r, sign, sigma);
+    if contrast <= 0.0 {
+        return None;
+    }
+    let rms = (residuals.iter().map(|v| v * v).sum::<f64>() / residuals.len() as f64).sqrt();
+    // The smoothed edge of a disk peaks σ²/(2r) inside the true one.
+    let r = r + sigma * sigma / (2.0 * r);
+    Some(Disk {
+        x: c[0],
+        y: c[1],
+        r,
+        support,
+        visible,
+        contrast,
+        rms,
+    })
+}
+
+/// The radius at which the mean outward intensity drop (signed by polarity)
+/// peaks, near the radius the votes suggest (over the whole range when the
+/// suggestion sits near either end, where its phase is ambiguous).
+fn radial_peak(img: &Plane, c: [f64; 2], hint: f64, sign: f64, o: &DetectOptions) -> Option<f64> {
+    let band = (0.25 * (o.radius_max - o.radius_min)).max(3.0);
+    let (mut lo, mut hi) = (o.radius_min - 2.0, o.radius_max + 2.0);
+    if hint - band > o.radius_min && hint + band < o.radius_max {
+        (lo, hi) = (hint - band, hint + band);
+    }
+    let lo = lo.max(1.0);
+    let n = ((hi - lo) / 0.5).ceil() as usize + 1;
+    let rays = ((std::f64::consts::TAU * hi / 3.0).ceil() as usize).clamp(24, 720);
+    let mut sum = vec![0.0; n];
+    let mut count = vec![0usize; n];
+    for k in 0..rays {
+        let a = std::f64::consts::TAU * k as f64 / rays as f64;
+        let (ca, sa) = (a.cos(), a.sin());
+        for (b, (s, m)) in sum.iter_mut().zip(count.iter_mut()).enumerate() {
+            let rho = lo + 0.5 * b as f64;
+            let inner = img.sample(c[0] + (rho - 0.5) * ca, c[1] + (rho - 0.5) * sa);
+            let outer = img.sample(c[0] + (rho + 0.5) * ca, c[1] + (rho + 0.5) * sa);
+            if let (Some(i), Some(u)) = (inner, outer) {
+                *s += sign * (i - u);
+                *m += 1;
+            }
+        }
+    }
+    let need = (rays / 5).max(4);
+    let profile: Vec<f64> = sum
+        .iter()
+        .zip(&count)
+        .map(|(&s, &m)| {
+            if m >= need {
+                s / m as f64
+            } else {
+                f64::NEG_INFINITY
+            }
+        })
+        .collect();
+    let (best, &value) = profile
+        .iter()
+        .enumerate()
+        .max_by(|a, b| a.1.total_cmp(b.1))?;
+    if value.is_nan() || value <= 0.0 {
+        return None;
+    }
+    let offset = if best > 0 && best + 1 < n {
+        parabola_vertex(profile[best - 1], value, profile[best + 1])
+    } else {
+        0.0
+    };
+    Some(lo + 0.5 * (best as f64 + offset))
+}
+
+/// Vertex offset (in steps) of the least-squares parabola through the samples
+/// within `reach` of `best` (three samples at least), kept within the span.
+fn parabola_fit(v: &[f64], best: usize, reach: usize) -> f64 {
+    let lo = best.saturating_sub(reach);
+    let hi = (best + reach).min(v.len() - 1);
+    if hi - lo < 2 {
+        return 0.0;
+    }
+    // Normal equations for v ≈ a + b t + c t², t relative to best.
+    let mut m = [[0.0; 3]; 3];
+    let mut rhs = [0.0; 3];
+    for (k, &y) in v.iter().enumerate().take(hi + 1).skip(lo) {
+        let t = k as f64 - best as f64;
+        let basis = [1.0, t, t * t];
+        for a in 0..3 {
+            rhs[a] += basis[a] * y;
+            for b in 0..3 {
+                m[a][b] += basis[a] * basis[b];
+            }
+        }
+    }
+    match solve3(m, rhs) {
+        Some([_, b, c]) if c < 0.0 => {
+            (-b / (2.0 * c)).clamp(lo as f64 - best as f64, hi as f64 - best as f64)
+        }
+        _ => 0.0,
+    }
+}
+
+/// Vertex offset (in steps, within ±½) of the parabola through three samples.
+fn parabola_vertex(a: f64, b: f64, c: f64) -> f64 {
+    let denominator = a - 2.0 * b + c;
+    if !(a.is_finite() && c.is_finite()) || denominator >= 0.0 {
+        return 0.0;
+    }
+    (0.5 * (a - c) / denominator).clamp(-0.5, 0.5)
+}
+
+/// Sub-pixel edge along each ray from the centre, searched within ±half_window
+/// of the radius. Returns the edges, the number of rays and the number of rays
+/// whose search window lies inside the image.
+fn ray_edges(
+    img: &Plane,
+    c: [f64; 2],
+    r: f64,
+    sign: f64,
+    half_window: f64,
+    sigma: f64,
+) -> (Vec<Edge>, usize, usize) {
+    let rays = ((std::f64::consts::TAU * r / 1.5).ceil() as usize).clamp(32, 1440);
+    // Samples every STEP px; the derivative spans ±0.5 px (two samples each side).
+    let lead = (0.5 / STEP) as usize;
+    let n = (2.0 * half_window / STEP).ceil() as usize + 1 + 2 * lead;
+    let start = r - half_window - 0.5;
+    let mut edges = Vec::with_capacity(rays);
+    let mut visible = 0;
+    let mut samples = vec![0.0; n];
+    for k in 0..rays {
+        let a = std::f64::consts::TAU * k as f64 / rays as f64;
+        let (ca, sa) = (a.cos(), a.sin());
+        let mut inside = start > 0.0;
+        for (m, s) in samples.iter_mut().enumerate() {
+            let rho = start + STEP * m as f64;
+            match img.sample(c[0] + rho * ca, c[1] + rho * sa) {
+                Some(v) => *s = v,
+                None => {
+                    inside = false;
+                    break;
+                }
+            }
+        }
+        if !inside {
+            continue;
+        }
+        visible += 1;
+        let derivative: Vec<f64> = (lead..n - lead)
+            .map(|m| sign * (samples[m - lead] - samples[m + lead]))
+            .collect();
+        let (best, &value) = derivative
+            .iter()
+            .enumerate()
+            .max_by(|a, b| a.1.total_cmp(b.1))
+            .expect("non-empty window");
+        if best == 0 || best + 1 == derivative.len() || value <= 0.0 {
+            continue;
+        }
+        // The peak of a smoothed edge is about σ wide: fit the parabola over it.
+        let reach = ((sigma / STEP).round() as usize).max(1);
+        let offset = parabola_fit(&derivative, best, reach);
+        let rho = start + STEP * (best as f64 + lead as f64 + offset);
+        let (x, y) = (c[0] + rho * ca, c[1] + rho * sa);
+        // Tangential derivative over the same 1 px span as the radial one.
+        let aligned = match (
+            img.sample(x - 0.5 * sa, y + 0.5 * ca),
+            img.sample(x + 0.5 * sa, y - 0.5 * ca),
+        ) {
+            (Some(p), Some(q)) => (p - q).abs() <= ALIGNMENT * value,
+            _ => false,
+        };
+        edges.push(Edge {
+            x,
+            y,
+            strength: value,
+            aligned,
+        });
+    }
+    (edges, rays, visible)
+}
+
+/// Geometric circle fit with iterative trimming of outliers (edges of
+/// neighbours, contacts, texture). Returns (cx, cy, r) and the inlier count.
+fn robust_circle_fit(edges: &[Edge], c: [f64; 2], r: f64) -> Option<[f64; 3]> {
+    if edges.len() < 8 {
+        return None;
+    }
+    let mut strengths: Vec<f64> = edges.iter().map(|e| e.strength).collect();
+    let median_strength = median(&mut strengths);
+    let usable = |e: &Edge| e.aligned && e.strength >= 0.25 * median_strength;
+    let mut use_edge: Vec<bool> = edges.iter().map(usable).collect();
+    let mut p = [c[0], c[1], r];
+    for round in 0..4 {
+        p = circle_gauss_newton(edges, &use_edge, p)?;
+        let mut res: Vec<f64> = edges
+            .iter()
+            .map(|e| (((e.x - p[0]).powi(2) + (e.y - p[1]).powi(2)).sqrt() - p[2]).abs())
+            .collect();
+        let mut used: Vec<f64> = res
+            .iter()
+            .zip(&use_edge)
+            .filter(|(_, &u)| u)
+            .map(|(&v, _)| v)
+            .collect();
+        let mad = median(&mut used);
+        let cutoff = if round == 0 {
+            (4.0 * 1.4826 * mad).max(1.5)
+        } else {
+            (3.0 * 1.4826 * mad).max(0.5)
+        };
+        let mut inliers = 0;
+        for (k, e) in edges.iter().enumerate() {
+            use_edge[k] = res[k] <= cutoff && usable(e);
+            inliers += use_edge[k] as usize;
+        }
+        res.clear();
+        if inliers < 8 {
+            return None;
+        }
+    }
+    Some(p)
+}
+
+/// Minimises Σ (|pₖ − c| − r)² over the used edge points.
+fn circle_gauss_newton(edges: &[Edge], use_edge: &[bool], start: [f64; 3]) -> Option<[f64; 3]> {
+    let mut p = start;
+    for _ in 0..20 {
+        let mut jtj = [[0.0; 3]; 3];
+        let mut jtr = [0.0; 3];
+        for (e, _) in edges.iter().zip(use_edge).filter(|(_, &u)| u) {
+            let (dx, dy) = (e.x - p[0], e.y - p[1]);
+            let d = (dx * dx + dy * dy).sqrt().max(1e-9);
+            let res = d - p[2];
+            let j = [-dx / d, -dy / d, -1.0];
+            for a in 0..3 {
+                jtr[a] += j[a] * res;
+                for b in 0..3 {
+                    jtj[a][b] += j[a] * j[b];
+                }
+            }
+        }
+        let step = solve3(jtj, jtr)?;
+        for k in 0..3 {
+            p[k] -= step[k];
+        }
+        if step.iter().map(|v| v * v).sum::<f64>() < 1e-12 {
+            break;
+        }
+    }
+    (p.iter().all(|v| v.is_finite()) && p[2] > 0.0).then_some(p)
+}
+
+/// Solves a 3×3 system by Cramer's rule; `None` when singular.
+pub(crate) fn solve3(a: [[f64; 3]; 3], b: [f64; 3]) -> Option<[f64; 3]> {
+    let det = |m: [[f64; 3]; 3]| {
+        m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
+            - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+            + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
+    };
+    let d = det(a);
+    let scale = a.iter().flatten().fold(0.0f64, |m, v| m.max(v.abs()));
+    if d.abs().partial_cmp(&(1e-12 * scale.powi(3))) != Some(std::cmp::Ordering::Greater) {
+        return None;
+    }
+    let mut x = [0.0; 3];
+    for k in 0..3 {
+        let mut m = a;
+        for i in 0..3 {
+            m[i][k] = b[i];
+        }
+        x[k] = det(m) / d;
+    }
+    Some(x)
+}
+
+fn median(v: &mut [f64]) -> f64 {
+    if v.is_empty() {
+        return 0.0;
+    }
+    let k = v.len() / 2;
+    *v.select_nth_unstable_by(k, |a, b| a.total_cmp(b)).1
+}
+
+/// The intensity inside minus outside the circle, sampled beyond the
+/// smoothing's reach and signed by the polarity: its 80th percentile over the
+/// visible rays, since in a dense packing many rays end on a neighbour.
+fn edge_contrast(img: &Plane, c: [f64; 2], r: f64, sign: f64, sigma: f64) -> f64 {
+    let gap = 2.0 * sigma + 1.0;
+    let rays = 64;
+    let mut steps = Vec::with_capacity(rays);
+    for k in 0..rays {
+        let a = std::f64::consts::TAU * k as f64 / rays as f64;
+        let (ca, sa) = (a.cos(), a.sin());
+        let inner = img.sample(
+            c[0] + (r - gap).max(0.0) * ca,
+            c[1] + (r - gap).max(0.0) * sa,
+        );
+        let outer = img.sample(c[0] + (r + gap) * ca, c[1] + (r + gap) * sa);
+        if let (Some(i), Some(u)) = (inner, outer) {
+            steps.push(sign * (i - u));
+        }
+    }
+    if steps.is_empty() {
+        return 0.0;
+    }
+    let k = (steps.len() * 4 / 5).min(steps.len() - 1);
+    *steps.select_nth_unstable_by(k, |a, b| a.total_cmp(b)).1
+}

@@ -1,0 +1,159 @@
+//! Synthetic scenes with exactly known geometry, for tests and benchmarks of
+//! the image pipeline: random packings of disks where every contact is an
+//! exact tangency and every non-contact gap is clearly open.
+
+use super::elastic::Elasticity;
+use crate::error::{Error, Result};
+use crate::scene::{Body, Contact, Grain, Scene};
+use rand::{Rng, SeedableRng};
+
+#[derive(Debug, Clone)]
+pub struct PackingSpec {
+    /// The box [m] that holds the disks: [0, width] × [0, height].
+    pub width: f64,
+    pub height: f64,
+    pub radius_min: f64,
+    pub radius_max: f64,
+    /// Stop after this many disks (fewer if the box fills up).
+    pub count: usize,
+    /// Smallest gap [m] between disks that do not touch, so that contacts are
+    /// unambiguous.
+    pub min_gap: f64,
+    pub seed: u64,
+}
+
+/// A packing grown by placing each new disk tangent to two touching-distance
+/// neighbours (or one, when that fails), rejecting any placement that overlaps
+/// or leaves a gap smaller than `min_gap`. Contacts are exactly the tangent
+/// pairs; each contact point is the tangency point and the normal points from
+/// `a` to `b`. Stresses are zero.
+pub fn touching_disks(spec: &PackingSpec) -> Result<Scene> {
+    if !(spec.radius_min > 0.0 && spec.radius_max >= spec.radius_min && spec.min_gap >= 0.0) {
+        return Err(Error::Invalid("bad packing radii or gap".into()));
+    }
+    if spec.width < 2.0 * spec.radius_max || spec.height < 2.0 * spec.radius_max {
+        return Err(Error::Invalid(
+            "the packing box is smaller than one disk".into(),
+        ));
+    }
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(spec.seed);
+    let mut disks: Vec<([f64; 2], f64)> = Vec::new();
+    let mut touching: Vec<(usize, usize)> = Vec::new();
+    let radius =
+        |rng: &mut rand_chacha::ChaCha8Rng| rng.gen_range(spec.radius_min..=spec.radius_max);
+    let r = radius(&mut rng);
+    disks.push(([spec.width / 2.0, spec.height / 2.0], r));
+    let attempts = 400 * spec.count.max(1);
+    let eps = 1e-9 * spec.radius_max;
+    for _ in 0..attempts {
+        if disks.len() >= spec.count {
+            break;
+        }
+        let r = radius(&mut rng);
+        let i = rng.gen_range(0..disks.len());
+        let (ci, ri) = disks[i];
+        // Partner: another disk close enough that the new one can touch both.
+        let partners: Vec<usize> = (0..disks.len())
+            .filter(|&j| j != i && dist(disks[j].0, ci) < ri + disks[j].1 + 2.0 * r)
+            .collect();
+        let (centre, neighbours) = if !partners.is_empty() && rng.gen_bool(0.9) {
+            let j = partners[rng.gen_range(0..partners.len())];
+            let (cj, rj) = disks[j];
+            let Some(points) = circle_intersections(ci, ri + r, cj, rj + r) else {
+                continue;
+            };
+            (points[rng.gen_range(0..2)], vec![i, j])
+        } else {
+            let a = rng.gen_range(0.0..std::f64::consts::TAU);
+            (
+                [ci[0] + (ri + r) * a.cos(), ci[1] + (ri + r) * a.sin()],
+                vec![i],
+            )
+        };
+        if centre[0] - r < 0.0
+            || centre[1] - r < 0.0
+            || centre[0] + r > spec.width
+            || centre[1] + r > spec.height
+        {
+            continue;
+        }
+        let fits = disks.iter().enumerate().all(|(k, &(ck, rk))| {
+            let gap = dist(ck, centre) - rk - r;
+            if neighbours.contains(&k) {
+                gap.abs() < eps * 10.0
+            } else {
+                gap >= spec.min_gap
+            }
+        });
+        if !fits {
+            continue;
+        }
+        let new = disks.len();
+        disks.push((centre, r));
+        for k in neighbours {
+            touching.push((k, new));
+        }
+    }
+    let mut scene = Scene::new(2);
+    for (k, &(c, r)) in disks.iter().enumerate() {
+        let mut g = Grain::new(
+            k.to_string(),
+            [c[0], c[1], 0.0],
+            std::f64::consts::PI * r * r,
+            [0.0; 6],
+        );
+        g.radius = Some(r);
+        scene.grains.push(g);
+    }
+    touching.sort();
+    for (n, &(a, b)) in touching.iter().enumerate() {
+        let (ca, ra) = disks[a];
+        let (cb, _) = disks[b];
+        let d = dist(ca, cb);
+        let normal = [(cb[0] - ca[0]) / d, (cb[1] - ca[1]) / d];
+        scene.contacts.push(Contact {
+            id: n.to_string(),
+            a,
+            b: Body::Grain(b),
+            point: [ca[0] + ra * normal[0], ca[1] + ra * normal[1], 0.0],
+            normal: [normal[0], normal[1], 0.0],
+            mu: None,
+        });
+    }
+    Ok(scene)
+}
+
+/// Gives every grain a random homogeneous stress whose strain components
+/// (under `elasticity`) are uniform in [−strain, strain].
+pub fn assign_random_stresses(scene: &mut Scene, elasticity: &Elasticity, strain: f64, seed: u64) {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    for g in &mut scene.grains {
+        let e = [
+            rng.gen_range(-strain..=strain),
+            rng.gen_range(-strain..=strain),
+            rng.gen_range(-strain..=strain),
+        ];
+        let s = elasticity.stress_from_strain(e);
+        g.stress = [s[0], s[1], 0.0, s[2], 0.0, 0.0];
+    }
+}
+
+fn dist(a: [f64; 2], b: [f64; 2]) -> f64 {
+    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)).sqrt()
+}
+
+/// The two intersection points of two circles, if they intersect.
+fn circle_intersections(c0: [f64; 2], r0: f64, c1: [f64; 2], r1: f64) -> Option<[[f64; 2]; 2]> {
+    let d = dist(c0, c1);
+    if d <= 0.0 || d > r0 + r1 || d < (r0 - r1).abs() {
+        return None;
+    }
+    let a = (r0 * r0 - r1 * r1 + d * d) / (2.0 * d);
+    let h = (r0 * r0 - a * a).max(0.0).sqrt();
+    let u = [(c1[0] - c0[0]) / d, (c1[1] - c0[1]) / d];
+    let m = [c0[0] + a * u[0], c0[1] + a * u[1]];
+    Some([
+        [m[0] - h * u[1], m[1] + h * u[0]],
+        [m[0] + h * u[1], m[1] - h * u[0]],
+    ])
+}

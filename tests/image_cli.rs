@@ -1,0 +1,152 @@
+//! The command line chain: render → detect → strain, on a scene with known
+//! grain stresses; and the verbs' errors on bad input.
+
+use grainforce::image::synthetic::{assign_random_stresses, touching_disks, PackingSpec};
+use grainforce::image::{Elasticity, PlaneCondition};
+use grainforce::scene::{read_scene, write_scene, Body};
+use std::path::Path;
+use std::process::Command;
+
+fn grainforce(args: &[&str]) -> (bool, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_grainforce"))
+        .args(args)
+        .output()
+        .expect("the binary runs");
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+fn p(path: &Path) -> &str {
+    path.to_str().unwrap()
+}
+
+#[test]
+fn render_detect_strain_recovers_the_stresses() {
+    let dir = tempfile::tempdir().unwrap();
+    let elasticity = Elasticity::new(5.5e6, 0.4, PlaneCondition::Stress).unwrap();
+    let mut truth = touching_disks(&PackingSpec {
+        width: 0.3,
+        height: 0.25,
+        radius_min: 0.04,
+        radius_max: 0.05,
+        count: 8,
+        min_gap: 0.005,
+        seed: 11,
+    })
+    .unwrap();
+    assign_random_stresses(&mut truth, &elasticity, 5e-3, 11);
+    let truth_dir = dir.path().join("truth");
+    write_scene(&truth_dir, &truth).unwrap();
+    let images = dir.path().join("images");
+    let found = dir.path().join("found");
+
+    let (ok, err) = grainforce(&[
+        "render",
+        p(&truth_dir),
+        "-o",
+        p(&images),
+        "--px-per-m",
+        "1000",
+        "--youngs",
+        "5.5e6",
+        "--poisson",
+        "0.4",
+        "--noise",
+        "0.005",
+        "--bits",
+        "16",
+    ]);
+    assert!(ok, "{err}");
+    let overlay = dir.path().join("overlay.png");
+    let (ok, err) = grainforce(&[
+        "detect",
+        p(&images.join("deformed.png")),
+        "-o",
+        p(&found),
+        "--radius",
+        "30..60",
+        "--frame",
+        p(&images.join("image-frame.json")),
+        "--overlay",
+        p(&overlay),
+        "--thickness",
+        "0.01",
+    ]);
+    assert!(ok, "{err}");
+    assert!(overlay.is_file());
+    let (ok, err) = grainforce(&[
+        "strain",
+        p(&images.join("reference.png")),
+        p(&images.join("deformed.png")),
+        "--scene",
+        p(&found),
+        "--youngs",
+        "5.5e6",
+        "--poisson",
+        "0.4",
+        "--plane-stress",
+        "--step",
+        "4",
+    ]);
+    assert!(ok, "{err}");
+
+    let scene = read_scene(&found).unwrap();
+    assert_eq!(scene.grains.len(), truth.grains.len());
+    assert_eq!(scene.contacts.len(), truth.contacts.len());
+    assert_eq!(scene.settings.thickness, Some(0.01));
+    let scale = 5.5e6 * 5e-3;
+    for t in &truth.grains {
+        let g = scene
+            .grains
+            .iter()
+            .min_by(|a, b| {
+                let da = (a.position[0] - t.position[0]).hypot(a.position[1] - t.position[1]);
+                let db = (b.position[0] - t.position[0]).hypot(b.position[1] - t.position[1]);
+                da.total_cmp(&db)
+            })
+            .unwrap();
+        let dist = (g.position[0] - t.position[0]).hypot(g.position[1] - t.position[1]);
+        assert!(dist < 0.3e-3, "grain {} placed {dist} m off", t.id);
+        for c in [0, 1, 3] {
+            let error = (g.stress[c] - t.stress[c]).abs();
+            // Strain within 2e-4 → stress within about 2e-4 E/(1 − ν).
+            assert!(
+                error < 2e-4 * 5.5e6 / 0.6,
+                "grain {} component {c}: {} vs {} (scale {scale})",
+                t.id,
+                g.stress[c],
+                t.stress[c]
+            );
+        }
+    }
+    for c in &scene.contacts {
+        assert!(matches!(c.b, Body::Grain(_)));
+    }
+}
+
+#[test]
+fn verbs_report_bad_input_clearly() {
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("nothing.png");
+    let out = dir.path().join("out");
+    let (ok, err) = grainforce(&["detect", p(&missing), "-o", p(&out), "--radius", "10..20"]);
+    assert!(!ok && err.contains("nothing.png"), "{err}");
+    let (ok, err) = grainforce(&["detect", p(&missing), "-o", p(&out), "--radius", "20"]);
+    assert!(!ok && err.contains("MIN..MAX"), "{err}");
+    let (ok, err) = grainforce(&[
+        "render",
+        p(dir.path()),
+        "-o",
+        p(&out),
+        "--px-per-m",
+        "1000",
+        "--youngs",
+        "1e6",
+        "--poisson",
+        "0.5",
+        "--plane-strain",
+    ]);
+    assert!(!ok && err.contains("Poisson"), "{err}");
+}
