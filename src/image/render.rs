@@ -324,7 +324,7 @@ fn sample(
             m[1][0] * d[0] + m[1][1] * d[1],
         ];
         let rho = (material[0] * material[0] + material[1] * material[1]).sqrt() / g.radius;
-        if rho <= 1.0 && best.map_or(true, |(b, _, _)| rho < b) {
+        if rho <= 1.0 && best.is_none_or(|(b, _, _)| rho < b) {
             best = Some((rho, k as usize, material));
         }
     }
