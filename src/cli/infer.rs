@@ -416,7 +416,7 @@ pub fn run(args: Args) -> Result<()> {
     let picture = match &args.plot {
         Some(_) => {
             let first = &results[0];
-            let title = format!("{} — {} forces", args.scene.display(), first.report.method);
+            let title = format!("{} - {} forces", args.scene.display(), first.report.method);
             let opts = grainforce::report::forcechain::ForceChainOptions {
                 title: Some(title),
                 ..Default::default()
