@@ -92,15 +92,7 @@ fn score_with_scene(dir: &std::path::Path, paired: &[PairedFrame]) -> Result<Vec
 }
 
 fn write_text(path: &std::path::Path, text: &str) -> Result<()> {
-    use std::io::Write;
-    let dir = match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => std::path::Path::new("."),
-    };
-    let mut tmp = tempfile::NamedTempFile::new_in(dir).map_err(|e| Error::io(path, e))?;
-    writeln!(tmp, "{text}").map_err(|e| Error::io(path, e))?;
-    tmp.persist(path).map_err(|e| Error::io(path, e.error))?;
-    Ok(())
+    grainforce::scene::write_file_atomically(path, format!("{text}\n").as_bytes())
 }
 
 fn relative_text(e: &ErrorNorm) -> String {

@@ -3,7 +3,6 @@
 use grainforce::scene;
 use grainforce::stats::{self, FrameStats, Options};
 use grainforce::{Error, Result};
-use std::io::Write;
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
@@ -32,16 +31,8 @@ pub struct Args {
     rattler_contacts: Option<usize>,
 }
 
-fn write_file(path: &PathBuf, text: &str) -> Result<()> {
-    let dir = match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p.to_owned(),
-        _ => PathBuf::from("."),
-    };
-    let mut tmp = tempfile::NamedTempFile::new_in(&dir).map_err(|e| Error::io(&dir, e))?;
-    tmp.write_all(text.as_bytes())
-        .map_err(|e| Error::io(path, e))?;
-    tmp.persist(path).map_err(|e| Error::io(path, e.error))?;
-    Ok(())
+fn write_file(path: &std::path::Path, text: &str) -> Result<()> {
+    scene::write_file_atomically(path, text.as_bytes())
 }
 
 pub fn run(args: Args) -> Result<()> {

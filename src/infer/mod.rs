@@ -416,8 +416,25 @@ fn solve_system(
                     fit(&soft.x).sqrt(),
                     residual / mean
                 ));
-                Ok((soft.x.clone(), Some(soft)))
+                                Ok((soft.x.clone(), Some(soft)))
+            } else if hard_fit > 0.9 {
+                // Only (near-)zero forces balance: returning them would be garbage.
+                Err(Error::Infeasible(format!(
+                    "momentum balance with compressive, Coulomb-bounded contacts admits only near-zero forces for {} \
+                     grains (their stresses fit no better than with zero forces, while {:.1e} is possible without \
+                     friction) — typically a missing contact or a misplaced grain; check the contact list, or pass \
+                     --allow-infeasible for the least-violation answer",
+                    system.grains.len(),
+                    unconstrained_fit.unwrap_or(0.0).sqrt()
+                )))
             } else {
+                let mut sol = sol;
+                sol.warnings.push(format!(
+                    "with momentum exact and friction the stress rows fit {:.1e}, far worse than the {:.1e} possible \
+                     without friction: the data are out of balance somewhere (check contacts and accelerations)",
+                    hard_fit.sqrt(),
+                    unconstrained_fit.unwrap_or(0.0).sqrt()
+                ));
                 Ok((sol.x.clone(), Some(sol)))
             }
         }

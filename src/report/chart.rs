@@ -712,18 +712,10 @@ pub fn format_tick(v: f64, step: f64) -> String {
 /// Writes a PNG atomically: a temporary file beside the target, renamed into place.
 /// Errors name the path.
 pub fn save_png(path: &Path, img: &RgbImage) -> Result<()> {
-    let dir = match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => Path::new("."),
-    };
-    let tmp = tempfile::Builder::new()
-        .suffix(".png")
-        .tempfile_in(dir)
-        .map_err(|e| Error::io(path, e))?;
-    img.save_with_format(tmp.path(), image::ImageFormat::Png)
+    let mut bytes = std::io::Cursor::new(Vec::new());
+    img.write_to(&mut bytes, image::ImageFormat::Png)
         .map_err(|e| Error::io(path, std::io::Error::other(e.to_string())))?;
-    tmp.persist(path).map_err(|e| Error::io(path, e.error))?;
-    Ok(())
+    crate::scene::write_file_atomically(path, bytes.get_ref())
 }
 
 /// Lightens a colour towards white by `amount` ∈ [0, 1].

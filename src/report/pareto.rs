@@ -6,7 +6,6 @@
 use super::chart::{Chart, Scale, PALETTE};
 use crate::error::{Error, Result};
 use image::RgbImage;
-use std::io::Write;
 use std::path::Path;
 
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
@@ -26,30 +25,17 @@ pub fn write_pareto_csv(path: &Path, points: &[ParetoPoint], knee: Option<usize>
             )));
         }
     }
-    let dir = match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => Path::new("."),
-    };
-    let mut tmp = tempfile::NamedTempFile::new_in(dir).map_err(|e| Error::io(path, e))?;
-    {
-        let mut out = std::io::BufWriter::new(tmp.as_file_mut());
-        let io = |e| Error::io(path, e);
-        writeln!(out, "lambda,stress_residual,momentum_residual,knee").map_err(io)?;
-        for (i, p) in points.iter().enumerate() {
-            writeln!(
-                out,
-                "{},{},{},{}",
-                p.lambda,
-                p.stress_residual,
-                p.momentum_residual,
-                u8::from(knee == Some(i))
-            )
-            .map_err(io)?;
-        }
-        out.flush().map_err(io)?;
+    let mut text = String::from("lambda,stress_residual,momentum_residual,knee\n");
+    for (i, p) in points.iter().enumerate() {
+        text.push_str(&format!(
+            "{},{},{},{}\n",
+            p.lambda,
+            p.stress_residual,
+            p.momentum_residual,
+            u8::from(knee == Some(i))
+        ));
     }
-    tmp.persist(path).map_err(|e| Error::io(path, e.error))?;
-    Ok(())
+    crate::scene::write_file_atomically(path, text.as_bytes())
 }
 
 /// Reads a front written by [`write_pareto_csv`] (columns in any order, `knee`
