@@ -539,9 +539,7 @@ pub fn set_stresses(scene: &mut Scene, forces: &[Vec3]) {
         }
     }
     for (g, s) in scene.grains.iter_mut().zip(acc) {
-        for k in 0..6 {
-            g.stress[k] = s[k] / g.volume;
-        }
+        g.stress = s.map(|v| v / g.volume);
     }
 }
 

@@ -94,7 +94,7 @@ fn parse_size(s: &str) -> Result<usize> {
         .trim()
         .parse()
         .map_err(|_| Error::Invalid(format!("--sizes: `{s}` is not a number")))?;
-    if !(v >= 2.0 && v <= 1e8 && v.is_finite()) {
+    if !(2.0..=1e8).contains(&v) {
         return Err(Error::Invalid(format!(
             "--sizes: {s} grains is out of range (2 … 1e8)"
         )));
@@ -133,7 +133,7 @@ pub fn run(args: Args) -> Result<()> {
     if !(args.lambda_rel >= 0.0 && args.lambda_rel.is_finite()) {
         return Err(Error::Invalid("--lambda-rel must be finite and ≥ 0".into()));
     }
-    if !(args.timeout > 0.0) {
+    if args.timeout.is_nan() || args.timeout <= 0.0 {
         return Err(Error::Invalid("--timeout must be positive".into()));
     }
     let cvxpy_max = parse_size(&args.cvxpy_max)?;
