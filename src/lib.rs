@@ -18,5 +18,6 @@ pub mod infer;
 pub mod report;
 pub mod scene;
 pub mod solver;
+pub mod stats;
 
 pub use error::{Error, Result};

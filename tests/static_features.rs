@@ -96,9 +96,9 @@ fn rattlers_and_single_contacts_drop_out() {
 fn disconnected_clusters_are_separate_problems() {
     let (a, ta) = lattice_2d(3, 3, 0.5);
     let (mut b, tb) = lattice_2d(4, 2, 0.5);
-    // Shift the second packing far away (1e6 m) and merge the scenes.
+    // Shift the second packing away (1 m) and merge the scenes.
     for g in &mut b.grains {
-        g.position[0] += 1e6;
+        g.position[0] += 1.0;
         g.id = format!("b{}", g.id);
     }
     let mut s = a.clone();
@@ -106,7 +106,7 @@ fn disconnected_clusters_are_separate_problems() {
     s.grains.extend(b.grains.iter().cloned());
     for c in &b.contacts {
         let mut c = c.clone();
-        c.point[0] += 1e6;
+        c.point[0] += 1.0;
         c.a += offset;
         c.b = match c.b {
             Body::Grain(k) => Body::Grain(k + offset),
@@ -119,7 +119,7 @@ fn disconnected_clusters_are_separate_problems() {
     let res = infer(&s, &InferOptions::default()).unwrap();
     assert_eq!(res.report.clusters, 2);
     let e = relerr(&truth, &res.forces_or_zero());
-    assert!(e <= 1e-8, "relerr {e}");
+    assert!(e <= 1e-8, "relerr {e}\n{}", res.report);
 }
 
 #[test]
@@ -131,4 +131,19 @@ fn ls_floor_recovers_exact_data() {
     };
     let r = infer(&s, &opts).unwrap();
     assert!(relerr(&truth, &r.forces_or_zero()) <= 1e-8);
+}
+
+#[test]
+fn uniqueness_is_reported() {
+    let (s, _) = lattice_2d(6, 5, 0.5);
+    let global = infer(&s, &InferOptions::default()).unwrap();
+    assert_eq!(global.report.unique, Some(true), "{}", global.report);
+    // A few interior grains of a coordination-6 packing: their boundary contacts
+    // add unknowns without equations, so other force fields fit equally well.
+    let mut opts = InferOptions::default();
+    let sel = Selection::Region(vec![(0.007, 0.030), (0.005, 0.020)]);
+    opts.assemble.active = Some(scene::select_subassembly(&s, &sel).unwrap());
+    let local = infer(&s, &opts).unwrap();
+    assert_eq!(local.report.unique, Some(false), "{}", local.report);
+    assert!(local.report.to_string().contains("NO"));
 }

@@ -181,8 +181,13 @@ impl Assembly {
 
 fn friction_of(scene: &Scene, c: &scene::Contact, opts: &AssembleOptions) -> Friction {
     match c.mu.or(opts.mu).or(scene.settings.mu) {
-        Some(mu) if mu == 0.0 => Friction::Frictionless,
-        Some(mu) => Friction::Coulomb(mu),
+        Some(mu) => {
+            if mu == 0.0 {
+                Friction::Frictionless
+            } else {
+                Friction::Coulomb(mu)
+            }
+        }
         None => Friction::NormalOnly,
     }
 }

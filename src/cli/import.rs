@@ -1,10 +1,168 @@
-//! `grainforce import` (not built yet).
+//! `grainforce import FORMAT INPUT… -o SCENE_DIR`: other tools' output as a scene.
+
+use grainforce::import::{gff, lammps, liggghts, yade, ImportedScene};
+use grainforce::{Error, Result};
+use std::path::PathBuf;
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+pub enum Format {
+    /// LAMMPS: ATOMS.dump (dump custom) PAIRS.dump (dump local of compute pair/local).
+    Lammps,
+    /// LIGGGHTS: ATOMS.dump (dump custom) PAIRS.dump (dump local of compute pair/gran/local).
+    Liggghts,
+    /// YADE: bodies.csv interactions.csv from the export recipe (see the README).
+    Yade,
+    /// 3D X-ray diffraction: GRAINS.gff (FitAllB/ImageD11) CONTACTS.csv (tomography).
+    Gff,
+}
 
 #[derive(clap::Args)]
-pub struct Args {}
+#[command(after_help = "Examples:
+  grainforce import lammps atoms.dump pairs.dump -o scene --gravity 0,-9.81,0
+  grainforce import liggghts atoms.dump pairs.dump -o scene --keywords pos,id,force
+  grainforce import yade bodies.csv interactions.csv -o scene --gravity 0,0,-9.81
+  grainforce import gff grains.gff contacts.csv -o scene --stress-unit MPa --length-unit mm")]
+pub struct Args {
+    /// Source format.
+    #[arg(value_enum)]
+    format: Format,
+    /// Input files, as the format needs them (two for every format).
+    #[arg(required = true, num_args = 2)]
+    inputs: Vec<PathBuf>,
+    /// Scene folder to write (forces.csv too when the source has forces).
+    #[arg(short, long)]
+    output: PathBuf,
+    /// Gravity of the run, e.g. 0,-9.81,0 (written to scene.json).
+    #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
+    gravity: Option<Vec<f64>>,
+    /// Force the dimension (2 or 3); default: 2 when all z are equal.
+    #[arg(long)]
+    dim: Option<usize>,
+    /// lammps: which dump-local columns hold what,
+    /// i=COL,j=COL,fx=COL,fy=COL,fz=COL[,tx=COL,ty=COL,tz=COL] (t = tangential part, pair/local p1..p3).
+    /// Default: after an optional `index`, the columns are i j fx fy fz [p1 p2 p3].
+    #[arg(long)]
+    columns: Option<String>,
+    /// liggghts: the compute pair/gran/local keywords in column order, e.g. pos,id,force.
+    #[arg(long, value_delimiter = ',')]
+    keywords: Option<Vec<String>>,
+    /// liggghts: number of history values when the `history` keyword is used.
+    #[arg(long, default_value_t = 0)]
+    history: usize,
+    /// gff: stress unit of the file (Pa, kPa, MPa, GPa or Pa per unit as a number).
+    #[arg(long, default_value = "MPa")]
+    stress_unit: String,
+    /// gff: length unit of x y z and grainvolume (m, mm, um or metres per unit).
+    #[arg(long, default_value = "mm")]
+    length_unit: String,
+    /// gff: tomography grain table (CSV, SI: id,volume[,x,y,z]) overriding gff volumes.
+    #[arg(long)]
+    tomography_grains: Option<PathBuf>,
+}
 
-pub fn run(_args: Args) -> grainforce::Result<()> {
-    Err(grainforce::Error::Invalid(
-        "`import` is not available yet".into(),
-    ))
+fn unit(text: &str, table: &[(&str, f64)], what: &str) -> Result<f64> {
+    if let Some((_, v)) = table.iter().find(|(n, _)| n.eq_ignore_ascii_case(text)) {
+        return Ok(*v);
+    }
+    match text.parse::<f64>() {
+        Ok(v) if v > 0.0 && v.is_finite() => Ok(v),
+        _ => Err(Error::Invalid(format!("unknown {what} unit `{text}`"))),
+    }
+}
+
+pub fn run(args: Args) -> Result<()> {
+    let gravity = match &args.gravity {
+        Some(g) if !(2..=3).contains(&g.len()) => {
+            return Err(Error::Invalid(format!(
+                "--gravity needs 2 or 3 numbers, got {}",
+                g.len()
+            )))
+        }
+        Some(g) => {
+            let mut v = [0.0; 3];
+            v[..g.len()].copy_from_slice(g);
+            Some(v)
+        }
+        None => None,
+    };
+    let (first, second) = (&args.inputs[0], &args.inputs[1]);
+    let imported: ImportedScene = match args.format {
+        Format::Lammps => {
+            let columns = match &args.columns {
+                Some(s) => Some(lammps::LocalColumns::parse(s)?),
+                None => None,
+            };
+            lammps::import(
+                first,
+                second,
+                &lammps::Options {
+                    columns,
+                    dim: args.dim,
+                    gravity,
+                },
+            )?
+        }
+        Format::Liggghts => liggghts::import(
+            first,
+            second,
+            &liggghts::Options {
+                keywords: args.keywords.clone(),
+                history: args.history,
+                dim: args.dim,
+                gravity,
+            },
+        )?,
+        Format::Yade => yade::import(
+            first,
+            second,
+            &yade::Options {
+                dim: args.dim,
+                gravity,
+            },
+        )?,
+        Format::Gff => gff::import(
+            first,
+            second,
+            &gff::Options {
+                stress_unit: unit(
+                    &args.stress_unit,
+                    &[("Pa", 1.0), ("kPa", 1e3), ("MPa", 1e6), ("GPa", 1e9)],
+                    "stress",
+                )?,
+                length_unit: unit(
+                    &args.length_unit,
+                    &[("m", 1.0), ("mm", 1e-3), ("um", 1e-6), ("µm", 1e-6)],
+                    "length",
+                )?,
+                tomography_grains: args.tomography_grains.clone(),
+            },
+        )?,
+    };
+    imported.write(&args.output)?;
+    let grains: usize = imported.frames.iter().map(|f| f.grains.len()).sum();
+    let contacts: usize = imported.frames.iter().map(|f| f.contacts.len()).sum();
+    println!(
+        "wrote {}: {} frame(s), {} grains, {} contacts ({}D){}",
+        args.output.display(),
+        imported.frames.len(),
+        grains,
+        contacts,
+        imported.frames[0].dim,
+        if imported.forces.is_some() {
+            ", true forces in forces.csv"
+        } else {
+            ""
+        }
+    );
+    if let Some(r) = imported.momentum_residual() {
+        if r > 1e-3 {
+            eprintln!(
+                "warning: the contact forces do not balance m (a - g) on some grains (largest \
+                 residual {:.3} of the mean contact force): give the run's --gravity, or the source \
+                 lacks some contacts (e.g. walls)",
+                r
+            );
+        }
+    }
+    Ok(())
 }

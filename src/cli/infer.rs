@@ -112,6 +112,9 @@ pub struct Args {
     /// forces vs Δv of the tracks, per grain) to this CSV.
     #[arg(long, value_name = "IMPULSE.csv")]
     pub impulse: Option<PathBuf>,
+    /// Also draw the force chains of the (first) frame to this PNG.
+    #[arg(long, value_name = "FORCES.png")]
+    pub plot: Option<PathBuf>,
     /// Write the report (sizes, residuals, λ, solver status, warnings) as JSON.
     #[arg(long, value_name = "REPORT.json")]
     pub report: Option<PathBuf>,
@@ -394,7 +397,27 @@ pub fn run(args: Args) -> Result<()> {
         }
         grainforce::report::pareto::write_pareto_csv(path, &front.points, front.knee)?;
     }
+    // Everything that can fail is done before the forces file is written.
+    let picture = match &args.plot {
+        Some(_) => {
+            let first = &results[0];
+            let title = format!("{} — {} forces", args.scene.display(), first.report.method);
+            let opts = grainforce::report::forcechain::ForceChainOptions {
+                title: Some(title),
+                ..Default::default()
+            };
+            Some(grainforce::report::forcechain::draw_force_chains(
+                &frames[0],
+                &first.forces_or_zero(),
+                &opts,
+            )?)
+        }
+        None => None,
+    };
     scene::write_forces(&args.output, &forces)?;
+    if let (Some(path), Some(img)) = (&args.plot, &picture) {
+        grainforce::report::chart::save_png(path, img)?;
+    }
     if !args.quiet {
         for r in &results {
             eprint!("{}", r.report);

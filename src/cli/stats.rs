@@ -1,10 +1,77 @@
-//! `grainforce stats` (not built yet).
+//! `grainforce stats SCENE_DIR FORCES.csv`: force-network statistics.
+
+use grainforce::scene;
+use grainforce::stats::{self, FrameStats, Options};
+use grainforce::{Error, Result};
+use std::io::Write;
+use std::path::PathBuf;
 
 #[derive(clap::Args)]
-pub struct Args {}
+pub struct Args {
+    /// Scene folder (one frame or a sequence).
+    scene: PathBuf,
+    /// Forces (inferred or true), forces.csv format.
+    forces: PathBuf,
+    /// Write one row of statistics per frame to this CSV file.
+    #[arg(long)]
+    csv: Option<PathBuf>,
+    /// Write every statistic (histograms and chain lengths included) as JSON.
+    #[arg(long)]
+    json: Option<PathBuf>,
+    /// Histogram bin width of P(f/<f>), in units of <f>.
+    #[arg(long, default_value_t = 0.2)]
+    bin_width: f64,
+    /// Largest turn between consecutive branch vectors of a force chain [degrees].
+    #[arg(long, default_value_t = 45.0)]
+    chain_angle: f64,
+    /// Shortest force chain counted, in contacts.
+    #[arg(long, default_value_t = 2)]
+    min_chain: usize,
+    /// Grains with fewer force-carrying contacts are rattlers (default: d + 1).
+    #[arg(long)]
+    rattler_contacts: Option<usize>,
+}
 
-pub fn run(_args: Args) -> grainforce::Result<()> {
-    Err(grainforce::Error::Invalid(
-        "`stats` is not available yet".into(),
-    ))
+fn write_file(path: &PathBuf, text: &str) -> Result<()> {
+    let dir = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_owned(),
+        _ => PathBuf::from("."),
+    };
+    let mut tmp = tempfile::NamedTempFile::new_in(&dir).map_err(|e| Error::io(&dir, e))?;
+    tmp.write_all(text.as_bytes())
+        .map_err(|e| Error::io(path, e))?;
+    tmp.persist(path).map_err(|e| Error::io(path, e.error))?;
+    Ok(())
+}
+
+pub fn run(args: Args) -> Result<()> {
+    let frames = scene::read_sequence(&args.scene)?;
+    let forces = scene::read_forces(&args.forces)?;
+    let options = Options {
+        bin_width: args.bin_width,
+        chain_angle_deg: args.chain_angle,
+        min_chain_contacts: args.min_chain,
+        rattler_min_contacts: args.rattler_contacts,
+    };
+    let mut all: Vec<FrameStats> = Vec::new();
+    for frame in &frames {
+        let f = forces.for_scene(frame, &args.forces)?;
+        let s = stats::frame_stats(frame, &f, &options)?;
+        print!("{}", stats::summary(&s));
+        all.push(s);
+    }
+    if let Some(path) = &args.csv {
+        let dim = frames[0].dim;
+        let mut text = stats::csv_header(dim).join(",") + "\n";
+        for s in &all {
+            text.push_str(&stats::csv_row(s).join(","));
+            text.push('\n');
+        }
+        write_file(path, &text)?;
+    }
+    if let Some(path) = &args.json {
+        let text = serde_json::to_string_pretty(&all).map_err(|e| Error::Invalid(e.to_string()))?;
+        write_file(path, &(text + "\n"))?;
+    }
+    Ok(())
 }

@@ -1,1 +1,231 @@
-//! (being built)
+//! Importers: other tools' output converted into the scene contract
+//! (`shared/scene-format.md`), with the true contact forces where the source has
+//! them. One submodule per format; each returns an [`ImportedScene`].
+//!
+//! Conventions shared by all importers:
+//! - contact `a`/`b` and the force are mapped so that the force is the one on
+//!   grain `a` by `b` and the normal points from `a` towards `b`;
+//! - when the source has forces but no stresses, each grain's stress is computed
+//!   from them, V σ = Σ sym(r ⊗ f) with r = contact point − centroid, so that the
+//!   written grains.csv and forces.csv agree exactly (see [`stress_from_forces`]);
+//! - between two spheres the contact point is on the line of centres, in the
+//!   middle of the overlap ([`sphere_contact`]).
+
+pub mod dump;
+pub mod gff;
+pub mod lammps;
+pub mod liggghts;
+pub mod yade;
+
+use crate::error::{Error, Result};
+use crate::scene::{self, Body, Scene, Vec3};
+use std::collections::HashMap;
+use std::path::Path;
+
+/// What an importer produces: the frames and, when the source has them, the
+/// true forces per frame in contact order (force on grain `a` by `b`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ImportedScene {
+    pub frames: Vec<Scene>,
+    pub forces: Option<Vec<Vec<Vec3>>>,
+}
+
+impl ImportedScene {
+    /// Writes the scene folder (grains.csv, contacts.csv, scene.json…) and, when
+    /// forces are known, `forces.csv` inside it.
+    pub fn write(&self, dir: &Path) -> Result<()> {
+        scene::write_sequence(dir, &self.frames)?;
+        if let Some(forces) = &self.forces {
+            let mut all = scene::Forces {
+                dim: self.frames[0].dim,
+                rows: Vec::new(),
+            };
+            for (frame, f) in self.frames.iter().zip(forces) {
+                all.rows.extend(scene::Forces::from_scene(frame, f).rows);
+            }
+            scene::write_forces(&dir.join("forces.csv"), &all)?;
+        }
+        Ok(())
+    }
+
+    /// The largest momentum-balance residual |Σ f − m (a − g)| over all grains
+    /// and frames, relative to the mean contact force magnitude; `None` without
+    /// forces or masses. A large value means the source had loads the scene does
+    /// not know about (gravity not given, other fixes).
+    pub fn momentum_residual(&self) -> Option<f64> {
+        let forces = self.forces.as_ref()?;
+        let mut worst: Option<f64> = None;
+        for (scene, f) in self.frames.iter().zip(forces) {
+            let mean = f.iter().map(|x| scene::norm(*x)).sum::<f64>() / f.len().max(1) as f64;
+            if mean == 0.0 {
+                continue;
+            }
+            let net = net_forces(scene, f);
+            for (g, n) in scene.grains.iter().zip(&net) {
+                if g.mass.is_none() {
+                    continue;
+                }
+                let (target, _) = scene.momentum_target(g);
+                let r = scene::norm(scene::sub(*n, target)) / mean;
+                worst = Some(worst.map_or(r, |w: f64| w.max(r)));
+            }
+        }
+        worst
+    }
+}
+
+/// Net contact force on each grain (walls receive nothing here).
+pub fn net_forces(scene: &Scene, forces: &[Vec3]) -> Vec<Vec3> {
+    let mut net = vec![[0.0; 3]; scene.grains.len()];
+    for (c, f) in scene.contacts.iter().zip(forces) {
+        for k in 0..3 {
+            net[c.a][k] += f[k];
+        }
+        if let Body::Grain(b) = c.b {
+            for k in 0..3 {
+                net[b][k] -= f[k];
+            }
+        }
+    }
+    net
+}
+
+/// Sets every grain's stress from the contact forces: V σ = Σ sym(r ⊗ f), with
+/// r from the grain's centroid to the contact point and f the force on that
+/// grain (−f for grain `b`). Tension positive: a grain squeezed from both sides
+/// gets negative normal stress.
+pub fn stress_from_forces(scene: &mut Scene, forces: &[Vec3]) {
+    let mut sums = vec![[0.0; 6]; scene.grains.len()];
+    for (c, f) in scene.contacts.iter().zip(forces) {
+        let ra = scene::sub(c.point, scene.grains[c.a].position);
+        let t = scene::sym_outer(ra, *f);
+        for k in 0..6 {
+            sums[c.a][k] += t[k];
+        }
+        if let Body::Grain(b) = c.b {
+            let rb = scene::sub(c.point, scene.grains[b].position);
+            let t = scene::sym_outer(rb, *f);
+            for k in 0..6 {
+                sums[b][k] -= t[k];
+            }
+        }
+    }
+    let dim = scene.dim;
+    for (g, s) in scene.grains.iter_mut().zip(sums) {
+        for &k in scene::sym::components(dim) {
+            g.stress[k] = s[k] / g.volume;
+        }
+    }
+}
+
+/// Contact point and unit normal (from `a` towards `b`) of two overlapping
+/// spheres/disks: on the line of centres, in the middle of the overlap
+/// δ = R_a + R_b − d, i.e. at distance R_a − δ/2 from a's centre. Coincident
+/// centres have no normal and give `None`.
+pub fn sphere_contact(pa: Vec3, ra: f64, pb: Vec3, rb: f64) -> Option<(Vec3, Vec3)> {
+    let d_vec = scene::sub(pb, pa);
+    let d = scene::norm(d_vec);
+    if d == 0.0 || !d.is_finite() {
+        return None;
+    }
+    let n = [d_vec[0] / d, d_vec[1] / d, d_vec[2] / d];
+    let overlap = ra + rb - d;
+    let arm = ra - 0.5 * overlap;
+    Some((
+        [pa[0] + arm * n[0], pa[1] + arm * n[1], pa[2] + arm * n[2]],
+        n,
+    ))
+}
+
+/// Volume of a grain of radius r: π r² per unit thickness in 2D, 4/3 π r³ in 3D.
+pub fn ball_volume(dim: usize, r: f64) -> f64 {
+    if dim == 2 {
+        std::f64::consts::PI * r * r
+    } else {
+        4.0 / 3.0 * std::f64::consts::PI * r * r * r
+    }
+}
+
+/// A positive, finite radius or a located error.
+pub(crate) fn check_radius(path: &Path, line: usize, column: &str, r: f64) -> Result<f64> {
+    if r > 0.0 && r.is_finite() {
+        Ok(r)
+    } else {
+        Err(Error::data(
+            path,
+            Some(line),
+            Some(column),
+            format!("radius must be positive, got {r}"),
+        ))
+    }
+}
+
+/// Reads a CSV with the scene layer's conventions (header, `#` comments) into
+/// rows of (line, record) and the header map.
+/// A CSV's header map and its rows with their line numbers.
+pub(crate) type CsvTable = (HashMap<String, usize>, Vec<(usize, csv::StringRecord)>);
+
+pub(crate) fn read_csv(path: &Path) -> Result<CsvTable> {
+    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    let mut reader = csv::ReaderBuilder::new()
+        .trim(csv::Trim::All)
+        .comment(Some(b'#'))
+        .from_reader(std::io::BufReader::new(file));
+    let located = |e: csv::Error| {
+        let line = e.position().map(|p| p.line() as usize);
+        Error::data(path, line, None, e.to_string())
+    };
+    let headers = reader.headers().map_err(located)?.clone();
+    let columns: HashMap<String, usize> = headers
+        .iter()
+        .enumerate()
+        .map(|(i, h)| (h.to_owned(), i))
+        .collect();
+    let mut rows = Vec::new();
+    for r in reader.records() {
+        let r = r.map_err(located)?;
+        let line = r.position().map_or(0, |p| p.line() as usize);
+        rows.push((line, r));
+    }
+    Ok((columns, rows))
+}
+
+pub(crate) fn csv_cell<'a>(
+    path: &Path,
+    columns: &HashMap<String, usize>,
+    record: &'a csv::StringRecord,
+    line: usize,
+    name: &str,
+) -> Result<&'a str> {
+    let Some(&i) = columns.get(name) else {
+        return Err(Error::data(
+            path,
+            Some(1),
+            Some(name),
+            format!("required column `{name}` is missing from the header"),
+        ));
+    };
+    match record.get(i) {
+        Some(s) if !s.is_empty() => Ok(s),
+        _ => Err(Error::data(path, Some(line), Some(name), "empty value")),
+    }
+}
+
+pub(crate) fn csv_number(
+    path: &Path,
+    columns: &HashMap<String, usize>,
+    record: &csv::StringRecord,
+    line: usize,
+    name: &str,
+) -> Result<f64> {
+    let s = csv_cell(path, columns, record, line, name)?;
+    match s.parse::<f64>() {
+        Ok(x) if x.is_finite() => Ok(x),
+        _ => Err(Error::data(
+            path,
+            Some(line),
+            Some(name),
+            format!("`{s}` is not a finite number"),
+        )),
+    }
+}

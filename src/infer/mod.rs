@@ -22,7 +22,7 @@ use crate::assemble::{self, AssembleOptions, Assembly, Friction, System};
 use crate::error::{Error, Result};
 use crate::scene::{Body, Scene, Vec3};
 use crate::solver::conic::{self, Cone, ConicProblem, ConicSettings, Term};
-use crate::solver::Triplets;
+use crate::solver::{sparse_ls, Triplets};
 use std::time::Instant;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
@@ -72,6 +72,11 @@ pub struct InferOptions {
     pub dynamic: DynamicOptions,
     /// Dynamic: sweep and report the Pareto front even when the rule is not `knee`.
     pub dynamic_front: bool,
+    /// Solve the least squares without inequalities first (sparse LDLᵀ); when it
+    /// satisfies friction it is the constrained optimum and the QP is skipped.
+    pub exact_first: bool,
+    /// Check uniqueness (N(K_st) ∩ N(K_eq) = {0}) up to this many unknowns.
+    pub identifiability_limit: usize,
 }
 
 impl Default for InferOptions {
@@ -87,6 +92,8 @@ impl Default for InferOptions {
             allow_infeasible: false,
             dynamic: DynamicOptions::default(),
             dynamic_front: false,
+            exact_first: true,
+            identifiability_limit: 200_000,
         }
     }
 }
@@ -120,6 +127,7 @@ pub fn infer(scene: &Scene, opts: &InferOptions) -> Result<Inference> {
     assemble_opts.single_system = opts.method == Method::Scaled;
     let assembly = assemble::assemble(scene, &assemble_opts)?;
     let mut report = InferenceReport::new(scene, opts, &assembly);
+    report.unique = check_identifiability(&assembly, opts.identifiability_limit)?;
 
     let (solutions, lambda_trace) = match opts.method {
         Method::Qs => (solve_all(&assembly, opts, 0.0, &mut report)?, None),
@@ -322,6 +330,17 @@ fn solve_system(
     } else {
         Vec::new()
     };
+    if !opts.allow_infeasible && (opts.exact_first || !with_cones) {
+        let (ls, converged) = least_squares(system, lambda)?;
+        if !with_cones {
+            return Ok((ls.x.clone(), Some(ls)));
+        }
+        if converged {
+            if let Some(x) = feasible_as_is(&ls.x, &cone_list) {
+                return Ok((x, Some(ls)));
+            }
+        }
+    }
     let mut problem = ConicProblem {
         n: system.n,
         terms: vec![Term {
@@ -347,6 +366,74 @@ fn solve_system(
         Err(Error::Infeasible(_)) => Err(diagnose_infeasible(system, opts, &problem)),
         Err(e) => Err(e),
     }
+}
+
+/// Relative size of a cone violation treated as round-off of an exact answer.
+const ROUND_OFF: f64 = 1e-9;
+
+/// The unconstrained optimum, when it already satisfies every cone (up to
+/// round-off, then projected): it is then the constrained optimum too.
+pub(crate) fn feasible_as_is(x: &[f64], cones: &[Cone]) -> Option<Vec<f64>> {
+    let scale = x
+        .iter()
+        .fold(0.0f64, |m, v| m.max(v.abs()))
+        .max(f64::MIN_POSITIVE);
+    if cones.iter().any(|c| c.violation(x) > ROUND_OFF * scale) {
+        return None;
+    }
+    let mut x = x.to_vec();
+    for c in cones {
+        c.project(&mut x);
+    }
+    Some(x)
+}
+
+/// min ‖K_st x − b‖² + λ²‖x‖² s.t. K_eq x = b_eq by sparse LDLᵀ (faer).
+/// Also says whether refinement converged (only then is the shortcut trusted).
+pub(crate) fn least_squares(system: &System, lambda: f64) -> Result<(conic::ConicSolution, bool)> {
+    let start = Instant::now();
+    let mut ls = sparse_ls::EqualityLeastSquares::new(&system.stress, &system.momentum)?;
+    let sol = ls.solve(
+        &system.stress,
+        &system.momentum,
+        &system.stress_rhs,
+        &system.momentum_rhs,
+        lambda,
+    )?;
+    let mut warnings = Vec::new();
+    if !sol.converged {
+        warnings.push(format!(
+            "least squares: refinement stopped at KKT residual {:.1e} (momentum rows inconsistent or the forces not unique)",
+            sol.kkt_residual
+        ));
+    }
+    let converged = sol.converged;
+    Ok((
+        conic::ConicSolution {
+            x: sol.x,
+            status: "LeastSquares".into(),
+            iterations: sol.refinement_steps as u32,
+            solve_time: start.elapsed().as_secs_f64(),
+            attempts: vec!["equality-constrained least squares (faer)".into()],
+            softened: false,
+            warnings,
+        },
+        converged,
+    ))
+}
+
+/// Whether the data determine the forces: N(K_st) ∩ N(K_eq) = {0} in every cluster.
+fn check_identifiability(assembly: &Assembly, limit: usize) -> Result<Option<bool>> {
+    let n: usize = assembly.systems.iter().map(|s| s.n).sum();
+    if n > limit {
+        return Ok(None);
+    }
+    for s in &assembly.systems {
+        if !sparse_ls::identifiability(&s.stress, &s.momentum)?.unique {
+            return Ok(Some(false));
+        }
+    }
+    Ok(Some(true))
 }
 
 /// Explains an infeasible problem: is it friction (μ too small) or the sign of

@@ -126,7 +126,7 @@ impl InferenceReport {
         self.solver_time += sol.solve_time;
         let worse = |s: &str| match s {
             "not run" => 0,
-            "Solved" => 1,
+            "Solved" | "LeastSquares" => 1,
             _ => 2,
         };
         if worse(&sol.status) >= worse(&self.solver_status) {

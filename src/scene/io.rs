@@ -175,6 +175,45 @@ impl Table {
         }
     }
 
+    /// Like [`Table::optional_vector`] for any number of columns.
+    fn optional_numbers(
+        &self,
+        record: &csv::StringRecord,
+        line: usize,
+        names: &[&str],
+    ) -> Result<Option<Vec<f64>>> {
+        if !names.iter().any(|n| self.has(n)) {
+            return Ok(None);
+        }
+        let mut values = Vec::with_capacity(names.len());
+        for name in names {
+            if !self.has(name) {
+                return Err(Error::data(
+                    &self.path,
+                    Some(1),
+                    Some(name),
+                    format!(
+                        "column `{name}` is missing while {} are given",
+                        names.join(", ")
+                    ),
+                ));
+            }
+            if let Some(x) = self.optional_number(record, line, name)? {
+                values.push(x);
+            }
+        }
+        match values.len() {
+            0 => Ok(None),
+            n if n == names.len() => Ok(Some(values)),
+            _ => Err(Error::data(
+                &self.path,
+                Some(line),
+                Some(names[0]),
+                format!("some but not all of {} are given", names.join(", ")),
+            )),
+        }
+    }
+
     fn frame(&self, record: &csv::StringRecord, line: usize) -> Result<Option<i64>> {
         let Some(&i) = self.columns.get("frame") else {
             return Ok(None);
@@ -483,6 +522,27 @@ fn parse_grain(t: &Table, record: &csv::StringRecord, line: usize, dim: usize) -
         (i, alpha)
     };
     let radius = t.optional_number(record, line, "radius")?;
+    let sd_names: Vec<&str> = super::sym::components(dim)
+        .iter()
+        .map(|&k| SD_COLUMNS[k])
+        .collect();
+    let stress_sd = t.optional_numbers(record, line, &sd_names)?.map(|values| {
+        let mut sd: Sym = [0.0; 6];
+        for (&k, v) in super::sym::components(dim).iter().zip(values) {
+            sd[k] = v;
+        }
+        sd
+    });
+    if let Some(sd) = &stress_sd {
+        if let Some(k) = sd.iter().position(|&x| x < 0.0) {
+            return Err(Error::data(
+                &t.path,
+                Some(line),
+                Some(SD_COLUMNS[k]),
+                "a standard error cannot be negative",
+            ));
+        }
+    }
     Ok(Grain {
         id,
         position,
@@ -493,10 +553,15 @@ fn parse_grain(t: &Table, record: &csv::StringRecord, line: usize, dim: usize) -
         inertia,
         angular_acceleration,
         radius,
+        stress_sd,
     })
 }
 
 const STRESS_COLUMNS: [&str; 6] = ["s_xx", "s_yy", "s_zz", "s_xy", "s_xz", "s_yz"];
+/// Standard errors of the stress components (extension columns).
+const SD_COLUMNS: [&str; 6] = [
+    "sd_s_xx", "sd_s_yy", "sd_s_zz", "sd_s_xy", "sd_s_xz", "sd_s_yz",
+];
 
 fn read_settings(path: &Path) -> Result<Settings> {
     if !path.exists() {
@@ -596,6 +661,7 @@ pub fn write_sequence(dir: &Path, frames: &[Scene]) -> Result<()> {
     let has_inertia = all_grains().any(|g| g.inertia.is_some());
     let has_alpha = all_grains().any(|g| g.angular_acceleration.is_some());
     let has_radius = all_grains().any(|g| g.radius.is_some());
+    let has_sd = all_grains().any(|g| g.stress_sd.is_some());
     let coords = coordinate_names(dim, "");
     let opt = |x: Option<f64>| x.map(num).unwrap_or_default();
 
@@ -613,6 +679,13 @@ pub fn write_sequence(dir: &Path, frames: &[Scene]) -> Result<()> {
         );
         if has_radius {
             header.push("radius".into());
+        }
+        if has_sd {
+            header.extend(
+                super::sym::components(dim)
+                    .iter()
+                    .map(|&k| SD_COLUMNS[k].to_owned()),
+            );
         }
         if has_mass {
             header.push("mass".into());
@@ -646,6 +719,11 @@ pub fn write_sequence(dir: &Path, frames: &[Scene]) -> Result<()> {
                 );
                 if has_radius {
                     row.push(opt(g.radius));
+                }
+                if has_sd {
+                    for &k in super::sym::components(dim) {
+                        row.push(g.stress_sd.map(|sd| num(sd[k])).unwrap_or_default());
+                    }
                 }
                 if has_mass {
                     row.push(opt(g.mass));

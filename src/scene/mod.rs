@@ -75,6 +75,9 @@ pub struct Grain {
     pub angular_acceleration: Option<Vec3>,
     /// Optional `radius` column (an extension the DEM writes); otherwise derived from volume.
     pub radius: Option<f64>,
+    /// Optional standard error of each stress component (`sd_s_xx` … extension
+    /// columns, e.g. from 3DXRD), in [`Sym`] order; lets inference weight rows.
+    pub stress_sd: Option<Sym>,
 }
 
 impl Grain {
@@ -89,6 +92,7 @@ impl Grain {
             inertia: None,
             angular_acceleration: None,
             radius: None,
+            stress_sd: None,
         }
     }
 

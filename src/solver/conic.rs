@@ -43,6 +43,75 @@ pub enum Cone {
     },
 }
 
+impl Cone {
+    /// How far `x` lies outside the cone (0 inside), in the units of x.
+    pub fn violation(&self, x: &[f64]) -> f64 {
+        match *self {
+            Cone::NonNegative { normal } => (-x[normal]).max(0.0),
+            Cone::Wedge {
+                normal,
+                tangent,
+                mu,
+            } => (x[tangent].abs() - mu * x[normal]).max(-x[normal]).max(0.0),
+            Cone::Circular { normal, t1, t2, mu } => (x[t1].hypot(x[t2]) - mu * x[normal])
+                .max(-x[normal])
+                .max(0.0),
+            Cone::Pyramid {
+                normal,
+                t1,
+                t2,
+                mu,
+                facets,
+            } => {
+                let k = facets.max(3);
+                let shrink = (std::f64::consts::PI / k as f64).cos();
+                let worst = (0..k)
+                    .map(|i| {
+                        let theta = 2.0 * std::f64::consts::PI * i as f64 / k as f64;
+                        theta.cos() * x[t1] + theta.sin() * x[t2] - shrink * mu * x[normal]
+                    })
+                    .fold(-x[normal], f64::max);
+                worst.max(0.0)
+            }
+        }
+    }
+
+    /// Moves `x` onto the cone by the smallest change of its tangential part
+    /// (or of the normal part when that is negative) — for removing round-off.
+    pub fn project(&self, x: &mut [f64]) {
+        let (normal, tangents, mu): (usize, &[usize], f64) = match self {
+            Cone::NonNegative { normal } => (*normal, &[], 0.0),
+            Cone::Wedge {
+                normal,
+                tangent,
+                mu,
+            } => (*normal, std::slice::from_ref(tangent), *mu),
+            Cone::Circular { normal, t1, t2, mu }
+            | Cone::Pyramid {
+                normal, t1, t2, mu, ..
+            } => {
+                x[*normal] = x[*normal].max(0.0);
+                let limit = match self {
+                    Cone::Pyramid { facets, .. } => {
+                        mu * (std::f64::consts::PI / (*facets).max(3) as f64).cos()
+                    }
+                    _ => *mu,
+                } * x[*normal];
+                let t = x[*t1].hypot(x[*t2]);
+                if t > limit && t > 0.0 {
+                    x[*t1] *= limit / t;
+                    x[*t2] *= limit / t;
+                }
+                return;
+            }
+        };
+        x[normal] = x[normal].max(0.0);
+        for &t in tangents {
+            x[t] = x[t].clamp(-mu * x[normal], mu * x[normal]);
+        }
+    }
+}
+
 /// One term w‖K x − b‖² of the objective.
 #[derive(Debug, Clone, Copy)]
 pub struct Term<'a> {

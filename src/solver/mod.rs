@@ -2,6 +2,7 @@
 //! equality-constrained least squares (the fast floor).
 
 pub mod conic;
+pub mod sparse_ls;
 
 /// A sparse matrix in triplet form (duplicates add up), the common currency
 /// between assembly and the back-ends.

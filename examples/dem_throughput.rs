@@ -1,0 +1,321 @@
+//! Throughput of the DEM on the `box` scene, and of LAMMPS on the same system.
+//!
+//! `cargo run --release --example dem_throughput [-- --large] [--out DIR]`
+//!
+//! A `box` packing of 1000 grains is prepared (servo compression, loose gate)
+//! in 2D and 3D and tiled into larger boxes (≈10⁴, and ≈10⁵ with --large).
+//! Each system then runs with fixed walls (linear spring–dashpot with history,
+//! friction, no numerical damping) and the particle-steps per second are
+//! printed. The same systems are written as LAMMPS inputs (pair gran/hooke/history,
+//! fix wall/gran, nve/sphere) into DIR; when `lmp` is on the PATH (see
+//! benches/lammps/run.sh) they are run and the ratio printed.
+
+use grainforce::dem::sim::{Motion, System, WallShape};
+use grainforce::dem::{prepare, DemConfig, Preset};
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+struct Case {
+    dim: usize,
+    grains: usize,
+    steps: u64,
+    ours: f64,
+    contacts_per_grain: f64,
+    input: PathBuf,
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    let large = args.iter().any(|a| a == "--large");
+    let out = args
+        .iter()
+        .position(|a| a == "--out")
+        .and_then(|i| args.get(i + 1))
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from("target/dem_bench"));
+    std::fs::create_dir_all(&out).expect("output folder");
+    let mut cases = Vec::new();
+    for dim in [2usize, 3] {
+        let config = DemConfig::preset(Preset::Box, dim).grains(1000).gate(1e-3);
+        let t = Instant::now();
+        let (base, report) = prepare(&config).expect("box preparation");
+        eprintln!(
+            "{dim}D base box: {} grains, {} contacts, unbalanced {:.1e}, prepared in {:.1} s ({} steps)",
+            base.len(),
+            report.contacts,
+            report.unbalanced_ratio,
+            t.elapsed().as_secs_f64(),
+            report.steps
+        );
+        let mut targets = vec![1_000usize, 10_000];
+        if large {
+            targets.push(100_000);
+        }
+        for target in targets {
+            let k = ((target as f64 / base.len() as f64).powf(1.0 / dim as f64))
+                .round()
+                .max(1.0) as usize;
+            let mut sys = tile(&base, k, config.density, config.sizes.max_radius());
+            // About 3·10⁷ particle-steps per case.
+            let steps = ((3e7 / sys.len() as f64) as u64).clamp(100, 30_000);
+            for _ in 0..20 {
+                sys.step();
+            }
+            let t = Instant::now();
+            let mut contacts = 0usize;
+            for _ in 0..steps {
+                sys.step();
+                contacts += sys.contact_count;
+            }
+            let seconds = t.elapsed().as_secs_f64();
+            let ours = sys.len() as f64 * steps as f64 / seconds;
+            let input = write_lammps(&out, &sys, steps, config.grain.mu);
+            cases.push(Case {
+                dim,
+                grains: sys.len(),
+                steps,
+                ours,
+                contacts_per_grain: 2.0 * contacts as f64 / steps as f64 / sys.len() as f64,
+                input,
+            });
+            eprintln!(
+                "{dim}D {:>7} grains: {:.3e} particle-steps/s ({} steps, {} neighbour-list builds)",
+                sys.len(),
+                ours,
+                steps,
+                sys.neighbour_builds()
+            );
+        }
+    }
+    let lammps = which("lmp");
+    if lammps.is_none() {
+        eprintln!("lmp not found on PATH: LAMMPS inputs written to {} (benches/lammps/run.sh installs and runs it)", out.display());
+    }
+    println!("| dim | grains | contacts/grain | steps | grainforce [particle-steps/s] | LAMMPS [particle-steps/s] | ratio |");
+    println!("|---|---|---|---|---|---|---|");
+    for case in &cases {
+        let theirs = lammps
+            .as_ref()
+            .and_then(|lmp| run_lammps(lmp, &case.input, case.grains));
+        let (t, r) = match theirs {
+            Some(v) => (format!("{v:.3e}"), format!("{:.2}", case.ours / v)),
+            None => ("–".into(), "–".into()),
+        };
+        println!(
+            "| {} | {} | {:.2} | {} | {:.3e} | {} | {} |",
+            case.dim, case.grains, case.contacts_per_grain, case.steps, case.ours, t, r
+        );
+    }
+}
+
+/// k^dim copies of the base packing side by side, inside walls around them all.
+fn tile(base: &System, k: usize, density: f64, rmax: f64) -> System {
+    let dim = base.dim;
+    let mut lo = [0.0f64; 3];
+    let mut hi = [0.0f64; 3];
+    for wall in &base.walls {
+        if let WallShape::Plane { normal } = wall.shape {
+            for a in 0..dim {
+                if normal[a] > 0.5 {
+                    lo[a] = wall.position[a];
+                } else if normal[a] < -0.5 {
+                    hi[a] = wall.position[a];
+                }
+            }
+        }
+    }
+    let span: Vec<f64> = (0..3).map(|a| hi[a] - lo[a]).collect();
+    let mut x = Vec::new();
+    let mut radius = Vec::new();
+    let kz = if dim == 3 { k } else { 1 };
+    for i in 0..k {
+        for j in 0..k {
+            for l in 0..kz {
+                for (p, r) in base.x.iter().zip(&base.radius) {
+                    x.push([
+                        p[0] + i as f64 * span[0],
+                        p[1] + j as f64 * span[1],
+                        p[2] + l as f64 * span[2],
+                    ]);
+                    radius.push(*r);
+                }
+            }
+        }
+    }
+    let mut sys = System::new(
+        dim,
+        x,
+        radius,
+        density,
+        base.grain_law,
+        [0.0; 3],
+        base.dt,
+        0.3 * rmax,
+    );
+    for wall in &base.walls {
+        let WallShape::Plane { normal } = wall.shape else {
+            continue;
+        };
+        let mut position = wall.position;
+        for a in 0..dim {
+            if normal[a] < -0.5 {
+                position[a] = lo[a] + k as f64 * span[a];
+            }
+        }
+        sys.add_wall(
+            &wall.name,
+            wall.shape,
+            position,
+            [0.0; 3],
+            Motion::Prescribed,
+            wall.law,
+            0.0,
+        );
+    }
+    sys.evaluate();
+    sys
+}
+
+fn which(name: &str) -> Option<PathBuf> {
+    let path = std::env::var_os("PATH")?;
+    std::env::split_paths(&path)
+        .map(|d| d.join(name))
+        .find(|p| p.is_file())
+}
+
+/// Writes data + input for LAMMPS; returns the input path.
+fn write_lammps(dir: &Path, sys: &System, steps: u64, mu: f64) -> PathBuf {
+    let dim = sys.dim;
+    let n = sys.len();
+    let tag = format!("box{dim}d_{n}");
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for wall in &sys.walls {
+        for a in 0..dim {
+            if let WallShape::Plane { normal } = wall.shape {
+                if normal[a].abs() > 0.5 {
+                    lo[a] = lo[a].min(wall.position[a]);
+                    hi[a] = hi[a].max(wall.position[a]);
+                }
+            }
+        }
+    }
+    let rmax = sys.radius.iter().cloned().fold(0.0, f64::max);
+    let mut data = String::new();
+    writeln!(
+        data,
+        "grainforce box {dim}D, {n} grains\n\n{n} atoms\n1 atom types\n"
+    )
+    .unwrap();
+    for a in 0..3 {
+        let (l, h) = if a < dim {
+            (lo[a] - 2.0 * rmax, hi[a] + 2.0 * rmax)
+        } else {
+            (-0.5 * rmax, 0.5 * rmax)
+        };
+        let name = ["x", "y", "z"][a];
+        writeln!(data, "{l:.17e} {h:.17e} {name}lo {name}hi").unwrap();
+    }
+    writeln!(data, "\nAtoms # sphere\n").unwrap();
+    for i in 0..n {
+        let r = sys.radius[i];
+        // LAMMPS derives mass from a sphere's volume; choose the density so the
+        // masses equal ours (per unit thickness in 2D).
+        let density = sys.mass[i] / (4.0 / 3.0 * std::f64::consts::PI * r * r * r);
+        writeln!(
+            data,
+            "{} 1 {:.17e} {:.17e} {:.17e} {:.17e} {:.17e}",
+            i + 1,
+            2.0 * r,
+            density,
+            sys.x[i][0],
+            sys.x[i][1],
+            sys.x[i][2]
+        )
+        .unwrap();
+    }
+    std::fs::write(dir.join(format!("{tag}.data")), data).unwrap();
+    let law = &sys.grain_law;
+    let wall = &sys.walls[0].law;
+    // LAMMPS' dashpot is meff·γ_n; ours is a·√(m* k): match at the mean m*.
+    let mean_mass = sys.mass.iter().sum::<f64>() / n as f64;
+    let gamma = |k: f64, a: f64, m: f64| a * (k / m).sqrt();
+    let (kn, kt) = (law.normal, law.tangential);
+    let mut input = String::new();
+    writeln!(input, "units si\natom_style sphere\ndimension {dim}").unwrap();
+    writeln!(input, "boundary f f {}", if dim == 2 { "p" } else { "f" }).unwrap();
+    writeln!(input, "comm_modify vel yes\nread_data {tag}.data").unwrap();
+    writeln!(
+        input,
+        "pair_style gran/hooke/history {kn:e} {kt:e} {:e} 0 {mu} 0\npair_coeff * *",
+        gamma(kn, law.damp_n, 0.5 * mean_mass)
+    )
+    .unwrap();
+    writeln!(
+        input,
+        "neighbor {:e} bin\nneigh_modify delay 0 every 1 check yes",
+        0.3 * rmax
+    )
+    .unwrap();
+    if dim == 2 {
+        writeln!(
+            input,
+            "fix integrate all nve/sphere disc\nfix planar all enforce2d"
+        )
+        .unwrap();
+    } else {
+        writeln!(input, "fix integrate all nve/sphere").unwrap();
+    }
+    for a in 0..dim {
+        writeln!(
+            input,
+            "fix wall{a} all wall/gran hooke/history {:e} {:e} {:e} 0 {} 0 {}plane {:.17e} {:.17e}",
+            wall.normal,
+            wall.tangential,
+            gamma(wall.normal, wall.damp_n, mean_mass),
+            wall.mu,
+            ["x", "y", "z"][a],
+            lo[a],
+            hi[a]
+        )
+        .unwrap();
+    }
+    writeln!(
+        input,
+        "timestep {:e}\nthermo {}\nrun 20\nrun {steps}",
+        sys.dt, steps
+    )
+    .unwrap();
+    let path = dir.join(format!("{tag}.in"));
+    std::fs::write(&path, input).unwrap();
+    path
+}
+
+/// Runs LAMMPS on one input; parses "Loop time of T on 1 procs for S steps with N atoms".
+fn run_lammps(lmp: &Path, input: &Path, grains: usize) -> Option<f64> {
+    let dir = input.parent()?;
+    let log = format!("{}.log", input.file_stem()?.to_str()?);
+    let output = std::process::Command::new(lmp)
+        .current_dir(dir)
+        .args([
+            "-in",
+            input.file_name()?.to_str()?,
+            "-log",
+            &log,
+            "-screen",
+            "none",
+        ])
+        .output()
+        .ok()?;
+    let text = std::fs::read_to_string(dir.join(&log)).ok()?;
+    let line = text.lines().rev().find(|l| l.starts_with("Loop time of"))?;
+    let words: Vec<&str> = line.split_whitespace().collect();
+    let seconds: f64 = words.get(3)?.parse().ok()?;
+    let steps: f64 = words.get(8)?.parse().ok()?;
+    if !output.status.success() || seconds <= 0.0 {
+        eprintln!("LAMMPS failed on {}", input.display());
+        return None;
+    }
+    Some(grains as f64 * steps / seconds)
+}

@@ -1,0 +1,649 @@
+//! Sparse equality-constrained least squares — the fast floor of the method:
+//!
+//! ```text
+//!     minimise ‖A x − b‖² + λ²‖x‖²   subject to   C x = d
+//! ```
+//!
+//! Solved through the quasi-definite KKT system
+//! `[[AᵀA + λ²I + δI, Cᵀ], [C, −δI]]` (AᵀA formed sparsely; it is local) with an
+//! AMD ordering and faer's sparse LDLᵀ, followed by iterative refinement against
+//! the *unregularised* system until the residual stops decreasing.
+//!
+//! Before factorising, columns of x are equilibrated (unit norm of `[A; C]`
+//! columns) and rows of C are normalised; this changes neither the solution nor
+//! the constraint set, but makes an absolute δ = 1e-10 meaningful and lets
+//! badly scaled data refine to full accuracy. Row scales of A are the user's
+//! weights and are left alone; since AᵀA squares them, weights spanning more than
+//! ~1e6 can defeat the method — then δ is raised (1e-8, 1e-6) and, if refinement
+//! still fails, the result says `converged: false` or an `Error::Solver` explains.
+//!
+//! The symbolic analysis (pattern of the KKT matrix, ordering, elimination tree)
+//! lives in [`EqualityLeastSquares`] and is reused by every numeric factorisation
+//! (λ sweeps, many frames with the same contact network).
+
+mod compressed;
+mod identifiability;
+
+pub use identifiability::{identifiability, Identifiability};
+
+use compressed::{
+    abs_mul_scaled, abs_mul_t_scaled, gram_upper_pattern, gram_upper_values, mul_scaled,
+    mul_t_scaled, Compressed,
+};
+use faer::dyn_stack::{MemBuffer, MemStack};
+use faer::linalg::cholesky::ldlt::factor::LdltRegularization;
+use faer::sparse::linalg::cholesky::{
+    factorize_symbolic_cholesky, LdltRef, SymbolicCholesky, SymmetricOrdering,
+};
+use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
+use faer::{Conj, MatMut, Par, Side};
+
+use super::Triplets;
+use crate::{Error, Result};
+
+/// Static regularisation δ of the equilibrated KKT matrix (diag of AᵀA ≤ 1 there),
+/// tried in this order until refinement converges.
+pub const DELTA_LADDER: [f64; 3] = [1e-10, 1e-8, 1e-6];
+/// Refinement is declared converged when the relative KKT residual (a normwise
+/// backward error of the unregularised system) is at most this.
+pub const CONVERGED_TOL: f64 = 1e-10;
+/// Refinement stops early once the residual is at round-off level.
+const ROUNDOFF_FLOOR: f64 = 1e-15;
+const MAX_REFINEMENT_STEPS: usize = 60;
+const EQUILIBRATION_PASSES: usize = 4;
+/// Consecutive steps without a 10 % decrease before refinement gives up.
+const STALL_STEPS: usize = 3;
+/// Below this many KKT unknowns faer runs sequentially by default.
+const PARALLEL_MIN_SIZE: usize = 200_000;
+
+/// Result of [`EqualityLeastSquares::solve`].
+#[derive(Debug, Clone)]
+pub struct LsSolution {
+    pub x: Vec<f64>,
+    /// ‖A x − b‖₂.
+    pub residual: f64,
+    /// ‖C x − d‖∞.
+    pub equality_residual: f64,
+    /// Number of refinement corrections applied after the first solve.
+    pub refinement_steps: usize,
+    /// True when the relative KKT residual reached [`CONVERGED_TOL`]. False means
+    /// the constraints are inconsistent (see `equality_residual`) or the system is
+    /// too ill-conditioned for refinement to reach the tolerance.
+    pub converged: bool,
+    /// Final relative KKT residual in the equilibrated system: the larger of the
+    /// stationarity residual ‖r‖∞ / ‖|K||z| + |rhs|‖∞ and the worst constraint row
+    /// |C_i x − d_i| / (|C_i||x| + |d_i|).
+    pub kkt_residual: f64,
+}
+
+/// Symbolic analysis of the KKT pattern plus the cached numeric factorisation.
+pub struct EqualityLeastSquares {
+    n: usize,
+    a_pattern: (usize, Vec<usize>, Vec<usize>),
+    c_pattern: (usize, Vec<usize>, Vec<usize>),
+    a_csr: Compressed,
+    a_csc: Compressed,
+    c_csr: Compressed,
+    kkt_col_ptr: Vec<usize>,
+    kkt_row_idx: Vec<usize>,
+    symbolic: Option<SymbolicCholesky<usize>>,
+    par: Par,
+    numeric: Option<Numeric>,
+}
+
+/// Outcome of one factorisation + refinement.
+struct Attempt {
+    x: Vec<f64>,
+    dual: f64,
+    primal: f64,
+    steps: usize,
+}
+
+impl Attempt {
+    fn rho(&self) -> f64 {
+        self.dual.max(self.primal)
+    }
+}
+
+/// Numeric state tied to one set of values, one λ and one δ.
+struct Numeric {
+    delta: f64,
+    lambda: f64,
+    a_vals: Vec<f64>,
+    c_vals: Vec<f64>,
+    /// x = S y: column equilibration.
+    col_scale: Vec<f64>,
+    /// Row normalisation of C.
+    c_row_scale: Vec<f64>,
+    /// λ² s_j², the Tikhonov term in scaled variables.
+    lambda2_s2: Vec<f64>,
+    l_values: Vec<f64>,
+}
+
+impl EqualityLeastSquares {
+    /// Validates sizes and indices and analyses the KKT pattern (AMD + symbolic
+    /// Cholesky). Values are not looked at.
+    pub fn new(a: &Triplets, c: &Triplets) -> Result<Self> {
+        let kkt_size = a.ncols + c.nrows;
+        let par = if kkt_size >= PARALLEL_MIN_SIZE {
+            Par::rayon(0)
+        } else {
+            Par::Seq
+        };
+        Self::with_parallelism(a, c, par)
+    }
+
+    /// As [`new`](Self::new) with an explicit faer parallelism for the numeric
+    /// factorisation and solves.
+    pub fn with_parallelism(a: &Triplets, c: &Triplets, par: Par) -> Result<Self> {
+        check_pair(a, c)?;
+        let n = a.ncols;
+        let a_csr = Compressed::from_entries(a.nrows, n, &a.rows, &a.cols);
+        let a_csc = Compressed::from_entries(n, a.nrows, &a.cols, &a.rows);
+        let c_csr = Compressed::from_entries(c.nrows, n, &c.rows, &c.cols);
+        let (mut col_ptr, mut row_idx) = gram_upper_pattern(&a_csr, &a_csc);
+        for i in 0..c.nrows {
+            row_idx.extend_from_slice(&c_csr.idx[c_csr.range(i)]);
+            row_idx.push(n + i);
+            col_ptr.push(row_idx.len());
+        }
+        let size = n + c.nrows;
+        let symbolic = if size == 0 {
+            None
+        } else {
+            let pattern =
+                SymbolicSparseColMatRef::new_checked(size, size, &col_ptr, None, &row_idx);
+            Some(
+                factorize_symbolic_cholesky(pattern, Side::Upper, SymmetricOrdering::Amd, Default::default())
+                    .map_err(|e| {
+                        Error::Solver(format!(
+                            "symbolic analysis of the {size}×{size} KKT matrix ({} stored entries) failed: {e:?}",
+                            row_idx.len()
+                        ))
+                    })?,
+            )
+        };
+        Ok(EqualityLeastSquares {
+            n,
+            a_pattern: (a.nrows, a.rows.clone(), a.cols.clone()),
+            c_pattern: (c.nrows, c.rows.clone(), c.cols.clone()),
+            a_csr,
+            a_csc,
+            c_csr,
+            kkt_col_ptr: col_ptr,
+            kkt_row_idx: row_idx,
+            symbolic,
+            par,
+            numeric: None,
+        })
+    }
+
+    /// Parallelism used by the numeric factorisation and triangular solves.
+    pub fn set_parallelism(&mut self, par: Par) {
+        self.par = par;
+    }
+
+    /// Number of stored entries in the factor L (0 for an empty problem).
+    pub fn factor_nnz(&self) -> usize {
+        self.symbolic.as_ref().map_or(0, |s| s.len_val())
+    }
+
+    /// Numeric factorisation (skipped when λ and the values of A and C are the
+    /// ones of the previous call), solve and refinement. If the pattern of A or C
+    /// differs from the analysed one, the analysis is redone first.
+    pub fn solve(
+        &mut self,
+        a: &Triplets,
+        c: &Triplets,
+        b: &[f64],
+        d: &[f64],
+        lambda: f64,
+    ) -> Result<LsSolution> {
+        check_pair(a, c)?;
+        if b.len() != a.nrows {
+            return Err(Error::Invalid(format!(
+                "b has {} entries but A has {} rows",
+                b.len(),
+                a.nrows
+            )));
+        }
+        if d.len() != c.nrows {
+            return Err(Error::Invalid(format!(
+                "d has {} entries but C has {} rows",
+                d.len(),
+                c.nrows
+            )));
+        }
+        if !(lambda.is_finite() && lambda >= 0.0) {
+            return Err(Error::Invalid(format!(
+                "λ must be finite and ≥ 0, got {lambda}"
+            )));
+        }
+        check_finite(&a.vals, "A value")?;
+        check_finite(&c.vals, "C value")?;
+        check_finite(b, "b")?;
+        check_finite(d, "d")?;
+        if !self.same_pattern(a, c) {
+            *self = Self::with_parallelism(a, c, self.par)?;
+        }
+        let n = self.n;
+        if n == 0 {
+            // Nothing to choose: C x = 0 for every x, so consistent iff d = 0.
+            let equality_residual = d.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            return Ok(LsSolution {
+                x: Vec::new(),
+                residual: norm2(b),
+                equality_residual,
+                refinement_steps: 0,
+                converged: equality_residual == 0.0,
+                kkt_residual: if equality_residual == 0.0 { 0.0 } else { 1.0 },
+            });
+        }
+        // δ ladder: the first δ suits almost everything; a larger one trades
+        // refinement steps for a smaller growth factor in the LDLᵀ when the
+        // first attempt breaks down. Inconsistent constraints (dual residual
+        // converged, primal stuck) are not helped by a larger δ.
+        let mut ladder: Vec<f64> = DELTA_LADDER.to_vec();
+        if let Some(num) = &self.numeric {
+            if num.lambda == lambda && num.a_vals == a.vals && num.c_vals == c.vals {
+                ladder.retain(|&delta| delta >= num.delta);
+            }
+        }
+        let mut best: Option<Attempt> = None;
+        let mut failures = Vec::new();
+        for &delta in &ladder {
+            match self.attempt(a, c, b, d, lambda, delta) {
+                Ok(att) => {
+                    let stop = att.rho() <= CONVERGED_TOL || att.dual <= CONVERGED_TOL;
+                    let better = match &best {
+                        Some(previous) => att.rho() < previous.rho(),
+                        None => true,
+                    };
+                    if better {
+                        best = Some(att);
+                    }
+                    if stop {
+                        break;
+                    }
+                }
+                Err(Error::Solver(message)) => failures.push(format!("δ = {delta:e}: {message}")),
+                Err(e) => return Err(e),
+            }
+        }
+        let Some(best) = best else {
+            return Err(Error::Solver(format!(
+                "sparse KKT solve failed for every regularisation tried ({n} unknowns, {} constraints, λ = {lambda}): {}",
+                c.nrows,
+                failures.join("; ")
+            )));
+        };
+        let x = best.x;
+        let residual = norm2(&sub(&a.mul(&x), b));
+        let equality_residual = sub(&c.mul(&x), d)
+            .iter()
+            .fold(0.0f64, |m, v| m.max(v.abs()));
+        let kkt_residual = best.dual.max(best.primal);
+        Ok(LsSolution {
+            x,
+            residual,
+            equality_residual,
+            refinement_steps: best.steps,
+            converged: kkt_residual <= CONVERGED_TOL,
+            kkt_residual,
+        })
+    }
+
+    /// One factorisation with static regularisation δ, first solve, refinement.
+    fn attempt(
+        &mut self,
+        a: &Triplets,
+        c: &Triplets,
+        b: &[f64],
+        d: &[f64],
+        lambda: f64,
+        delta: f64,
+    ) -> Result<Attempt> {
+        let n = self.n;
+        self.factorise(a, c, lambda, delta)?;
+        let num = self.numeric.as_ref().expect("factorised above");
+        let symbolic = self
+            .symbolic
+            .as_ref()
+            .expect("non-empty KKT has a symbolic factor");
+        let ldlt = LdltRef::<usize, f64>::new(symbolic, &num.l_values);
+        let size = symbolic.nrows();
+        let mut stack_buf = MemBuffer::try_new(symbolic.solve_in_place_scratch::<f64>(1, self.par))
+            .map_err(|_| {
+                Error::Solver(format!(
+                    "out of memory for the {size}-row KKT solve workspace"
+                ))
+            })?;
+        let mut kkt_solve = |rhs: &mut [f64]| {
+            let len = rhs.len();
+            ldlt.solve_in_place_with_conj(
+                Conj::No,
+                MatMut::from_column_major_slice_mut(rhs, len, 1),
+                self.par,
+                MemStack::new(&mut stack_buf),
+            );
+        };
+
+        let ones_a = vec![1.0; a.nrows];
+        let d_hat: Vec<f64> = d.iter().zip(&num.c_row_scale).map(|(v, t)| v * t).collect();
+        let zeros = vec![0.0; size];
+        // The residual at z = 0 is the right-hand side.
+        let (mut z, _, _) = self.kkt_residual(num, &ones_a, b, &d_hat, &zeros);
+        kkt_solve(&mut z);
+        let (mut r, mut dual, mut primal) = self.kkt_residual(num, &ones_a, b, &d_hat, &z);
+        if !(dual.is_finite() && primal.is_finite()) {
+            return Err(Error::Solver(
+                "the first KKT solve produced non-finite values (factor growth; the data are too badly scaled \
+                 for the normal-equations KKT)"
+                    .into(),
+            ));
+        }
+        let mut best = (dual.max(primal), dual, primal, z.clone());
+        let mut steps = 0;
+        let mut stalled = 0;
+        while steps < MAX_REFINEMENT_STEPS && best.0 > ROUNDOFF_FLOOR && stalled < STALL_STEPS {
+            kkt_solve(&mut r);
+            for (zi, ri) in z.iter_mut().zip(&r) {
+                *zi += ri;
+            }
+            steps += 1;
+            (r, dual, primal) = self.kkt_residual(num, &ones_a, b, &d_hat, &z);
+            let rho = dual.max(primal);
+            if !rho.is_finite() {
+                break;
+            }
+            stalled = if rho < 0.9 * best.0 { 0 } else { stalled + 1 };
+            if rho < best.0 {
+                best = (rho, dual, primal, z.clone());
+            }
+        }
+        let x: Vec<f64> = best.3[..n]
+            .iter()
+            .zip(&num.col_scale)
+            .map(|(y, s)| y * s)
+            .collect();
+        if x.iter().any(|v| !v.is_finite()) {
+            return Err(Error::Solver(
+                "the solution overflows after unscaling".into(),
+            ));
+        }
+        Ok(Attempt {
+            x,
+            dual: best.1,
+            primal: best.2,
+            steps,
+        })
+    }
+
+    fn same_pattern(&self, a: &Triplets, c: &Triplets) -> bool {
+        let same = |p: &(usize, Vec<usize>, Vec<usize>), t: &Triplets| {
+            p.0 == t.nrows && p.1 == t.rows && p.2 == t.cols
+        };
+        self.n == a.ncols && same(&self.a_pattern, a) && same(&self.c_pattern, c)
+    }
+
+    /// Equilibration, KKT values and numeric LDLᵀ, unless cached.
+    fn factorise(&mut self, a: &Triplets, c: &Triplets, lambda: f64, delta: f64) -> Result<()> {
+        if let Some(num) = &self.numeric {
+            if num.delta == delta
+                && num.lambda == lambda
+                && num.a_vals == a.vals
+                && num.c_vals == c.vals
+            {
+                return Ok(());
+            }
+        }
+        self.numeric = None;
+        let n = self.n;
+        let (ma, mc) = (a.nrows, c.nrows);
+        self.a_csr.refill(&a.vals);
+        self.a_csc.refill(&a.vals);
+        self.c_csr.refill(&c.vals);
+
+        // Alternate C-row normalisation and column equilibration of [A; T C]; a
+        // few passes settle the scales so that units of the unknowns drop out.
+        let mut col_scale = vec![1.0; n];
+        let mut c_row_scale = vec![1.0; mc];
+        let mut a_col_sq = vec![0.0; n];
+        for (q, &j) in self.a_csr.idx.iter().enumerate() {
+            a_col_sq[j] += self.a_csr.val[q] * self.a_csr.val[q];
+        }
+        for _ in 0..EQUILIBRATION_PASSES {
+            c_row_scale = row_inverse_norms(&self.c_csr, &col_scale);
+            // s_j = 1 / ‖column j of [A; T C]‖.
+            let mut col_sq = a_col_sq.clone();
+            for i in 0..mc {
+                for q in self.c_csr.range(i) {
+                    col_sq[self.c_csr.idx[q]] += (self.c_csr.val[q] * c_row_scale[i]).powi(2);
+                }
+            }
+            for (s, sq) in col_scale.iter_mut().zip(&col_sq) {
+                *s = if *sq > 0.0 { 1.0 / sq.sqrt() } else { 1.0 };
+            }
+        }
+        if let Some(j) = col_scale.iter().position(|s| !s.is_finite() || *s == 0.0) {
+            return Err(Error::Solver(format!(
+                "column {j} of [A; C] cannot be equilibrated (values overflow)"
+            )));
+        }
+        c_row_scale = row_inverse_norms(&self.c_csr, &col_scale);
+        let lambda2_s2: Vec<f64> = col_scale.iter().map(|s| lambda * lambda * s * s).collect();
+
+        let size = n + mc;
+        let mut values = vec![0.0; self.kkt_row_idx.len()];
+        let mut work = vec![0.0; n];
+        gram_upper_values(
+            &self.a_csr,
+            &self.a_csc,
+            &vec![1.0; ma],
+            &col_scale,
+            &self.kkt_col_ptr,
+            &self.kkt_row_idx,
+            &mut values,
+            &mut work,
+        );
+        for j in 0..n {
+            // Rows are sorted with i ≤ j: the diagonal closes the column.
+            values[self.kkt_col_ptr[j + 1] - 1] += lambda2_s2[j] + delta;
+        }
+        for i in 0..mc {
+            let mut p = self.kkt_col_ptr[n + i];
+            for q in self.c_csr.range(i) {
+                values[p] = c_row_scale[i] * self.c_csr.val[q] * col_scale[self.c_csr.idx[q]];
+                p += 1;
+            }
+            values[p] = -delta;
+        }
+        if let Some(p) = values.iter().position(|v| !v.is_finite()) {
+            return Err(Error::Solver(format!(
+                "KKT entry {p} is not finite after equilibration (values of A or C overflow when squared)"
+            )));
+        }
+
+        let symbolic = self
+            .symbolic
+            .as_ref()
+            .expect("non-empty KKT has a symbolic factor");
+        let signs: Vec<i8> = (0..size).map(|k| if k < n { 1 } else { -1 }).collect();
+        let regularization = LdltRegularization {
+            dynamic_regularization_signs: Some(&signs),
+            dynamic_regularization_delta: delta,
+            dynamic_regularization_epsilon: 1e-3 * delta,
+        };
+        let mut l_values = vec![0.0; symbolic.len_val()];
+        let mut stack_buf = MemBuffer::try_new(
+            symbolic.factorize_numeric_ldlt_scratch::<f64>(self.par, Default::default()),
+        )
+        .map_err(|_| {
+            Error::Solver(format!(
+                "out of memory for the LDLᵀ workspace ({} factor entries)",
+                symbolic.len_val()
+            ))
+        })?;
+        let matrix = SparseColMatRef::new(
+            SymbolicSparseColMatRef::new_checked(
+                size,
+                size,
+                &self.kkt_col_ptr,
+                None,
+                &self.kkt_row_idx,
+            ),
+            &values,
+        );
+        symbolic
+            .factorize_numeric_ldlt(
+                &mut l_values,
+                matrix,
+                Side::Upper,
+                regularization,
+                self.par,
+                MemStack::new(&mut stack_buf),
+                Default::default(),
+            )
+            .map_err(|e| {
+                Error::Solver(format!(
+                    "sparse LDLᵀ of the {size}×{size} KKT matrix failed ({e:?}); λ = {lambda}, δ = {delta}"
+                ))
+            })?;
+        self.numeric = Some(Numeric {
+            delta,
+            lambda,
+            a_vals: a.vals.clone(),
+            c_vals: c.vals.clone(),
+            col_scale,
+            c_row_scale,
+            lambda2_s2,
+            l_values,
+        });
+        Ok(())
+    }
+
+    /// Residual of the unregularised equilibrated KKT system at z = (y, μ), and the
+    /// relative sizes of the dual (stationarity, normwise) and primal (C x = d,
+    /// per row) parts.
+    fn kkt_residual(
+        &self,
+        num: &Numeric,
+        ones_a: &[f64],
+        b: &[f64],
+        d_hat: &[f64],
+        z: &[f64],
+    ) -> (Vec<f64>, f64, f64) {
+        let n = self.n;
+        let (y, mu) = z.split_at(n);
+        let (s, t) = (&num.col_scale, &num.c_row_scale);
+        let ay = mul_scaled(&self.a_csr, ones_a, s, y);
+        let ra: Vec<f64> = b.iter().zip(&ay).map(|(bi, ai)| bi - ai).collect();
+        let atr = mul_t_scaled(&self.a_csr, ones_a, s, &ra, n);
+        let ctmu = mul_t_scaled(&self.c_csr, t, s, mu, n);
+        let cy = mul_scaled(&self.c_csr, t, s, y);
+
+        let abs_ay = abs_mul_scaled(&self.a_csr, ones_a, s, y);
+        let b_bound: Vec<f64> = b
+            .iter()
+            .zip(&abs_ay)
+            .map(|(bi, ai)| bi.abs() + ai)
+            .collect();
+        let dual_bound = abs_mul_t_scaled(&self.a_csr, ones_a, s, &b_bound, n);
+        let ctmu_bound = abs_mul_t_scaled(&self.c_csr, t, s, mu, n);
+        let primal_bound = abs_mul_scaled(&self.c_csr, t, s, y);
+
+        let mut r = Vec::with_capacity(z.len());
+        let (mut dual_num, mut dual_den) = (0.0f64, 0.0f64);
+        for j in 0..n {
+            let reg = num.lambda2_s2[j] * y[j];
+            let g = atr[j] - reg - ctmu[j];
+            dual_num = dual_num.max(g.abs());
+            dual_den = dual_den.max(dual_bound[j] + reg.abs() + ctmu_bound[j]);
+            r.push(g);
+        }
+        // Constraints are checked row by row (componentwise): each equation must
+        // hold to round-off relative to its own terms.
+        let ratio = |num: f64, den: f64| {
+            if num == 0.0 {
+                0.0
+            } else {
+                (num / den).min(1.0)
+            }
+        };
+        let mut primal = 0.0f64;
+        for i in 0..d_hat.len() {
+            let rc = d_hat[i] - cy[i];
+            primal = primal.max(ratio(rc.abs(), primal_bound[i] + d_hat[i].abs()));
+            r.push(rc);
+        }
+        (r, ratio(dual_num, dual_den), primal)
+    }
+}
+
+/// 1/‖(B S)_r‖ per row of a CSR matrix (1 for empty rows).
+fn row_inverse_norms(csr: &Compressed, col_scale: &[f64]) -> Vec<f64> {
+    (0..csr.nmajor)
+        .map(|r| {
+            let sq: f64 = csr
+                .range(r)
+                .map(|q| (csr.val[q] * col_scale[csr.idx[q]]).powi(2))
+                .sum();
+            if sq > 0.0 && sq.is_finite() {
+                1.0 / sq.sqrt()
+            } else {
+                1.0
+            }
+        })
+        .collect()
+}
+
+/// Sizes and indices of one triplet matrix.
+pub(crate) fn check_triplets(t: &Triplets, name: &str) -> Result<()> {
+    if t.rows.len() != t.vals.len() || t.cols.len() != t.vals.len() {
+        return Err(Error::Invalid(format!(
+            "{name}: {} row indices, {} column indices and {} values",
+            t.rows.len(),
+            t.cols.len(),
+            t.vals.len()
+        )));
+    }
+    for (k, (&r, &c)) in t.rows.iter().zip(&t.cols).enumerate() {
+        if r >= t.nrows || c >= t.ncols {
+            return Err(Error::Invalid(format!(
+                "{name}: entry {k} at ({r}, {c}) lies outside the {}×{} matrix",
+                t.nrows, t.ncols
+            )));
+        }
+    }
+    Ok(())
+}
+
+pub(crate) fn check_pair(a: &Triplets, c: &Triplets) -> Result<()> {
+    check_triplets(a, "A")?;
+    check_triplets(c, "C")?;
+    if a.ncols != c.ncols {
+        return Err(Error::Invalid(format!(
+            "A has {} columns but C has {}; both act on the same unknowns",
+            a.ncols, c.ncols
+        )));
+    }
+    Ok(())
+}
+
+pub(crate) fn check_finite(v: &[f64], name: &str) -> Result<()> {
+    match v.iter().position(|x| !x.is_finite()) {
+        Some(k) => Err(Error::Invalid(format!(
+            "{name} {k} is not finite ({})",
+            v[k]
+        ))),
+        None => Ok(()),
+    }
+}
+
+fn norm2(v: &[f64]) -> f64 {
+    v.iter().map(|x| x * x).sum::<f64>().sqrt()
+}
+
+fn sub(a: &[f64], b: &[f64]) -> Vec<f64> {
+    a.iter().zip(b).map(|(x, y)| x - y).collect()
+}
