@@ -96,11 +96,11 @@ fn coordinates_far_from_the_origin_2d() {
 
 /// In this 3D box K_eq has 4 zero singular values (redundant momentum rows);
 /// the 1e-7 round-off of far coordinates makes them independent with tiny
-/// singular values, and the hard equality K_eq f = 0 then pushes the answer
-/// 36 % away from the truth (ls and qs alike; fine at offsets ≤ 1e5 for ls).
-/// The equality rows need a rank-revealing treatment in the solver.
+/// singular values. The faer `ls` copes (passes), but `qs` falls through to
+/// clarabel, whose hard equality K_eq f = 0 then pushes the answer 36 % away
+/// from the truth. The equality rows need a rank-revealing treatment there.
 #[test]
-#[ignore = "core bug (lead): redundant momentum rows + round-off → 36 % error at 1e6 m offset in 3D"]
+#[ignore = "core bug (lead): qs 36 % off at 1e6 m offset in 3D (redundant momentum rows in clarabel)"]
 fn coordinates_far_from_the_origin_3d() {
     offset_check(3);
 }
@@ -335,7 +335,6 @@ fn duplicated_and_nearly_coincident_contacts() {
 }
 
 #[test]
-#[ignore = "needs identifiability in infer (lead): report.unique is still None"]
 fn rank_deficient_system_is_reported_non_unique() {
     let (s, _, _) = with_duplicate(0.0);
     let r = infer(&s, &opts(Method::Qs)).unwrap();
@@ -486,12 +485,10 @@ fn force_magnitudes_spanning_a_million() {
     assert!(weak <= 1e-8, "ls: weak contacts relerr {weak}");
 }
 
-/// The same data through the constrained path: clarabel's tolerance is
-/// relative to the largest forces, so the weak ones come out 200 % wrong
-/// (overall relerr 6e-6). Exact data are admissible here, so an exact-first
-/// path (faer LS, then check friction) would return them to 1e-8.
+/// The same data through the constrained path. Through clarabel alone the weak
+/// forces came out 200 % wrong (its tolerance is relative to the largest
+/// forces); the exact-first path returns the admissible LS answer.
 #[test]
-#[ignore = "core (lead): qs loses forces 1e6 × smaller than the largest (weak relerr 2.0); needs exact-first"]
 fn constrained_answer_resolves_weak_forces_beside_strong_ones() {
     let (weak, all) = weak_and_all(Method::Qs);
     assert!(all <= 1e-8, "qs: relerr {all}");
