@@ -293,7 +293,7 @@ pub fn markdown_table(results: &[CaseResult]) -> String {
 
 /// CSV of results (one row per case).
 pub fn csv(results: &[CaseResult]) -> Result<String> {
-    let mut w = csv::Writer::from_writer(Vec::new());
+    let mut w = ::csv::Writer::from_writer(Vec::new());
     for r in results {
         w.serialize(r)
             .map_err(|e| Error::Invalid(format!("writing the bench table: {e}")))?;
@@ -302,6 +302,25 @@ pub fn csv(results: &[CaseResult]) -> Result<String> {
         .into_inner()
         .map_err(|e| Error::Invalid(format!("writing the bench table: {e}")))?;
     String::from_utf8(bytes).map_err(|e| Error::Invalid(e.to_string()))
+}
+
+/// Reads results written by [`csv`].
+pub fn read_csv(path: &std::path::Path) -> Result<Vec<CaseResult>> {
+    let mut r = ::csv::Reader::from_path(path)
+        .map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))?;
+    let mut out = Vec::new();
+    for (i, row) in r.deserialize().enumerate() {
+        let row: CaseResult = row.map_err(|e| {
+            Error::data(
+                path,
+                Some(i + 2),
+                None,
+                format!("not a bench result row: {e}"),
+            )
+        })?;
+        out.push(row);
+    }
+    Ok(out)
 }
 
 /// Least-squares slope of log(time) against log(grains) over successful

@@ -72,6 +72,10 @@ pub struct Args {
     /// The cvxpy script (default: benches/cvxpy/gem_cvxpy.py of the source tree).
     #[arg(long, value_name = "SCRIPT.py")]
     pub cvxpy_script: Option<PathBuf>,
+    /// Do not run anything: merge these CSV files of earlier runs (--out) and
+    /// print/write their table, ratios and plot.
+    #[arg(long, value_delimiter = ',', value_name = "A.csv,B.csv")]
+    pub from: Option<Vec<PathBuf>>,
     /// Keep the generated scenes in this folder (default: a temporary folder).
     #[arg(long, value_name = "DIR")]
     pub keep: Option<PathBuf>,
@@ -105,6 +109,25 @@ fn parse_size(s: &str) -> Result<usize> {
 pub fn run(args: Args) -> Result<()> {
     if args.single {
         return run_single(&args);
+    }
+    if let Some(files) = &args.from {
+        let mut results = Vec::new();
+        for f in files {
+            results.extend(bench::read_csv(f)?);
+        }
+        let mut dims: Vec<usize> = results.iter().map(|r| r.dim).collect();
+        dims.dedup();
+        dims.sort_unstable();
+        dims.dedup();
+        let mut noises: Vec<Noise> = Vec::new();
+        for r in &results {
+            if let Some(n) = Noise::parse(&r.noise) {
+                if !noises.contains(&n) {
+                    noises.push(n);
+                }
+            }
+        }
+        return finish(&args, &results, &dims, &noises, &[]);
     }
     let sizes: Vec<usize> = args
         .sizes
@@ -156,7 +179,7 @@ pub fn run(args: Args) -> Result<()> {
     };
     let exe = std::env::current_exe().map_err(|e| Error::io("grainforce executable", e))?;
     let mut results = Vec::new();
-    let mut comparisons = Vec::new();
+    let mut comparisons: Vec<CvxpyLine> = Vec::new();
     if args.cvxpy {
         cvxpy_setup(&script_path(&args))?;
     }
@@ -197,6 +220,10 @@ pub fn run(args: Args) -> Result<()> {
                         );
                         eprintln!("  {}", one_line(&r));
                         results.push(r);
+                        // Keep the CSV current so an interrupted run keeps its cases.
+                        if let Some(path) = &args.out {
+                            scene::write_file_atomically(path, bench::csv(&results)?.as_bytes())?;
+                        }
                     }
                 }
                 if args.cvxpy && size <= cvxpy_max {
@@ -208,16 +235,29 @@ pub fn run(args: Args) -> Result<()> {
             }
         }
     }
-    let agg = bench::aggregate(&results);
+    finish(&args, &results, &args.dim, &noises, &comparisons)
+}
+
+type CvxpyLine<'a> = (usize, usize, &'a str, Comparison);
+
+/// Table, ratios, CSV and plot of finished results.
+fn finish(
+    args: &Args,
+    results: &[CaseResult],
+    dims: &[usize],
+    noises: &[Noise],
+    comparisons: &[CvxpyLine],
+) -> Result<()> {
+    let agg = bench::aggregate(results);
     let mut text = bench::markdown_table(&agg);
     text.push('\n');
-    text.push_str(&ratios_text(&agg, &args.dim, &noises));
-    for (dim, size, noise, c) in &comparisons {
+    text.push_str(&ratios_text(&agg, dims, noises));
+    for (dim, size, noise, c) in comparisons {
         text.push_str(&format!("- {}\n", c.line(*dim, *size, noise)));
     }
     print!("{text}");
     if let Some(path) = &args.out {
-        scene::write_file_atomically(path, bench::csv(&results)?.as_bytes())?;
+        scene::write_file_atomically(path, bench::csv(results)?.as_bytes())?;
     }
     if let Some(path) = &args.markdown {
         scene::write_file_atomically(path, text.as_bytes())?;
