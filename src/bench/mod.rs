@@ -31,9 +31,10 @@ pub struct MethodSpec {
 
 /// Names accepted by [`method_spec`]: `ls`, `qs`, `qs-relaxed`, `tikhonov`,
 /// `tikhonov-relaxed`, `tikhonov-search`, `scaled`, and in 3D `qs-pyr4`,
-/// `qs-pyr8`, `qs-pyr16` (any `qs-pyrK`, `K` ≥ 3).
+/// `qs-pyr8`, `qs-pyr16` (any `qs-pyrK`, `K` ≥ 3); any name may end in
+/// `-nocheck` to skip the identifiability (uniqueness) check.
 pub const METHOD_NAMES: &str =
-    "ls, qs, qs-relaxed, tikhonov, tikhonov-relaxed, tikhonov-search, scaled, qs-pyrK (3D: K facets, e.g. qs-pyr8)";
+    "ls, qs, qs-relaxed, tikhonov, tikhonov-relaxed, tikhonov-search, scaled, qs-pyrK (3D: K facets, e.g. qs-pyr8), each optionally with -nocheck";
 
 /// The default matrix: the floor, the constrained formulations at both
 /// tolerances and, in 3D, pyramids of 4, 8 and 16 facets.
@@ -50,19 +51,25 @@ pub fn default_methods(dim: usize) -> Vec<&'static str> {
 pub fn method_spec(name: &str, lambda: f64) -> Result<MethodSpec> {
     let mut o = InferOptions::default();
     let mut base = name;
-    if let Some(b) = name.strip_suffix("-relaxed") {
+    let mut name_rest = name;
+    if let Some(b) = name.strip_suffix("-nocheck") {
+        o.identifiability_limit = 0;
+        base = b;
+        name_rest = b;
+    }
+    if let Some(b) = base.strip_suffix("-relaxed") {
         o.conic.tolerance = RELAXED_TOLERANCE;
         base = b;
     }
     match base {
-        "ls" if base == name => o.method = Method::Ls,
+        "ls" if base == name_rest => o.method = Method::Ls,
         "qs" => o.method = Method::Qs,
         "tikhonov" => {
             o.method = Method::Tikhonov;
             o.lambda = Some(lambda);
         }
-        "tikhonov-search" if base == name => o.method = Method::Tikhonov,
-        "scaled" if base == name => o.method = Method::Scaled,
+        "tikhonov-search" if base == name_rest => o.method = Method::Tikhonov,
+        "scaled" if base == name_rest => o.method = Method::Scaled,
         _ => {
             let facets = base
                 .strip_prefix("qs-pyr")

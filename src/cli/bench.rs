@@ -30,7 +30,8 @@ pub struct Args {
     /// Methods, comma-separated: ls, qs, qs-relaxed, tikhonov, tikhonov-relaxed,
     /// tikhonov-search, scaled, qs-pyr4 / qs-pyr8 / qs-pyr16 (3D). Default: ls,
     /// qs, qs-relaxed, tikhonov, tikhonov-relaxed, plus the pyramids in 3D.
-    /// The -relaxed variants use clarabel tolerance 1e-4 instead of 1e-8.
+    /// The -relaxed variants use clarabel tolerance 1e-4 instead of 1e-8; a
+    /// -nocheck suffix (e.g. ls-nocheck) skips the uniqueness check.
     #[arg(long, value_delimiter = ',')]
     pub methods: Option<Vec<String>>,
     /// Noise levels, comma-separated: none; stress (eq. 2.16: ×(1.15 + N(0, 0.1))
