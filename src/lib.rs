@@ -8,6 +8,7 @@
 //! from photographs), [`import`] and [`export`] (other tools' formats).
 
 pub mod assemble;
+pub mod bench;
 pub mod dem;
 pub mod error;
 pub mod export;

@@ -1,0 +1,398 @@
+//! The speed/accuracy benchmark: synthetic packings ([`generate`]), noise
+//! ([`noise`]), one case = one method on one scene ([`run_case`]), and the
+//! table, CSV and plot of a whole matrix of cases.
+//!
+//! The `grainforce bench` verb runs each case in a child process so that its
+//! peak memory (VmHWM) is its own; this module only measures in-process.
+
+pub mod generate;
+pub mod noise;
+
+pub use generate::{generate, Packing, PackingSpec};
+pub use noise::{perturb, Noise};
+
+use crate::error::{Error, Result};
+use crate::infer::{infer, ConeModel, InferOptions, Method};
+use crate::report::chart::{Chart, Scale};
+use crate::report::metrics::relative_error;
+use crate::scene::{Scene, Vec3};
+use image::{Rgb, RgbImage};
+use std::time::Instant;
+
+/// Relaxed clarabel tolerance for the `-relaxed` variants.
+pub const RELAXED_TOLERANCE: f64 = 1e-4;
+
+/// One benchmarked configuration of the inference.
+#[derive(Debug, Clone)]
+pub struct MethodSpec {
+    pub name: String,
+    pub options: InferOptions,
+}
+
+/// Names accepted by [`method_spec`]: `ls`, `qs`, `qs-relaxed`, `tikhonov`,
+/// `tikhonov-relaxed`, `tikhonov-search`, `scaled`, and in 3D `qs-pyr4`,
+/// `qs-pyr8`, `qs-pyr16` (any `qs-pyrK`, `K` ≥ 3); any name may end in
+/// `-nocheck` to skip the identifiability (uniqueness) check.
+pub const METHOD_NAMES: &str =
+    "ls, qs, qs-relaxed, tikhonov, tikhonov-relaxed, tikhonov-search, scaled, qs-pyrK (3D: K facets, e.g. qs-pyr8), each optionally with -nocheck";
+
+/// The default matrix: the floor, the constrained formulations at both
+/// tolerances and, in 3D, pyramids of 4, 8 and 16 facets.
+pub fn default_methods(dim: usize) -> Vec<&'static str> {
+    let mut m = vec!["ls", "qs", "qs-relaxed", "tikhonov", "tikhonov-relaxed"];
+    if dim == 3 {
+        m.extend(["qs-pyr4", "qs-pyr8", "qs-pyr16"]);
+    }
+    m
+}
+
+/// The options of a named method. `lambda` is the Tikhonov λ [m] for the
+/// fixed-λ variants.
+pub fn method_spec(name: &str, lambda: f64) -> Result<MethodSpec> {
+    let mut o = InferOptions::default();
+    let mut base = name;
+    let mut name_rest = name;
+    if let Some(b) = name.strip_suffix("-nocheck") {
+        o.identifiability_limit = 0;
+        base = b;
+        name_rest = b;
+    }
+    if let Some(b) = base.strip_suffix("-relaxed") {
+        o.conic.tolerance = RELAXED_TOLERANCE;
+        base = b;
+    }
+    match base {
+        "ls" if base == name_rest => o.method = Method::Ls,
+        "qs" => o.method = Method::Qs,
+        "tikhonov" => {
+            o.method = Method::Tikhonov;
+            o.lambda = Some(lambda);
+        }
+        "tikhonov-search" if base == name_rest => o.method = Method::Tikhonov,
+        "scaled" if base == name_rest => o.method = Method::Scaled,
+        _ => {
+            let facets = base
+                .strip_prefix("qs-pyr")
+                .and_then(|k| k.parse::<usize>().ok())
+                .filter(|&k| k >= 3);
+            match facets {
+                Some(k) => {
+                    o.method = Method::Qs;
+                    o.cone = ConeModel::Pyramid(k);
+                }
+                None => {
+                    return Err(Error::Invalid(format!(
+                        "unknown bench method `{name}`; known: {METHOD_NAMES}"
+                    )))
+                }
+            }
+        }
+    }
+    Ok(MethodSpec {
+        name: name.to_owned(),
+        options: o,
+    })
+}
+
+/// What one case measured.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct CaseResult {
+    pub dim: usize,
+    pub grains: usize,
+    pub contacts: usize,
+    pub unknowns: usize,
+    pub noise: String,
+    pub method: String,
+    /// Wall-clock time of `infer` (assembly + solve + report) [s].
+    pub time: f64,
+    /// Reading the scene and truth from disk [s] (0 when generated in memory).
+    pub load_time: f64,
+    /// Peak resident memory of the process [bytes], when known.
+    pub peak_memory: Option<u64>,
+    /// ‖f − f*‖ / ‖f*‖ (eq. 2.15); NaN when the case failed.
+    pub relerr: f64,
+    /// Worst (|f_t| − μ f_n)₊ relative to the mean contact force.
+    pub coulomb_violation: f64,
+    pub iterations: u32,
+    pub status: String,
+    /// The error, when the inference failed or timed out.
+    pub error: Option<String>,
+}
+
+impl CaseResult {
+    pub fn failed(
+        dim: usize,
+        grains: usize,
+        noise: &str,
+        method: &str,
+        time: f64,
+        error: String,
+    ) -> Self {
+        CaseResult {
+            dim,
+            grains,
+            contacts: 0,
+            unknowns: 0,
+            noise: noise.to_owned(),
+            method: method.to_owned(),
+            time,
+            load_time: 0.0,
+            peak_memory: None,
+            relerr: f64::NAN,
+            coulomb_violation: f64::NAN,
+            iterations: 0,
+            status: "failed".into(),
+            error: Some(error),
+        }
+    }
+
+    pub fn ok(&self) -> bool {
+        self.error.is_none()
+    }
+}
+
+/// Runs one method on one scene against its exact forces. An inference error
+/// is recorded in the result, not returned.
+pub fn run_case(scene: &Scene, truth: &[Vec3], noise: Noise, spec: &MethodSpec) -> CaseResult {
+    let start = Instant::now();
+    let result = infer(scene, &spec.options);
+    let time = start.elapsed().as_secs_f64();
+    match result {
+        Ok(inference) => {
+            let forces = inference.forces_or_zero();
+            let r = &inference.report;
+            CaseResult {
+                dim: scene.dim,
+                grains: scene.grains.len(),
+                contacts: scene.contacts.len(),
+                unknowns: r.unknowns,
+                noise: noise.name().into(),
+                method: spec.name.clone(),
+                time,
+                load_time: 0.0,
+                peak_memory: peak_memory(),
+                relerr: relative_error(truth, &forces),
+                coulomb_violation: r.coulomb_violation,
+                iterations: r.iterations,
+                status: r.solver_status.clone(),
+                error: None,
+            }
+        }
+        Err(e) => {
+            let mut c = CaseResult::failed(
+                scene.dim,
+                scene.grains.len(),
+                noise.name(),
+                &spec.name,
+                time,
+                e.to_string(),
+            );
+            c.contacts = scene.contacts.len();
+            c.peak_memory = peak_memory();
+            c
+        }
+    }
+}
+
+/// Peak resident set size of this process (VmHWM) in bytes; Linux only.
+pub fn peak_memory() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
+}
+
+/// Median of the repeats of each (dim, grains, noise, method), keeping the
+/// first failure if any repeat failed.
+pub fn aggregate(results: &[CaseResult]) -> Vec<CaseResult> {
+    let mut out: Vec<CaseResult> = Vec::new();
+    let mut groups: Vec<Vec<&CaseResult>> = Vec::new();
+    for r in results {
+        let key = |c: &CaseResult| (c.dim, c.grains, c.noise.clone(), c.method.clone());
+        match groups.iter_mut().find(|g| key(g[0]) == key(r)) {
+            Some(g) => g.push(r),
+            None => groups.push(vec![r]),
+        }
+    }
+    for g in groups {
+        if let Some(f) = g.iter().find(|c| !c.ok()) {
+            out.push((*f).clone());
+            continue;
+        }
+        let mut times: Vec<f64> = g.iter().map(|c| c.time).collect();
+        times.sort_by(f64::total_cmp);
+        let mut c = g[0].clone();
+        c.time = times[times.len() / 2];
+        c.peak_memory = g.iter().filter_map(|c| c.peak_memory).max();
+        out.push(c);
+    }
+    out
+}
+
+fn fmt_bytes(b: Option<u64>) -> String {
+    match b {
+        Some(b) if b >= 1 << 30 => format!("{:.2} GB", b as f64 / (1u64 << 30) as f64),
+        Some(b) => format!("{:.0} MB", b as f64 / (1u64 << 20) as f64),
+        None => "–".into(),
+    }
+}
+
+fn fmt_time(t: f64) -> String {
+    if t < 1.0 {
+        format!("{:.0} ms", t * 1e3)
+    } else {
+        format!("{t:.2} s")
+    }
+}
+
+/// A Markdown table of (aggregated) results, with each case's time relative to
+/// the `ls` floor of the same scene when present.
+pub fn markdown_table(results: &[CaseResult]) -> String {
+    let mut s = String::from(
+        "| dim | grains | unknowns | noise | method | time | × ls | peak memory | relerr | worst Coulomb violation | iterations | status |\n\
+         |---|---:|---:|---|---|---:|---:|---:|---:|---:|---:|---|\n",
+    );
+    for r in results {
+        let floor = results
+            .iter()
+            .find(|f| {
+                f.dim == r.dim
+                    && f.grains == r.grains
+                    && f.noise == r.noise
+                    && f.method == "ls"
+                    && f.ok()
+            })
+            .map(|f| f.time);
+        let ratio = match (floor, r.ok()) {
+            (Some(f), true) if f > 0.0 => format!("{:.1}", r.time / f),
+            _ => "–".into(),
+        };
+        let status = match &r.error {
+            Some(e) => format!("**failed**: {}", e.replace('|', "/")),
+            None => r.status.clone(),
+        };
+        s.push_str(&format!(
+            "| {}D | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
+            r.dim,
+            r.grains,
+            r.unknowns,
+            r.noise,
+            r.method,
+            fmt_time(r.time),
+            ratio,
+            fmt_bytes(r.peak_memory),
+            if r.ok() {
+                format!("{:.2e}", r.relerr)
+            } else {
+                "–".into()
+            },
+            if r.ok() {
+                format!("{:.1e}", r.coulomb_violation)
+            } else {
+                "–".into()
+            },
+            r.iterations,
+            status
+        ));
+    }
+    s
+}
+
+/// CSV of results (one row per case).
+pub fn csv(results: &[CaseResult]) -> Result<String> {
+    let mut w = ::csv::Writer::from_writer(Vec::new());
+    for r in results {
+        w.serialize(r)
+            .map_err(|e| Error::Invalid(format!("writing the bench table: {e}")))?;
+    }
+    let bytes = w
+        .into_inner()
+        .map_err(|e| Error::Invalid(format!("writing the bench table: {e}")))?;
+    String::from_utf8(bytes).map_err(|e| Error::Invalid(e.to_string()))
+}
+
+/// Reads results written by [`csv`].
+pub fn read_csv(path: &std::path::Path) -> Result<Vec<CaseResult>> {
+    let mut r = ::csv::Reader::from_path(path)
+        .map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))?;
+    let mut out = Vec::new();
+    for (i, row) in r.deserialize().enumerate() {
+        let row: CaseResult = row.map_err(|e| {
+            Error::data(
+                path,
+                Some(i + 2),
+                None,
+                format!("not a bench result row: {e}"),
+            )
+        })?;
+        out.push(row);
+    }
+    Ok(out)
+}
+
+/// Least-squares slope of log(time) against log(grains) over successful
+/// cases of one method (the empirical scaling exponent), when ≥ 2 sizes exist.
+pub fn scaling_exponent(
+    results: &[CaseResult],
+    dim: usize,
+    noise: &str,
+    method: &str,
+) -> Option<f64> {
+    let pts: Vec<(f64, f64)> = results
+        .iter()
+        .filter(|r| {
+            r.ok() && r.dim == dim && r.noise == noise && r.method == method && r.time > 0.0
+        })
+        .map(|r| ((r.grains as f64).ln(), r.time.ln()))
+        .collect();
+    if pts.len() < 2 {
+        return None;
+    }
+    let n = pts.len() as f64;
+    let mx = pts.iter().map(|p| p.0).sum::<f64>() / n;
+    let my = pts.iter().map(|p| p.1).sum::<f64>() / n;
+    let sxx: f64 = pts.iter().map(|p| (p.0 - mx).powi(2)).sum();
+    let sxy: f64 = pts.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum();
+    (sxx > 0.0).then(|| sxy / sxx)
+}
+
+const PALETTE: [Rgb<u8>; 10] = [
+    Rgb([31, 119, 180]),
+    Rgb([255, 127, 14]),
+    Rgb([44, 160, 44]),
+    Rgb([214, 39, 40]),
+    Rgb([148, 103, 189]),
+    Rgb([140, 86, 75]),
+    Rgb([227, 119, 194]),
+    Rgb([127, 127, 127]),
+    Rgb([188, 189, 34]),
+    Rgb([23, 190, 207]),
+];
+
+/// relerr against time at one noise level, one curve per (dim, method)
+/// through the sizes.
+pub fn plot(results: &[CaseResult], noise: &str, title: &str) -> Option<RgbImage> {
+    let mut curves: Vec<(String, Vec<(f64, f64)>)> = Vec::new();
+    for r in results
+        .iter()
+        .filter(|r| r.ok() && r.noise == noise && r.time > 0.0 && r.relerr > 0.0)
+    {
+        let name = format!("{}D {}", r.dim, r.method);
+        match curves.iter_mut().find(|c| c.0 == name) {
+            Some(c) => c.1.push((r.time, r.relerr)),
+            None => curves.push((name, vec![(r.time, r.relerr)])),
+        }
+    }
+    if curves.is_empty() {
+        return None;
+    }
+    let mut chart = Chart::new(1000, 640)
+        .title(title)
+        .x_axis("time [s]", Scale::Log)
+        .y_axis("relative error vs ground truth", Scale::Log);
+    for (i, (name, mut pts)) in curves.into_iter().enumerate() {
+        pts.sort_by(|a, b| a.0.total_cmp(&b.0));
+        chart = chart.line(&name, &pts, PALETTE[i % PALETTE.len()]);
+    }
+    Some(chart.render())
+}
