@@ -66,6 +66,8 @@ pub struct Outcome {
     pub relerr: Vec<(Method, f64)>,
     /// The full chain over every DEM contact (missed ones count as zero force).
     pub relerr_all: Vec<(Method, f64)>,
+    /// ‖f on detected contacts the DEM lacks‖ / ‖f_DEM‖ (should be ~0).
+    pub false_force: Vec<(Method, f64)>,
     pub seconds: [f64; 4],
 }
 
@@ -79,6 +81,10 @@ impl Outcome {
     pub fn relerr_of(&self, method: Method) -> f64 {
         lookup(&self.relerr, method)
     }
+}
+
+fn debug() -> bool {
+    std::env::var_os("E2E_DEBUG").is_some()
 }
 
 fn lookup(v: &[(Method, f64)], method: Method) -> f64 {
@@ -222,6 +228,16 @@ pub fn run(fixture: &Path, setup: &Setup) -> grainforce::Result<Outcome> {
         })
         .fold(0.0, f64::max);
 
+    if debug() {
+        for (k, c) in contacts.iter().enumerate() {
+            let m = pairs.iter().any(|p| p.0 == k);
+            eprintln!("contact {} {:?} gap {:.3} {}", c.a, c.b, c.gap, if m { "true" } else { "FALSE" });
+        }
+        for (k, d) in disks.iter().enumerate() {
+            eprintln!("disk {k} id {} at ({:.1},{:.1}) r {:.2}", ids[k], d.x, d.y, d.r);
+        }
+    }
+
     // 6. Infer and compare.
     let t0 = Instant::now();
     let compare = |forces: &[Vec3]| -> (f64, f64) {
@@ -237,6 +253,7 @@ pub fn run(fixture: &Path, setup: &Setup) -> grainforce::Result<Outcome> {
         (relative_error(&t, &f), relative_error(&truth, &all))
     };
     let (mut relerr, mut relerr_all, mut geometry_only) = (Vec::new(), Vec::new(), Vec::new());
+    let mut false_force = Vec::new();
     let mut exact = scene.clone();
     for g in &mut exact.grains {
         if let Some(&i) = dem_grain.get(g.id.as_str()) {
@@ -249,7 +266,31 @@ pub fn run(fixture: &Path, setup: &Setup) -> grainforce::Result<Outcome> {
             ..InferOptions::default()
         };
         let r = infer(&scene, &opts)?;
+        if debug() {
+            let rep = &r.report;
+            eprintln!(
+                "{method}: modelled {}/{} clusters {} rattlers {} status {} warnings {:?}",
+                rep.modelled_contacts, rep.contacts, rep.clusters, rep.rattlers, rep.solver_status, rep.warnings
+            );
+            let f = r.forces_or_zero();
+            eprintln!(
+                "  stress residual {:.3e} momentum residual {:.3e} force scale {:.3e} max |f| {:.3e} unique {:?}",
+                rep.stress_residual,
+                rep.momentum_residual,
+                rep.force_scale,
+                f.iter().map(|v| v[0].hypot(v[1])).fold(0.0, f64::max),
+                rep.unique
+            );
+        }
         let (matched_err, all_err) = compare(&r.forces_or_zero());
+        let f = r.forces_or_zero();
+        let false_norm: f64 = (0..scene.contacts.len())
+            .filter(|k| !pairs.iter().any(|p| p.0 == *k))
+            .map(|k| f[k].iter().map(|x| x * x).sum::<f64>())
+            .sum::<f64>()
+            .sqrt();
+        let truth_norm: f64 = truth.iter().flatten().map(|x| x * x).sum::<f64>().sqrt();
+        false_force.push((method, false_norm / truth_norm));
         relerr.push((method, matched_err));
         relerr_all.push((method, all_err));
         let g = infer(&exact, &opts)?;
@@ -273,6 +314,7 @@ pub fn run(fixture: &Path, setup: &Setup) -> grainforce::Result<Outcome> {
         geometry_only_relerr: geometry_only,
         relerr,
         relerr_all,
+        false_force,
         seconds: [t_render, t_detect, t_strain, t_infer],
     })
 }
