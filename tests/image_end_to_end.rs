@@ -17,12 +17,20 @@ fn oedometer_images_give_the_dem_forces() {
     // Detection: every grain found once, centres well inside a pixel.
     assert_eq!(o.disks_found, o.grains_truth);
     assert_eq!(o.disks_matched, o.grains_truth);
-    assert!(o.worst_centre_px < 0.5, "centre error {} px", o.worst_centre_px);
+    assert!(
+        o.worst_centre_px < 0.5,
+        "centre error {} px",
+        o.worst_centre_px
+    );
 
     // Contacts: all DEM contacts found; near misses (gap < 2 px) are extra.
     assert!(o.recall() >= 0.95, "recall {}", o.recall());
     assert!(o.precision() >= 0.7, "precision {}", o.precision());
-    assert!(o.worst_normal_deg < 1.0, "normal error {}°", o.worst_normal_deg);
+    assert!(
+        o.worst_normal_deg < 1.0,
+        "normal error {}°",
+        o.worst_normal_deg
+    );
 
     // Stresses by DIC.
     assert!(o.stress_relerr < 0.05, "stress error {}", o.stress_relerr);
@@ -37,6 +45,10 @@ fn oedometer_images_give_the_dem_forces() {
         assert!(*f < 0.02, "{method}: force on false contacts {f}");
     }
     // Missed contacts (if any) must not hide a large force.
-    assert!(o.relerr_all[0].1 <= 0.10, "qs over all DEM contacts {}", o.relerr_all[0].1);
+    assert!(
+        o.relerr_all[0].1 <= 0.10,
+        "qs over all DEM contacts {}",
+        o.relerr_all[0].1
+    );
     assert!(o.relerr_of(Method::Qs).is_finite());
 }

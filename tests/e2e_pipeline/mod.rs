@@ -88,7 +88,10 @@ fn debug() -> bool {
 }
 
 fn lookup(v: &[(Method, f64)], method: Method) -> f64 {
-    v.iter().find(|(m, _)| *m == method).map(|p| p.1).unwrap_or(f64::NAN)
+    v.iter()
+        .find(|(m, _)| *m == method)
+        .map(|p| p.1)
+        .unwrap_or(f64::NAN)
 }
 
 /// A contact's identity independent of order: the two grain ids, or a grain id and a wall name.
@@ -135,7 +138,10 @@ pub fn run(fixture: &Path, setup: &Setup) -> grainforce::Result<Outcome> {
     let t0 = Instant::now();
     let r_min = radii.iter().cloned().fold(f64::INFINITY, f64::min) * px_per_m;
     let r_max = radii.iter().cloned().fold(0.0, f64::max) * px_per_m;
-    let disks = detect_disks(&images.deformed, &DetectOptions::new(0.85 * r_min, 1.15 * r_max))?;
+    let disks = detect_disks(
+        &images.deformed,
+        &DetectOptions::new(0.85 * r_min, 1.15 * r_max),
+    )?;
     let truth_px: Vec<[f64; 2]> = dem
         .grains
         .iter()
@@ -181,7 +187,13 @@ pub fn run(fixture: &Path, setup: &Setup) -> grainforce::Result<Outcome> {
         elasticity: setup.elasticity,
         dic: setup.dic.clone(),
     };
-    measure_stresses(&images.reference, &images.deformed, &mut scene, &frame, &strain)?;
+    measure_stresses(
+        &images.reference,
+        &images.deformed,
+        &mut scene,
+        &frame,
+        &strain,
+    )?;
     let t_strain = t0.elapsed().as_secs_f64();
 
     let dem_grain: HashMap<&str, usize> = dem
@@ -224,17 +236,39 @@ pub fn run(fixture: &Path, setup: &Setup) -> grainforce::Result<Outcome> {
         .iter()
         .map(|&(k, i, s)| {
             let (n, m) = (scene.contacts[k].normal, dem.contacts[i].normal);
-            (s * (n[0] * m[0] + n[1] * m[1])).clamp(-1.0, 1.0).acos().to_degrees()
+            (s * (n[0] * m[0] + n[1] * m[1]))
+                .clamp(-1.0, 1.0)
+                .acos()
+                .to_degrees()
         })
         .fold(0.0, f64::max);
 
     if debug() {
         for (k, c) in contacts.iter().enumerate() {
             let m = pairs.iter().any(|p| p.0 == k);
-            eprintln!("contact {} {:?} gap {:.3} {}", c.a, c.b, c.gap, if m { "true" } else { "FALSE" });
+            if !m {
+                eprintln!("extra contact {} {:?} gap {:.3}", c.a, c.b, c.gap);
+            }
         }
         for (k, d) in disks.iter().enumerate() {
-            eprintln!("disk {k} id {} at ({:.1},{:.1}) r {:.2}", ids[k], d.x, d.y, d.r);
+            if let Some(&i) = dem_grain.get(ids[k].as_str()) {
+                let e = (truth_px[i][0] - d.x).hypot(truth_px[i][1] - d.y);
+                if e > 0.5 {
+                    eprintln!(
+                        "disk {k} id {} at ({:.1},{:.1}) r {:.2} (true r {:.2}) off by {e:.2} px",
+                        ids[k],
+                        d.x,
+                        d.y,
+                        d.r,
+                        radii[i] * px_per_m
+                    );
+                }
+            }
+        }
+        for (i, c) in dem.contacts.iter().enumerate() {
+            if !pairs.iter().any(|p| p.1 == i) {
+                eprintln!("missed DEM contact {} {:?}", dem.grains[c.a].id, c.b);
+            }
         }
     }
 
@@ -270,7 +304,12 @@ pub fn run(fixture: &Path, setup: &Setup) -> grainforce::Result<Outcome> {
             let rep = &r.report;
             eprintln!(
                 "{method}: modelled {}/{} clusters {} rattlers {} status {} warnings {:?}",
-                rep.modelled_contacts, rep.contacts, rep.clusters, rep.rattlers, rep.solver_status, rep.warnings
+                rep.modelled_contacts,
+                rep.contacts,
+                rep.clusters,
+                rep.rattlers,
+                rep.solver_status,
+                rep.warnings
             );
             let f = r.forces_or_zero();
             eprintln!(
