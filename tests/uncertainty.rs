@@ -170,3 +170,36 @@ fn exact_data_give_tiny_sd_and_draws_are_reproducible() {
     let too_few = UncertaintyOptions { draws: 1, ..u_opts };
     assert!(force_uncertainty(&scene, &opts, &inference, &too_few).is_err());
 }
+
+#[test]
+fn infer_cli_writes_sd_columns() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/oedometer");
+    let out = tempfile::tempdir().unwrap();
+    let csv = out.path().join("f.csv");
+    let run = |extra: &[&str]| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_grainforce"))
+            .arg("infer")
+            .arg(&dir)
+            .arg("-o")
+            .arg(&csv)
+            .arg("-q")
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    let ok = run(&["--uncertainty", "10", "--noise-level", "0.1"]);
+    assert!(
+        ok.status.success(),
+        "{}",
+        String::from_utf8_lossy(&ok.stderr)
+    );
+    let forces = read_forces(&csv).unwrap();
+    assert!(forces
+        .rows
+        .iter()
+        .all(|r| r.sd.is_some_and(|s| s[0] >= 0.0)));
+    assert!(forces.rows.iter().any(|r| r.sd.is_some_and(|s| s[1] > 0.0)));
+    let bad = run(&["--uncertainty", "1"]);
+    assert!(!bad.status.success());
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("at least 2 draws"));
+}

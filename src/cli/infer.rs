@@ -127,14 +127,14 @@ pub struct Args {
     /// Estimate a standard deviation per force component from N bootstrap
     /// draws (noisy stresses re-inferred) and write sd_x, sd_y[, sd_z] columns.
     #[arg(long, value_name = "N")]
-    pub uncertainty: Option<usize>,
+    pub uncertainty: Option<u32>,
     /// Relative noise of each stress component for --uncertainty (0.1 = 10 %);
     /// estimated from the stress residual when not given.
     #[arg(long, value_name = "SIGMA", requires = "uncertainty")]
     pub noise_level: Option<f64>,
     /// Seed of the --uncertainty draws.
     #[arg(long, default_value_t = 1)]
-    pub uncertainty_seed: u64,
+    pub uncertainty_seed: u32,
     /// Print nothing on stderr.
     #[arg(short, long)]
     pub quiet: bool,
@@ -329,7 +329,7 @@ fn uncertainty(
     };
     let options = UncertaintyOptions {
         draws,
-        seed: args.uncertainty_seed,
+        seed: args.uncertainty_seed as u64,
         noise,
     };
     frames
@@ -407,7 +407,13 @@ pub fn run(args: Args) -> Result<()> {
         infer::infer_frames(&frames, &per_frame, !args.quiet)?
     };
     let uncertainties = match args.uncertainty {
-        Some(draws) => Some(uncertainty(&args, draws, &frames, &per_frame, &results)?),
+        Some(draws) => Some(uncertainty(
+            &args,
+            draws as usize,
+            &frames,
+            &per_frame,
+            &results,
+        )?),
         None => None,
     };
     let mut rows = Vec::new();
