@@ -2,6 +2,9 @@
 
 use grainforce::error::{Error, Result};
 use grainforce::infer::kinematics::{self, Smoother};
+use grainforce::infer::uncertainty::{
+    force_uncertainty, NoiseEstimate, Uncertainty, UncertaintyOptions,
+};
 use grainforce::infer::{self, ConeModel, InferOptions, LambdaRule, Method};
 use grainforce::scene::{self, Forces, Selection};
 use std::path::PathBuf;
@@ -121,6 +124,17 @@ pub struct Args {
     /// Write the report (sizes, residuals, λ, solver status, warnings) as JSON.
     #[arg(long, value_name = "REPORT.json")]
     pub report: Option<PathBuf>,
+    /// Estimate a standard deviation per force component from N bootstrap
+    /// draws (noisy stresses re-inferred) and write sd_x, sd_y[, sd_z] columns.
+    #[arg(long, value_name = "N")]
+    pub uncertainty: Option<u32>,
+    /// Relative noise of each stress component for --uncertainty (0.1 = 10 %);
+    /// estimated from the stress residual when not given.
+    #[arg(long, value_name = "SIGMA", requires = "uncertainty")]
+    pub noise_level: Option<f64>,
+    /// Seed of the --uncertainty draws.
+    #[arg(long, default_value_t = 1)]
+    pub uncertainty_seed: u32,
     /// Print nothing on stderr.
     #[arg(short, long)]
     pub quiet: bool,
@@ -290,6 +304,47 @@ pub fn options(args: &Args) -> Result<(InferOptions, Selection)> {
 /// 0.3 → 0.038, 1 → 0.026; 0.3 also leaves room for noisy stresses).
 const DERIVED_ACCEL_SD: f64 = 0.3;
 
+/// Bootstrap standard deviations per frame (frames and draws in parallel).
+fn uncertainty(
+    args: &Args,
+    draws: usize,
+    frames: &[scene::Scene],
+    per_frame: &[InferOptions],
+    results: &[infer::Inference],
+) -> Result<Vec<Uncertainty>> {
+    use rayon::prelude::*;
+    if draws < 2 {
+        return Err(Error::Invalid(format!(
+            "--uncertainty needs at least 2 draws, got {draws}"
+        )));
+    }
+    let noise = match args.noise_level {
+        Some(s) if s.is_finite() && s >= 0.0 => NoiseEstimate::Relative(s),
+        Some(s) => {
+            return Err(Error::Invalid(format!(
+                "--noise-level must be finite and ≥ 0, got {s}"
+            )))
+        }
+        None => NoiseEstimate::FromResidual,
+    };
+    let options = UncertaintyOptions {
+        draws,
+        seed: args.uncertainty_seed as u64,
+        noise,
+    };
+    frames
+        .par_iter()
+        .zip(per_frame.par_iter())
+        .zip(results.par_iter())
+        .map(|((frame, opts), result)| {
+            force_uncertainty(frame, opts, result, &options).map_err(|e| match frame.frame {
+                Some(k) => Error::Solver(format!("frame {k}: {e}")),
+                None => e,
+            })
+        })
+        .collect()
+}
+
 pub fn run(args: Args) -> Result<()> {
     let (mut opts, selection) = options(&args)?;
     let mut frames = scene::read_sequence(&args.scene)?;
@@ -351,15 +406,28 @@ pub fn run(args: Args) -> Result<()> {
     } else {
         infer::infer_frames(&frames, &per_frame, !args.quiet)?
     };
+    let uncertainties = match args.uncertainty {
+        Some(draws) => Some(uncertainty(
+            &args,
+            draws as usize,
+            &frames,
+            &per_frame,
+            &results,
+        )?),
+        None => None,
+    };
     let mut rows = Vec::new();
-    for (frame, result) in frames.iter().zip(&results) {
-        for (c, f) in frame.contacts.iter().zip(&result.forces) {
+    for (i, (frame, result)) in frames.iter().zip(&results).enumerate() {
+        for (c, f) in result.forces.iter().enumerate() {
             if let Some(f) = f {
                 rows.push(scene::ForceRow {
-                    contact: c.id.clone(),
+                    contact: frame.contacts[c].id.clone(),
                     frame: frame.frame,
                     force: *f,
-                    sd: None,
+                    // A contact every draw left out has no spread: write zero.
+                    sd: uncertainties
+                        .as_ref()
+                        .map(|u| u[i].sd[c].unwrap_or([0.0; 3])),
                 });
             }
         }
@@ -421,9 +489,13 @@ pub fn run(args: Args) -> Result<()> {
                 title: Some(title),
                 ..Default::default()
             };
-            Some(grainforce::report::forcechain::draw_force_chains(
+            let sd: Option<Vec<grainforce::scene::Vec3>> = uncertainties
+                .as_ref()
+                .map(|u| u[0].sd.iter().map(|s| s.unwrap_or([0.0; 3])).collect());
+            Some(grainforce::report::forcechain::draw_force_chains_with_sd(
                 &frames[0],
                 &first.forces_or_zero(),
+                sd.as_deref(),
                 &opts,
             )?)
         }
@@ -436,6 +508,20 @@ pub fn run(args: Args) -> Result<()> {
     if !args.quiet {
         for r in &results {
             eprint!("{}", r.report);
+        }
+        for u in uncertainties.iter().flatten() {
+            eprintln!(
+                "uncertainty {} draws ({} failed), stress noise {:.3} ({}), {:.3} s",
+                u.draws,
+                u.failed_draws,
+                u.noise_level,
+                if u.estimated {
+                    "from the residual"
+                } else {
+                    "stated"
+                },
+                u.time
+            );
         }
         eprintln!(
             "wrote {} forces to {}",

@@ -79,7 +79,9 @@ pub fn run(args: Args) -> Result<()> {
             ))
         })?,
     };
-    let forces = scene::read_forces(forces_path)?.for_scene(scene, forces_path)?;
+    let table = scene::read_forces(forces_path)?;
+    let forces = table.for_scene(scene, forces_path)?;
+    let sd = standard_deviations(&table, scene);
     let plane: Plane = args.plane.parse()?;
     let title = match scene.frame {
         Some(k) => format!("frame {k}"),
@@ -93,7 +95,7 @@ pub fn run(args: Args) -> Result<()> {
         title: (!title.is_empty()).then_some(title),
         units: None,
     };
-    let img = report::draw_force_chains(scene, &forces, &opts)?;
+    let img = report::forcechain::draw_force_chains_with_sd(scene, &forces, sd.as_deref(), &opts)?;
     report::save_png(&args.output, &img)?;
     println!(
         "wrote {} ({}x{} px, {} contacts)",
@@ -103,4 +105,25 @@ pub fn run(args: Args) -> Result<()> {
         scene.contacts.len()
     );
     Ok(())
+}
+
+/// The sd columns of forces.csv in the scene's contact order, when present
+/// (a contact without a value counts as exactly known).
+fn standard_deviations(table: &scene::Forces, scene: &scene::Scene) -> Option<Vec<scene::Vec3>> {
+    if table.rows.iter().all(|r| r.sd.is_none()) {
+        return None;
+    }
+    let map: std::collections::HashMap<&str, scene::Vec3> = table
+        .rows
+        .iter()
+        .filter(|r| r.frame == scene.frame || r.frame.is_none())
+        .filter_map(|r| r.sd.map(|sd| (r.contact.as_str(), sd)))
+        .collect();
+    Some(
+        scene
+            .contacts
+            .iter()
+            .map(|c| map.get(c.id.as_str()).copied().unwrap_or([0.0; 3]))
+            .collect(),
+    )
 }

@@ -17,6 +17,9 @@ pub struct Args {
     /// Write every statistic (histograms and chain lengths included) as JSON.
     #[arg(long)]
     json: Option<PathBuf>,
+    /// Draw P(f/<f>) of the first frame with its exponential tail fit (log y) to this PNG.
+    #[arg(long, value_name = "STATS.png")]
+    plot: Option<PathBuf>,
     /// Histogram bin width of P(f/<f>), in units of <f>.
     #[arg(long, default_value_t = 0.2)]
     bin_width: f64,
@@ -59,6 +62,13 @@ pub fn run(args: Args) -> Result<()> {
             text.push('\n');
         }
         write_file(path, &text)?;
+    }
+    if let (Some(path), Some(first)) = (&args.plot, all.first()) {
+        let img = stats::plot::distribution_chart(first, 900, 600).render();
+        grainforce::report::save_png(path, &img)?;
+        if all.len() > 1 {
+            eprintln!("note: --plot draws the first frame");
+        }
     }
     if let Some(path) = &args.json {
         let text = serde_json::to_string_pretty(&all).map_err(|e| Error::Invalid(e.to_string()))?;

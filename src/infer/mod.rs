@@ -14,6 +14,7 @@ pub mod kinematics;
 mod lambda;
 mod polish;
 mod report;
+pub mod uncertainty;
 
 pub use dynamic::{DynamicOptions, Front, LambdaRule};
 pub use lambda::{LambdaSearch, LambdaTrace};

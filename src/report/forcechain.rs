@@ -5,7 +5,7 @@
 //! The picture is fitted to the data's bounding box, working relative to its
 //! centre, so coordinates far from the origin and any length scale draw alike.
 
-use super::chart::{format_tick, linear_ticks, BLACK, WHITE};
+use super::chart::{format_tick, lighten, linear_ticks, BLACK, WHITE};
 use super::draw::{colormap, disk, fill_rect, rect_outline, ring, thick_line};
 use super::font::{draw_text, text_size};
 use crate::error::{Error, Result};
@@ -231,7 +231,52 @@ pub fn draw_force_chains(
     forces: &[Vec3],
     opts: &ForceChainOptions,
 ) -> Result<RgbImage> {
+    draw_force_chains_with_sd(scene, forces, None, opts)
+}
+
+/// The standard deviation of |f| from per-component ones, to first order
+/// (components independent): √Σ (f_k/|f| · sd_k)².
+pub fn magnitude_sd(f: Vec3, sd: Vec3) -> f64 {
+    let m = norm(f);
+    if m == 0.0 {
+        return norm(sd);
+    }
+    (0..3)
+        .map(|k| (f[k] / m * sd[k]).powi(2))
+        .sum::<f64>()
+        .sqrt()
+}
+
+/// As [`draw_force_chains`], with each force's ±1 sd (per component, contact
+/// order) shown by width: a solid core as wide as |f| − sd would be drawn and a
+/// pale band as wide as |f| + sd (colour still by |f|).
+pub fn draw_force_chains_with_sd(
+    scene: &Scene,
+    forces: &[Vec3],
+    sd: Option<&[Vec3]>,
+    opts: &ForceChainOptions,
+) -> Result<RgbImage> {
     check(scene, forces, opts.plane)?;
+    if let Some(sd) = sd {
+        if sd.len() != forces.len() {
+            return Err(Error::Invalid(format!(
+                "{} standard deviations for {} forces",
+                sd.len(),
+                forces.len()
+            )));
+        }
+        if let Some((c, _)) = scene
+            .contacts
+            .iter()
+            .zip(sd)
+            .find(|(_, s)| s.iter().any(|x| !(x.is_finite() && *x >= 0.0)))
+        {
+            return Err(Error::Invalid(format!(
+                "the standard deviation of contact `{}` is negative or not finite",
+                c.id
+            )));
+        }
+    }
     let layout = chain_layout(scene, opts)?;
     let mut img = RgbImage::from_pixel(layout.width, layout.height, WHITE);
     let radius_px = |i: usize| scene.grains[i].equivalent_radius(scene.dim).max(0.0) * layout.scale;
@@ -262,19 +307,41 @@ pub fn draw_force_chains(
     order.sort_by(|&a, &b| magnitudes[a].total_cmp(&magnitudes[b]));
     // The strongest force is drawn about a grain radius wide (a little less, to keep chains apart).
     let full_width = (0.75 * mean_radius_px).max(1.0);
-    for c in order {
+    let ends = |c: usize| {
         let contact = &scene.contacts[c];
         let p = layout.to_pixel(scene.grains[contact.a].position);
         let q = match contact.b {
             Body::Grain(b) => layout.to_pixel(scene.grains[b].position),
             Body::Wall(_) => layout.to_pixel(contact.point),
         };
+        (p, q)
+    };
+    // Bands first, all of them, so no band hides another contact's line.
+    if let (Some(sd), true) = (sd, fmax > 0.0) {
+        for &c in &order {
+            let s = magnitude_sd(forces[c], sd[c]);
+            if s <= 0.0 {
+                continue;
+            }
+            let (p, q) = ends(c);
+            let t = (magnitudes[c] / fmax).min(1.0);
+            let width = ((magnitudes[c] + s) / fmax).min(1.5) * full_width;
+            thick_line(&mut img, p, q, width, lighten(force_color(t), 0.65));
+        }
+    }
+    for c in order {
+        let (p, q) = ends(c);
         if magnitudes[c] == 0.0 || fmax == 0.0 {
             thick_line(&mut img, p, q, 0.6, ZERO_FORCE);
             continue;
         }
         let t = (magnitudes[c] / fmax).min(1.0);
-        thick_line(&mut img, p, q, (t * full_width).max(0.8), force_color(t));
+        // With an sd the solid core is |f| − sd wide and the pale band |f| + sd.
+        let core = match sd {
+            Some(sd) => (magnitudes[c] - magnitude_sd(forces[c], sd[c])).max(0.0) / fmax,
+            None => t,
+        };
+        thick_line(&mut img, p, q, (core * full_width).max(0.8), force_color(t));
     }
 
     if opts.show_ids {
@@ -312,7 +379,8 @@ pub fn draw_force_chains(
             "N".into()
         }
     });
-    draw_colorbar(&mut img, &layout, fmax, &units, forces.is_empty());
+    let note = sd.map(|_| "line width: |f| - 1 sd (solid) to |f| + 1 sd (pale band)");
+    draw_colorbar(&mut img, &layout, fmax, &units, forces.is_empty(), note);
     Ok(img)
 }
 
@@ -392,6 +460,7 @@ fn draw_colorbar(
     fmax: f64,
     units: &str,
     no_contacts: bool,
+    note: Option<&str>,
 ) {
     let s = layout.text_scale;
     let (_, th) = text_size("0", s);
@@ -451,4 +520,16 @@ fn draw_colorbar(
         s,
         BLACK,
     );
+    if let Some(note) = note {
+        // Small, on its own line: the colour bar area has room for it.
+        let (nw, _) = text_size(note, 1);
+        draw_text(
+            img,
+            ((layout.width as i64 - nw as i64) / 2).max(0),
+            top + bar_h + 3 * th + 6,
+            note,
+            1,
+            Rgb([80, 80, 80]),
+        );
+    }
 }

@@ -14,6 +14,8 @@
 //! use grain–grain contacts; coordination counts wall contacts too (a grain
 //! resting on a wall is held by it).
 
+pub mod plot;
+
 use crate::error::{Error, Result};
 use crate::scene::{self, Body, Scene, Sym, Vec3};
 
