@@ -122,6 +122,9 @@ fn solve_one(
         cones: cone_list,
     };
     let mut sol = conic::solve(&problem, &opts.conic)?;
+    for c in &problem.cones {
+        c.project(&mut sol.x);
+    }
     if opts.polish {
         let objective = super::polish::Objective {
             terms: vec![
