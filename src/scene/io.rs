@@ -837,7 +837,7 @@ pub fn write_sequence(dir: &Path, frames: &[Scene]) -> Result<()> {
 }
 
 /// Name of a contact's second body as written in contacts.csv.
-pub(crate) fn body_name(scene: &Scene, body: Body) -> String {
+pub fn body_name(scene: &Scene, body: Body) -> String {
     match body {
         Body::Grain(i) => scene.grains[i].id.clone(),
         Body::Wall(w) => scene.walls[w].name.clone(),

@@ -6,8 +6,8 @@ mod io;
 mod select;
 
 pub use io::{
-    read_forces, read_scene, read_sequence, write_file_atomically, write_forces, write_scene,
-    write_sequence, ForceRow, Forces,
+    body_name, read_forces, read_scene, read_sequence, write_file_atomically, write_forces,
+    write_scene, write_sequence, ForceRow, Forces,
 };
 pub use select::{select_subassembly, Selection};
 
