@@ -16,7 +16,7 @@ use crate::infer::{infer, ConeModel, InferOptions, Method};
 use crate::report::chart::{Chart, Scale};
 use crate::report::metrics::relative_error;
 use crate::scene::{Scene, Vec3};
-use image::{Rgb, RgbImage};
+use image::RgbImage;
 use std::time::Instant;
 
 /// Relaxed clarabel tolerance for the `-relaxed` variants.
@@ -356,19 +356,6 @@ pub fn scaling_exponent(
     (sxx > 0.0).then(|| sxy / sxx)
 }
 
-const PALETTE: [Rgb<u8>; 10] = [
-    Rgb([31, 119, 180]),
-    Rgb([255, 127, 14]),
-    Rgb([44, 160, 44]),
-    Rgb([214, 39, 40]),
-    Rgb([148, 103, 189]),
-    Rgb([140, 86, 75]),
-    Rgb([227, 119, 194]),
-    Rgb([127, 127, 127]),
-    Rgb([188, 189, 34]),
-    Rgb([23, 190, 207]),
-];
-
 /// relerr against time at one noise level, one curve per (dim, method)
 /// through the sizes.
 pub fn plot(results: &[CaseResult], noise: &str, title: &str) -> Option<RgbImage> {
@@ -392,7 +379,11 @@ pub fn plot(results: &[CaseResult], noise: &str, title: &str) -> Option<RgbImage
         .y_axis("relative error vs ground truth", Scale::Log);
     for (i, (name, mut pts)) in curves.into_iter().enumerate() {
         pts.sort_by(|a, b| a.0.total_cmp(&b.0));
-        chart = chart.line(&name, &pts, PALETTE[i % PALETTE.len()]);
+        chart = chart.line(
+            &name,
+            &pts,
+            crate::report::chart::PALETTE[i % crate::report::chart::PALETTE.len()],
+        );
     }
     Some(chart.render())
 }

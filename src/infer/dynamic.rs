@@ -311,17 +311,10 @@ fn stacked_least_squares(system: &System, lambda: f64) -> Result<(conic::ConicSo
     let c = crate::solver::Triplets::new(0, system.n);
     let mut ls = crate::solver::sparse_ls::EqualityLeastSquares::new(&a, &c)?;
     let sol = ls.solve(&a, &c, &b, &[], 0.0)?;
-    let converged = sol.converged;
-    Ok((
-        conic::ConicSolution {
-            x: sol.x,
-            status: "LeastSquares".into(),
-            iterations: sol.refinement_steps as u32,
-            solve_time: start.elapsed().as_secs_f64(),
-            attempts: vec!["stacked least squares (faer)".into()],
-            softened: false,
-            warnings: Vec::new(),
-        },
-        converged,
+    Ok(super::as_solution(
+        sol,
+        start,
+        "stacked least squares (faer)",
+        Vec::new(),
     ))
 }

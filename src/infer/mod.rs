@@ -530,19 +530,35 @@ pub(crate) fn least_squares(system: &System, lambda: f64) -> Result<(conic::Coni
             sol.kkt_residual
         ));
     }
+    Ok(as_solution(
+        sol,
+        start,
+        "equality-constrained least squares (faer)",
+        warnings,
+    ))
+}
+
+/// A sparse least-squares result in the form the report absorbs, and whether
+/// its refinement converged.
+pub(crate) fn as_solution(
+    sol: sparse_ls::LsSolution,
+    start: Instant,
+    attempt: &str,
+    warnings: Vec<String>,
+) -> (conic::ConicSolution, bool) {
     let converged = sol.converged;
-    Ok((
+    (
         conic::ConicSolution {
             x: sol.x,
             status: "LeastSquares".into(),
             iterations: sol.refinement_steps as u32,
             solve_time: start.elapsed().as_secs_f64(),
-            attempts: vec!["equality-constrained least squares (faer)".into()],
+            attempts: vec![attempt.into()],
             softened: false,
             warnings,
         },
         converged,
-    ))
+    )
 }
 
 /// Whether the data determine the forces: N(K_st) ∩ N(K_eq) = {0} in every cluster.

@@ -31,7 +31,7 @@ pub enum Scale {
 }
 
 /// Distinguishable series colours (matplotlib's "tab10" order).
-pub const PALETTE: [Rgb<u8>; 8] = [
+pub const PALETTE: [Rgb<u8>; 10] = [
     Rgb([31, 119, 180]),
     Rgb([255, 127, 14]),
     Rgb([44, 160, 44]),
@@ -40,6 +40,8 @@ pub const PALETTE: [Rgb<u8>; 8] = [
     Rgb([140, 86, 75]),
     Rgb([227, 119, 194]),
     Rgb([127, 127, 127]),
+    Rgb([188, 189, 34]),
+    Rgb([23, 190, 207]),
 ];
 
 pub const WHITE: Rgb<u8> = Rgb([255, 255, 255]);
