@@ -189,3 +189,28 @@ fn mismatched_forces_are_an_error() {
     let (s, f) = chain_scene();
     assert!(frame_stats(&s, &f[1..], &Options::default()).is_err());
 }
+
+/// A frictional DEM packing: a grain held by two collinear contacts is not a
+/// rattler; only the six grains without any contact are (as inference finds).
+#[test]
+fn frictional_packing_rattlers_are_the_unloaded_grains() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/oedometer");
+    let scene = grainforce::scene::read_scene(&dir).unwrap();
+    let forces = grainforce::scene::read_forces(&dir.join("forces.csv"))
+        .unwrap()
+        .for_scene(&scene, &dir)
+        .unwrap();
+    let st = frame_stats(&scene, &forces, &Options::default()).unwrap();
+    let contactless = (0..scene.grains.len())
+        .filter(|&g| {
+            !scene
+                .contacts
+                .iter()
+                .any(|c| c.a == g || c.b == Body::Grain(g))
+        })
+        .count();
+    assert_eq!(contactless, 6);
+    assert_eq!(st.rattlers, contactless);
+    assert_eq!(st.rattler_min_contacts, 2);
+    assert!(st.coordination_without_rattlers > st.coordination);
+}

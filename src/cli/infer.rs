@@ -48,7 +48,8 @@ pub struct Args {
     )]
     pub region: Option<String>,
     /// 3D friction cone: exact (second-order cone) or an inscribed pyramid with
-    /// 4, 8 or 16 facets (a faster linear QP, slightly stricter than Coulomb).
+    /// 4, 8 or 16 facets (a linear QP, slightly stricter than Coulomb; faster
+    /// only in some cases — see the README's speed section).
     #[arg(long, value_enum, default_value_t = ConeArg::Exact)]
     pub cone: ConeArg,
     /// Solver tolerance (gap and feasibility) of the first attempt.

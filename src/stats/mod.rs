@@ -27,10 +27,9 @@ pub struct Options {
     pub chain_angle_deg: f64,
     /// Shortest chain reported, in contacts (2 contacts = 3 grains).
     pub min_chain_contacts: usize,
-    /// A grain with fewer force-carrying contacts is a rattler; `None`: d + 1
-    /// (the count a frictional grain needs without gravity; under gravity, d
-    /// contacts can hold a grain, and the d + 1 rule may remove most of a small
-    /// packing).
+    /// A grain with fewer force-carrying contacts is a rattler; `None`: 2 when
+    /// any contact has friction (two collinear contacts can balance a grain),
+    /// d + 1 when all are frictionless.
     pub rattler_min_contacts: Option<usize>,
 }
 
@@ -182,7 +181,15 @@ pub fn frame_stats(scene: &Scene, forces: &[Vec3], options: &Options) -> Result<
         0.0
     };
 
-    let min_contacts = options.rattler_min_contacts.unwrap_or(dim + 1);
+    // With friction two collinear contacts can balance a grain; without it a
+    // grain needs d + 1.
+    let frictional = scene
+        .contacts
+        .iter()
+        .any(|c| scene.contact_mu(c).is_some_and(|m| m > 0.0));
+    let min_contacts = options
+        .rattler_min_contacts
+        .unwrap_or(if frictional { 2 } else { dim + 1 });
     let (coordination, coordination_without_rattlers, rattlers) =
         coordination(scene, &carrying, min_contacts);
     let mut fabric = [0.0; 6];
