@@ -3,7 +3,8 @@
 //! kept with probability 2/3 (≈ 2 contacts per grain, 2 force components per
 //! contact), 3 stress rows (A) and 3 equilibrium rows (C) per grain, centroid arms.
 //!
-//! Run: `cargo run --release --example sparse_ls_scaling [max_grains]`
+//! Run: `cargo run --release --example sparse_ls_scaling [max_grains] [seq|rayon]`
+//! (default parallelism: the library's choice by size).
 
 use std::time::Instant;
 
@@ -94,7 +95,15 @@ fn main() -> grainforce::Result<()> {
         .nth(1)
         .and_then(|s| s.parse().ok())
         .unwrap_or(100_000);
-    println!("rayon threads available: {}", rayon::current_num_threads());
+    let forced_par = match std::env::args().nth(2).as_deref() {
+        Some("seq") => Some(faer::Par::Seq),
+        Some("rayon") => Some(faer::Par::rayon(0)),
+        _ => None,
+    };
+    println!(
+        "rayon threads available: {}, parallelism: {forced_par:?} (None = by size)",
+        rayon::current_num_threads()
+    );
     println!(
         "{:>8} {:>8} {:>8} {:>8} {:>9} {:>9} {:>9} {:>9} {:>5} {:>9} {:>9} {:>9}",
         "grains",
@@ -120,7 +129,10 @@ fn main() -> grainforce::Result<()> {
         let (b, d) = (a.mul(&x_true), c.mul(&x_true));
 
         let t0 = Instant::now();
-        let mut solver = EqualityLeastSquares::new(a, c)?;
+        let mut solver = match forced_par {
+            Some(par) => EqualityLeastSquares::with_parallelism(a, c, par)?,
+            None => EqualityLeastSquares::new(a, c)?,
+        };
         let t_symbolic = t0.elapsed().as_secs_f64();
         let t1 = Instant::now();
         let sol = solver.solve(a, c, &b, &d, 0.0)?;

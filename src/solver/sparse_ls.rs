@@ -424,9 +424,9 @@ impl EqualityLeastSquares {
             c_row_scale = row_inverse_norms(&self.c_csr, &col_scale);
             // s_j = 1 / ‖column j of [A; T C]‖.
             let mut col_sq = a_col_sq.clone();
-            for i in 0..mc {
+            for (i, t) in c_row_scale.iter().enumerate() {
                 for q in self.c_csr.range(i) {
-                    col_sq[self.c_csr.idx[q]] += (self.c_csr.val[q] * c_row_scale[i]).powi(2);
+                    col_sq[self.c_csr.idx[q]] += (self.c_csr.val[q] * t).powi(2);
                 }
             }
             for (s, sq) in col_scale.iter_mut().zip(&col_sq) {
@@ -466,10 +466,10 @@ impl EqualityLeastSquares {
             // Rows are sorted with i ≤ j: the diagonal closes the column.
             values[self.kkt_col_ptr[j + 1] - 1] += lambda2_s2[j] + delta;
         }
-        for i in 0..mc {
+        for (i, t) in c_row_scale.iter().enumerate() {
             let mut p = self.kkt_col_ptr[n + i];
             for q in self.c_csr.range(i) {
-                values[p] = c_row_scale[i] * self.c_csr.val[q] * col_scale[self.c_csr.idx[q]];
+                values[p] = t * self.c_csr.val[q] * col_scale[self.c_csr.idx[q]];
                 p += 1;
             }
             values[p] = -delta;

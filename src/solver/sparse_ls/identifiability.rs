@@ -105,10 +105,10 @@ pub fn identifiability(a: &Triplets, c: &Triplets) -> Result<Identifiability> {
         }
     }
     let mut col_sq = vec![0.0; n];
-    for r in 0..m {
+    for (r, t) in row_scale.iter().enumerate() {
         for q in csr.range(r) {
             let j = csr.idx[q];
-            col_sq[j] += (csr.val[q] * row_scale[r] * col_scale[j]).powi(2);
+            col_sq[j] += (csr.val[q] * t * col_scale[j]).powi(2);
         }
     }
     for (s, sq) in col_scale.iter_mut().zip(&col_sq) {
