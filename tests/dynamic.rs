@@ -185,44 +185,7 @@ fn lambda_at_both_ends_tends_to_the_right_limits() {
 
 #[test]
 fn accelerating_sphere_stack_3d() {
-    let mut s = Scene::new(3);
-    let r = 0.0006;
-    for k in 0..2 {
-        for j in 0..2 {
-            for i in 0..2 {
-                let id = format!("{}", s.grains.len());
-                s.grains.push(grain(
-                    &id,
-                    [
-                        r + 2.0 * r * i as f64,
-                        r + 2.0 * r * j as f64,
-                        r + 2.0 * r * k as f64,
-                    ],
-                    r,
-                    3,
-                ));
-            }
-        }
-    }
-    for a in 0..8 {
-        for b in a + 1..8 {
-            if scene::norm(scene::sub(s.grains[a].position, s.grains[b].position))
-                < 2.0 * r * 1.0001
-            {
-                touch(&mut s, a, b, Some(0.5));
-            }
-        }
-    }
-    for a in 0..8 {
-        let p = s.grains[a].position;
-        for axis in 0..3 {
-            let mut n = [0.0; 3];
-            n[axis] = if p[axis] < 1.5 * r { -1.0 } else { 1.0 };
-            wall(&mut s, a, &format!("w{axis}{}", n[axis]), n, Some(0.0));
-        }
-    }
-    let guess = compressive_guess(&s, 70.0, 0.2);
-    let truth = equilibrate(&s, &guess);
+    let (s, truth) = cubic_stack(0.5);
     let (s, truth) = unbalance(s, truth);
     for rule in [
         LambdaRule::Hard,

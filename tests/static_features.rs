@@ -147,3 +147,84 @@ fn uniqueness_is_reported() {
     assert_eq!(local.report.unique, Some(false), "{}", local.report);
     assert!(local.report.to_string().contains("NO"));
 }
+
+#[test]
+fn pyramids_lie_inside_the_cone_3d() {
+    use grainforce::infer::ConeModel;
+    use grainforce::solver::conic::pyramid_facets;
+    let (mut s, truth) = cubic_stack(0.3);
+    // Axis-aligned contacts balance with normal forces alone, so a small μ is
+    // feasible, and with noisy stresses it binds.
+    for c in s
+        .contacts
+        .iter_mut()
+        .filter(|c| c.mu.is_some_and(|m| m > 0.0))
+    {
+        c.mu = Some(0.05);
+    }
+    let data = noisy(&s, 0.3);
+    let mean = truth.iter().map(|f| scene::norm(*f)).sum::<f64>() / truth.len() as f64;
+    let tol = 1e-7 * mean;
+    let mut fits = Vec::new();
+    for model in [
+        ConeModel::Pyramid(4),
+        ConeModel::Pyramid(8),
+        ConeModel::Pyramid(16),
+        ConeModel::Exact,
+    ] {
+        let opts = InferOptions {
+            cone: model,
+            ..InferOptions::default()
+        };
+        let r = infer(&data, &opts).unwrap();
+        for (c, f) in s.contacts.iter().zip(r.forces_or_zero()) {
+            let Some(mu) = c.mu.filter(|&m| m > 0.0) else {
+                continue;
+            };
+            let (t1, t2) = scene::tangents(3, c.normal);
+            let (fn_, u1, u2) = (
+                -scene::dot(f, c.normal),
+                scene::dot(f, t1),
+                scene::dot(f, t2),
+            );
+            assert!(
+                u1.hypot(u2) <= mu * fn_ + tol,
+                "{model:?}: contact {} outside the cone",
+                c.id
+            );
+            if let ConeModel::Pyramid(k) = model {
+                for (m, cs, sn) in pyramid_facets(k, mu) {
+                    assert!(
+                        cs * u1 + sn * u2 <= m * fn_ + tol,
+                        "{model:?}: contact {} outside a facet",
+                        c.id
+                    );
+                }
+            }
+        }
+        fits.push(r.report.stress_residual);
+    }
+    // Every pyramid lies inside the cone: the cone fits at least as well, up to
+    // the interior-point tolerance (raw answers meet the equalities to ~1e-8).
+    let exact = fits[3];
+    for (k, f) in [4, 8, 16].iter().zip(&fits) {
+        assert!(
+            exact <= f * (1.0 + 1e-4),
+            "pyramid {k} fits {f}, better than the cone's {exact}"
+        );
+    }
+    // Friction binds: without it the stresses fit clearly better.
+    let free = infer(
+        &data,
+        &InferOptions {
+            method: Method::Ls,
+            ..InferOptions::default()
+        },
+    )
+    .unwrap();
+    assert!(
+        free.report.stress_residual < exact * (1.0 - 1e-3),
+        "ls {} vs cone {exact}",
+        free.report.stress_residual
+    );
+}

@@ -94,19 +94,15 @@ fn active_rows(x: &[f64], cones: &[Cone], n: usize) -> Triplets {
                 mu,
                 facets,
             } => {
-                let k = facets.max(3);
-                let shrink = (std::f64::consts::PI / k as f64).cos();
                 if x[normal] <= tight {
                     add(&[(normal, 1.0)]);
                     add(&[(t1, 1.0)]);
                     add(&[(t2, 1.0)]);
                     continue;
                 }
-                for i in 0..k {
-                    let theta = 2.0 * std::f64::consts::PI * i as f64 / k as f64;
-                    let (c, s) = (theta.cos(), theta.sin());
-                    if shrink * mu * x[normal] - c * x[t1] - s * x[t2] <= tight {
-                        add(&[(normal, shrink * mu), (t1, -c), (t2, -s)]);
+                for (m, c, s) in crate::solver::conic::pyramid_facets(facets, mu) {
+                    if m * x[normal] - c * x[t1] - s * x[t2] <= tight {
+                        add(&[(normal, m), (t1, -c), (t2, -s)]);
                     }
                 }
             }

@@ -63,13 +63,8 @@ impl Cone {
                 mu,
                 facets,
             } => {
-                let k = facets.max(3);
-                let shrink = (std::f64::consts::PI / k as f64).cos();
-                let worst = (0..k)
-                    .map(|i| {
-                        let theta = 2.0 * std::f64::consts::PI * i as f64 / k as f64;
-                        theta.cos() * x[t1] + theta.sin() * x[t2] - shrink * mu * x[normal]
-                    })
+                let worst = pyramid_facets(facets, mu)
+                    .map(|(m, c, s)| c * x[t1] + s * x[t2] - m * x[normal])
                     .fold(-x[normal], f64::max);
                 worst.max(0.0)
             }
@@ -91,10 +86,9 @@ impl Cone {
                 normal, t1, t2, mu, ..
             } => {
                 x[*normal] = x[*normal].max(0.0);
+                // Inside a pyramid's inscribed circle the point is inside the pyramid.
                 let limit = match self {
-                    Cone::Pyramid { facets, .. } => {
-                        mu * (std::f64::consts::PI / (*facets).max(3) as f64).cos()
-                    }
+                    Cone::Pyramid { facets, .. } => inscribed_mu(*facets, *mu),
                     _ => *mu,
                 } * x[*normal];
                 let t = x[*t1].hypot(x[*t2]);
@@ -110,6 +104,24 @@ impl Cone {
             x[t] = x[t].clamp(-mu * x[normal], mu * x[normal]);
         }
     }
+}
+
+/// The facets of the pyramid inscribed in the cone μ u₀ ≥ ‖(u₁, u₂)‖: each
+/// (μ', cos θ, sin θ) stands for μ' u₀ − cos θ u₁ − sin θ u₂ ≥ 0, with
+/// μ' = μ cos(π/k) so the pyramid touches the cone along its edges.
+pub fn pyramid_facets(facets: usize, mu: f64) -> impl Iterator<Item = (f64, f64, f64)> {
+    let k = facets.max(3);
+    let inscribed = inscribed_mu(k, mu);
+    (0..k).map(move |i| {
+        let theta = 2.0 * std::f64::consts::PI * i as f64 / k as f64;
+        (inscribed, theta.cos(), theta.sin())
+    })
+}
+
+/// μ' = μ cos(π/k): the friction coefficient of a k-facet pyramid's faces
+/// (and of the circle inscribed in it).
+fn inscribed_mu(facets: usize, mu: f64) -> f64 {
+    mu * (std::f64::consts::PI / facets.max(3) as f64).cos()
 }
 
 /// One term w‖K x − b‖² of the objective.
@@ -357,16 +369,8 @@ fn attempt(problem: &ConicProblem, tolerance: f64, max_iter: u32) -> Result<Atte
                 mu,
                 facets,
             } => {
-                // Inscribed pyramid: cos(π/k)·μ u₀ ≥ cos θ u₁ + sin θ u₂ on k facets.
-                let k = facets.max(3);
-                let shrink = (std::f64::consts::PI / k as f64).cos();
-                for i in 0..k {
-                    let theta = 2.0 * std::f64::consts::PI * i as f64 / k as f64;
-                    rows.at_least_zero(&[
-                        (normal, shrink * mu),
-                        (t1, -theta.cos()),
-                        (t2, -theta.sin()),
-                    ]);
+                for (m, c, s) in pyramid_facets(facets, mu) {
+                    rows.at_least_zero(&[(normal, m), (t1, -c), (t2, -s)]);
                 }
             }
             Cone::Circular { .. } => {}

@@ -307,3 +307,58 @@ pub fn admissibility(scene: &Scene, forces: &[Vec3]) -> (f64, f64) {
     }
     (min_fn, max_ratio)
 }
+
+/// A 2×2×2 simple-cubic stack of spheres in a box of six frictionless walls.
+pub fn cubic_stack(mu: f64) -> (Scene, Vec<[f64; 3]>) {
+    let mut s = Scene::new(3);
+    let r = 0.0006;
+    for k in 0..2 {
+        for j in 0..2 {
+            for i in 0..2 {
+                let id = format!("{}", s.grains.len());
+                s.grains.push(grain(
+                    &id,
+                    [
+                        r + 2.0 * r * i as f64,
+                        r + 2.0 * r * j as f64,
+                        r + 2.0 * r * k as f64,
+                    ],
+                    r,
+                    3,
+                ));
+            }
+        }
+    }
+    for a in 0..8 {
+        for b in a + 1..8 {
+            let d = scene::norm(scene::sub(s.grains[a].position, s.grains[b].position));
+            if d < 2.0 * r * 1.0001 {
+                touch(&mut s, a, b, Some(mu));
+            }
+        }
+    }
+    let names = [
+        ("left", 0, -1.0),
+        ("right", 0, 1.0),
+        ("bottom", 1, -1.0),
+        ("top", 1, 1.0),
+        ("back", 2, -1.0),
+        ("front", 2, 1.0),
+    ];
+    for a in 0..8 {
+        let p = s.grains[a].position;
+        for &(name, axis, sign) in &names {
+            let low = p[axis] < 1.5 * r;
+            if (sign < 0.0) == low {
+                let mut n = [0.0; 3];
+                n[axis] = sign;
+                wall(&mut s, a, name, n, Some(0.0));
+            }
+        }
+    }
+    let guess = compressive_guess(&s, 70.0, 0.2);
+    let forces = equilibrate(&s, &guess);
+    assert!(admissible(&s, &forces), "{:?}", admissibility(&s, &forces));
+    set_stresses(&mut s, &forces);
+    (s, forces)
+}
