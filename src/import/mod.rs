@@ -19,7 +19,6 @@ pub mod yade;
 
 use crate::error::{Error, Result};
 use crate::scene::{self, Body, Scene, Vec3};
-use std::collections::HashMap;
 use std::path::Path;
 
 /// What an importer produces: the frames and, when the source has them, the
@@ -160,72 +159,5 @@ pub(crate) fn check_radius(path: &Path, line: usize, column: &str, r: f64) -> Re
     }
 }
 
-/// Reads a CSV with the scene layer's conventions (header, `#` comments) into
-/// rows of (line, record) and the header map.
-/// A CSV's header map and its rows with their line numbers.
-pub(crate) type CsvTable = (HashMap<String, usize>, Vec<(usize, csv::StringRecord)>);
-
-pub(crate) fn read_csv(path: &Path) -> Result<CsvTable> {
-    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
-    let mut reader = csv::ReaderBuilder::new()
-        .trim(csv::Trim::All)
-        .comment(Some(b'#'))
-        .from_reader(std::io::BufReader::new(file));
-    let located = |e: csv::Error| {
-        let line = e.position().map(|p| p.line() as usize);
-        Error::data(path, line, None, e.to_string())
-    };
-    let headers = reader.headers().map_err(located)?.clone();
-    let columns: HashMap<String, usize> = headers
-        .iter()
-        .enumerate()
-        .map(|(i, h)| (h.to_owned(), i))
-        .collect();
-    let mut rows = Vec::new();
-    for r in reader.records() {
-        let r = r.map_err(located)?;
-        let line = r.position().map_or(0, |p| p.line() as usize);
-        rows.push((line, r));
-    }
-    Ok((columns, rows))
-}
-
-pub(crate) fn csv_cell<'a>(
-    path: &Path,
-    columns: &HashMap<String, usize>,
-    record: &'a csv::StringRecord,
-    line: usize,
-    name: &str,
-) -> Result<&'a str> {
-    let Some(&i) = columns.get(name) else {
-        return Err(Error::data(
-            path,
-            Some(1),
-            Some(name),
-            format!("required column `{name}` is missing from the header"),
-        ));
-    };
-    match record.get(i) {
-        Some(s) if !s.is_empty() => Ok(s),
-        _ => Err(Error::data(path, Some(line), Some(name), "empty value")),
-    }
-}
-
-pub(crate) fn csv_number(
-    path: &Path,
-    columns: &HashMap<String, usize>,
-    record: &csv::StringRecord,
-    line: usize,
-    name: &str,
-) -> Result<f64> {
-    let s = csv_cell(path, columns, record, line, name)?;
-    match s.parse::<f64>() {
-        Ok(x) if x.is_finite() => Ok(x),
-        _ => Err(Error::data(
-            path,
-            Some(line),
-            Some(name),
-            format!("`{s}` is not a finite number"),
-        )),
-    }
-}
+// CSV inputs are read exactly like scene tables.
+pub(crate) use crate::scene::{csv_cell, csv_number, read_csv};

@@ -16,37 +16,105 @@ struct Table {
     rows: Vec<(usize, csv::StringRecord)>,
 }
 
+/// A CSV's header map and its data rows with their line numbers.
+pub(crate) type CsvRows = (HashMap<String, usize>, Vec<(usize, csv::StringRecord)>);
+
+/// Reads a CSV the way every grainforce table is read: trimmed cells, `#`
+/// comments, blank rows skipped, errors located by file and line.
+pub(crate) fn read_csv(path: &Path) -> Result<CsvRows> {
+    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    let mut reader = csv::ReaderBuilder::new()
+        .trim(csv::Trim::All)
+        .comment(Some(b'#'))
+        .from_reader(std::io::BufReader::new(file));
+    let headers = reader.headers().map_err(|e| csv_error(path, e))?.clone();
+    let mut columns = HashMap::new();
+    for (i, name) in headers.iter().enumerate() {
+        if name.is_empty() {
+            continue;
+        }
+        if columns.insert(name.to_owned(), i).is_some() {
+            return Err(Error::data(
+                path,
+                Some(1),
+                Some(name),
+                "column appears twice in the header",
+            ));
+        }
+    }
+    let mut rows = Vec::new();
+    for record in reader.records() {
+        let record = record.map_err(|e| csv_error(path, e))?;
+        let line = record.position().map(|p| p.line() as usize).unwrap_or(0);
+        if record.iter().all(str::is_empty) {
+            continue;
+        }
+        rows.push((line, record));
+    }
+    Ok((columns, rows))
+}
+
+/// A required, non-empty cell.
+pub(crate) fn csv_cell<'a>(
+    path: &Path,
+    columns: &HashMap<String, usize>,
+    record: &'a csv::StringRecord,
+    line: usize,
+    column: &str,
+) -> Result<&'a str> {
+    let Some(&i) = columns.get(column) else {
+        return Err(Error::data(
+            path,
+            Some(1),
+            Some(column),
+            format!("required column `{column}` is missing from the header"),
+        ));
+    };
+    match record.get(i) {
+        Some(s) if !s.is_empty() => Ok(s),
+        _ => Err(Error::data(path, Some(line), Some(column), "empty value")),
+    }
+}
+
+/// A required finite number.
+pub(crate) fn csv_number(
+    path: &Path,
+    columns: &HashMap<String, usize>,
+    record: &csv::StringRecord,
+    line: usize,
+    column: &str,
+) -> Result<f64> {
+    parse_number(
+        path,
+        line,
+        column,
+        csv_cell(path, columns, record, line, column)?,
+    )
+}
+
+fn parse_number(path: &Path, line: usize, column: &str, s: &str) -> Result<f64> {
+    let value: f64 = s.parse().map_err(|_| {
+        Error::data(
+            path,
+            Some(line),
+            Some(column),
+            format!("`{s}` is not a number"),
+        )
+    })?;
+    if !value.is_finite() {
+        return Err(Error::data(
+            path,
+            Some(line),
+            Some(column),
+            format!("`{s}` is not a finite number"),
+        ));
+    }
+    Ok(value)
+}
+
 impl Table {
     fn read(path: &Path) -> Result<Table> {
-        let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
-        let mut reader = csv::ReaderBuilder::new()
-            .trim(csv::Trim::All)
-            .comment(Some(b'#'))
-            .from_reader(std::io::BufReader::new(file));
-        let headers = reader.headers().map_err(|e| csv_error(path, e))?.clone();
-        let mut columns = HashMap::new();
-        for (i, name) in headers.iter().enumerate() {
-            if name.is_empty() {
-                continue;
-            }
-            if columns.insert(name.to_owned(), i).is_some() {
-                return Err(Error::data(
-                    path,
-                    Some(1),
-                    Some(name),
-                    "column appears twice in the header",
-                ));
-            }
-        }
-        let mut rows = Vec::new();
-        for record in reader.records() {
-            let record = record.map_err(|e| csv_error(path, e))?;
-            let line = record.position().map(|p| p.line() as usize).unwrap_or(0);
-            if record.iter().all(str::is_empty) {
-                continue;
-            }
-            rows.push((line, record));
-        }
+        let (columns, rows) = read_csv(path)?;
         Ok(Table {
             path: path.to_owned(),
             columns,
@@ -75,16 +143,7 @@ impl Table {
         line: usize,
         column: &str,
     ) -> Result<&'a str> {
-        let i = self.require(column)?;
-        match record.get(i) {
-            Some(s) if !s.is_empty() => Ok(s),
-            _ => Err(Error::data(
-                &self.path,
-                Some(line),
-                Some(column),
-                "empty value",
-            )),
-        }
+        csv_cell(&self.path, &self.columns, record, line, column)
     }
 
     /// A finite number; `None` when the column is absent or the cell empty.
@@ -101,23 +160,7 @@ impl Table {
         if s.is_empty() {
             return Ok(None);
         }
-        let value: f64 = s.parse().map_err(|_| {
-            Error::data(
-                &self.path,
-                Some(line),
-                Some(column),
-                format!("`{s}` is not a number"),
-            )
-        })?;
-        if !value.is_finite() {
-            return Err(Error::data(
-                &self.path,
-                Some(line),
-                Some(column),
-                format!("`{s}` is not a finite number"),
-            ));
-        }
-        Ok(Some(value))
+        parse_number(&self.path, line, column, s).map(Some)
     }
 
     fn number(&self, record: &csv::StringRecord, line: usize, column: &str) -> Result<f64> {

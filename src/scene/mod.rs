@@ -9,6 +9,8 @@ pub use io::{
     body_name, read_forces, read_scene, read_sequence, write_file_atomically, write_forces,
     write_scene, write_sequence, ForceRow, Forces,
 };
+/// The CSV reading every grainforce table shares (importers use it too).
+pub(crate) use io::{csv_cell, csv_number, read_csv};
 pub use select::{select_subassembly, Selection};
 
 /// A point or vector; z is 0 in 2D.
