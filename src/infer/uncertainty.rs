@@ -173,6 +173,12 @@ pub fn force_uncertainty(
         ),
     };
     let fitted = fitted_stresses(scene, &inference.forces);
+    // The draws change stresses only: uniqueness depends on the geometry and
+    // was reported by the inference being assessed.
+    let draw_opts = InferOptions {
+        identifiability_limit: 0,
+        ..opts.clone()
+    };
     let components = scene::sym::components(scene.dim);
     let draw = |d: usize| -> Result<Vec<Option<Vec3>>> {
         let mut rng = ChaCha8Rng::seed_from_u64(
@@ -187,7 +193,7 @@ pub fn force_uncertainty(
                 g.stress[k] = s[k] * (1.0 + noise_level * e);
             }
         }
-        Ok(infer(&noisy, opts)?.forces)
+        Ok(infer(&noisy, &draw_opts)?.forces)
     };
     let results: Vec<Result<Vec<Option<Vec3>>>> =
         (0..uncertainty.draws).into_par_iter().map(draw).collect();
