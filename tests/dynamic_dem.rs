@@ -104,13 +104,10 @@ fn impact_with_accelerations_from_noisy_tracks() {
     let e = overall(&run.forces, &forces);
     eprintln!("impact, accelerations from tracks with 0.1 % position noise: relerr {e:.4}");
     assert!(e <= 0.15, "relerr {e}");
-    // Trusting these accelerations exactly is refused, not answered with garbage.
-    let hard = infer_sequence(&noisy, &dynamic(LambdaRule::Hard), false);
-    if let Ok(h) = hard {
-        let f: Vec<Vec<Vec3>> = h.iter().map(|r| r.forces_or_zero()).collect();
-        assert!(
-            overall(&run.forces, &f) > e,
-            "hard momentum cannot beat the weighted answer on noisy accelerations"
-        );
+    // Trusting these accelerations exactly is refused (noisy accelerations of
+    // grains at rest would need tension), not answered with garbage.
+    match infer_sequence(&noisy, &dynamic(LambdaRule::Hard), false) {
+        Err(err) => assert!(err.to_string().contains("infeasible"), "{err}"),
+        Ok(_) => panic!("hard momentum on noisy accelerations should be infeasible"),
     }
 }
