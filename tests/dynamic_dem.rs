@@ -95,7 +95,7 @@ fn impact_with_accelerations_from_noisy_tracks() {
         &noisy,
         &dynamic(LambdaRule::Weights {
             stress_sd: 0.1,
-            momentum_sd: 0.3,
+            momentum_sd: grainforce::infer::kinematics::DERIVED_ACCEL_SD,
         }),
         false,
     )

@@ -300,11 +300,6 @@ pub fn options(args: &Args) -> Result<(InferOptions, Selection)> {
     Ok((opts, selection))
 }
 
-/// Relative noise assumed for accelerations derived from tracks (measured on
-/// `impact` with 0.1 % position noise and exact stresses: 0.1 → relerr 0.051,
-/// 0.3 → 0.038, 1 → 0.026; 0.3 also leaves room for noisy stresses).
-const DERIVED_ACCEL_SD: f64 = 0.3;
-
 /// Bootstrap standard deviations per frame (frames and draws in parallel).
 fn uncertainty(
     args: &Args,
@@ -382,7 +377,7 @@ pub fn run(args: Args) -> Result<()> {
         if let (None, LambdaRule::Weights { stress_sd, .. }) = (args.accel_sd, opts.dynamic.rule) {
             opts.dynamic.rule = LambdaRule::Weights {
                 stress_sd,
-                momentum_sd: DERIVED_ACCEL_SD,
+                momentum_sd: kinematics::DERIVED_ACCEL_SD,
             };
         }
         if !args.quiet {
