@@ -176,3 +176,34 @@ fn bad_flag_values() {
         );
     }
 }
+
+#[test]
+fn a_late_failure_leaves_no_output_at_all() {
+    // --pareto needs --method dynamic: the run fails after inference, and
+    // neither the forces nor the report of that failed run may remain.
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("scene");
+    write_good_scene(&scene);
+    let (out, report, front) = (
+        dir.path().join("f.csv"),
+        dir.path().join("r.json"),
+        dir.path().join("p.csv"),
+    );
+    let r = Command::new(env!("CARGO_BIN_EXE_grainforce"))
+        .arg("infer")
+        .arg(&scene)
+        .args([
+            "-o",
+            out.to_str().unwrap(),
+            "--report",
+            report.to_str().unwrap(),
+        ])
+        .args(["--pareto", front.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(!r.status.success());
+    assert!(String::from_utf8_lossy(&r.stderr).contains("--pareto"));
+    for p in [&out, &report, &front] {
+        assert!(!p.exists(), "{} was written by a failed run", p.display());
+    }
+}

@@ -432,6 +432,9 @@ pub fn run(args: Args) -> Result<()> {
         dim: frames[0].dim,
         rows,
     };
+    // Outputs are gathered first and written once nothing can fail any more,
+    // so a failed run leaves no file behind.
+    let mut pending: Vec<(PathBuf, Vec<u8>)> = Vec::new();
     if let Some(path) = &args.report {
         let reports: Vec<&infer::InferenceReport> = results.iter().map(|r| &r.report).collect();
         let json = if reports.len() == 1 {
@@ -440,7 +443,7 @@ pub fn run(args: Args) -> Result<()> {
             serde_json::to_string_pretty(&reports)
         }
         .map_err(|e| Error::Invalid(e.to_string()))?;
-        scene::write_file_atomically(path, json.as_bytes())?;
+        pending.push((path.clone(), json.into_bytes()));
     }
     if let Some(path) = &args.impulse {
         let fps = args
@@ -464,8 +467,9 @@ pub fn run(args: Args) -> Result<()> {
             }
             text.push('\n');
         }
-        scene::write_file_atomically(path, text.as_bytes())?;
+        pending.push((path.clone(), text.into_bytes()));
     }
+    let mut front_to_write = None;
     if let Some(path) = &args.pareto {
         let front = results
             .first()
@@ -474,7 +478,7 @@ pub fn run(args: Args) -> Result<()> {
         if results.len() > 1 {
             eprintln!("note: --pareto writes the front of the first frame");
         }
-        grainforce::report::pareto::write_pareto_csv(path, &front.points, front.knee)?;
+        front_to_write = Some((path, front));
     }
     // Everything that can fail is done before the forces file is written.
     let picture = match &args.plot {
@@ -498,6 +502,12 @@ pub fn run(args: Args) -> Result<()> {
         None => None,
     };
     scene::write_forces(&args.output, &forces)?;
+    for (path, bytes) in &pending {
+        scene::write_file_atomically(path, bytes)?;
+    }
+    if let Some((path, front)) = front_to_write {
+        grainforce::report::pareto::write_pareto_csv(path, &front.points, front.knee)?;
+    }
     if let (Some(path), Some(img)) = (&args.plot, &picture) {
         grainforce::report::chart::save_png(path, img)?;
     }
