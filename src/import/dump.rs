@@ -267,3 +267,36 @@ fn short(s: &str) -> String {
         s.to_owned()
     }
 }
+
+/// The snapshots of an atoms dump paired by timestep with those of its local
+/// (contact) dump, and the dimension: given, or detected from the atoms.
+pub(crate) fn paired_snapshots(
+    atoms: &Path,
+    local: &Path,
+    dim: Option<usize>,
+) -> Result<(usize, Vec<(DumpFrame, DumpFrame)>)> {
+    let atom_frames = read_dump(atoms, DumpKind::Atoms)?;
+    let mut local_frames = read_dump(local, DumpKind::Local)?;
+    let dim = match dim {
+        Some(d @ (2 | 3)) => d,
+        Some(d) => return Err(Error::Invalid(format!("dimension must be 2 or 3, not {d}"))),
+        None => super::lammps::detect_dim(&atom_frames[0]),
+    };
+    let mut pairs = Vec::with_capacity(atom_frames.len());
+    for af in atom_frames {
+        let Some(k) = local_frames.iter().position(|l| l.timestep == af.timestep) else {
+            return Err(Error::data(
+                local,
+                None,
+                None,
+                format!(
+                    "no snapshot for timestep {} (present in {})",
+                    af.timestep,
+                    atoms.display()
+                ),
+            ));
+        };
+        pairs.push((af, local_frames.swap_remove(k)));
+    }
+    Ok((dim, pairs))
+}

@@ -25,7 +25,7 @@
 //! - Units are those of the LAMMPS run (`units si` gives SI, which the scene
 //!   format expects).
 
-use super::dump::{read_dump, DumpFrame, DumpKind, DumpRow};
+use super::dump::{paired_snapshots, DumpFrame, DumpRow};
 use super::{ball_volume, check_radius, sphere_contact, stress_from_forces, ImportedScene};
 use crate::error::{Error, Result};
 use crate::scene::{self, Body, Contact, Grain, Inertia, Scene, Vec3};
@@ -328,29 +328,11 @@ fn wall_fixes(frame: &DumpFrame) -> Vec<(String, [usize; 7])> {
 /// `fix wall/gran … contacts`), `local` the `dump local` of pair/local data.
 /// Snapshots are matched by timestep; a sequence gets the timestep as frame.
 pub fn import(atoms: &Path, local: &Path, options: &Options) -> Result<ImportedScene> {
-    let atom_frames = read_dump(atoms, DumpKind::Atoms)?;
-    let local_frames = read_dump(local, DumpKind::Local)?;
-    let dim = match options.dim {
-        Some(d @ (2 | 3)) => d,
-        Some(d) => return Err(Error::Invalid(format!("dimension must be 2 or 3, not {d}"))),
-        None => detect_dim(&atom_frames[0]),
-    };
-    let sequence = atom_frames.len() > 1;
+    let (dim, pairs) = paired_snapshots(atoms, local, options.dim)?;
+    let sequence = pairs.len() > 1;
     let mut frames = Vec::new();
     let mut forces = Vec::new();
-    for af in &atom_frames {
-        let Some(lf) = local_frames.iter().find(|l| l.timestep == af.timestep) else {
-            return Err(Error::data(
-                local,
-                None,
-                None,
-                format!(
-                    "no snapshot for timestep {} (present in {})",
-                    af.timestep,
-                    atoms.display()
-                ),
-            ));
-        };
+    for (af, lf) in &pairs {
         let AtomsFrame {
             mut scene,
             index,

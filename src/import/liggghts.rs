@@ -19,8 +19,8 @@
 //! grains touching walls then lack those forces, and their stresses are
 //! incomplete; the importer says so through [`ImportedScene::momentum_residual`].
 
-use super::dump::{read_dump, DumpKind};
-use super::lammps::{atoms_frame, detect_dim, AtomsFrame};
+use super::dump::paired_snapshots;
+use super::lammps::{atoms_frame, AtomsFrame};
 use super::{sphere_contact, stress_from_forces, ImportedScene};
 use crate::error::{Error, Result};
 use crate::scene::{Body, Contact, Vec3};
@@ -49,25 +49,11 @@ fn width(keyword: &str, history: usize) -> Option<usize> {
 }
 
 pub fn import(atoms: &Path, local: &Path, options: &Options) -> Result<ImportedScene> {
-    let atom_frames = read_dump(atoms, DumpKind::Atoms)?;
-    let local_frames = read_dump(local, DumpKind::Local)?;
-    let dim = match options.dim {
-        Some(d @ (2 | 3)) => d,
-        Some(d) => return Err(Error::Invalid(format!("dimension must be 2 or 3, not {d}"))),
-        None => detect_dim(&atom_frames[0]),
-    };
-    let sequence = atom_frames.len() > 1;
+    let (dim, pairs) = paired_snapshots(atoms, local, options.dim)?;
+    let sequence = pairs.len() > 1;
     let mut frames = Vec::new();
     let mut all_forces = Vec::new();
-    for af in &atom_frames {
-        let Some(lf) = local_frames.iter().find(|l| l.timestep == af.timestep) else {
-            return Err(Error::data(
-                local,
-                None,
-                None,
-                format!("no snapshot for timestep {}", af.timestep),
-            ));
-        };
+    for (af, lf) in &pairs {
         let n_cols = lf.columns.len();
         let keywords: Vec<String> = match &options.keywords {
             Some(k) => k.clone(),
