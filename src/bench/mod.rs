@@ -12,7 +12,7 @@ pub use generate::{generate, Packing, PackingSpec};
 pub use noise::{perturb, Noise};
 
 use crate::error::{Error, Result};
-use crate::infer::{infer, ConeModel, InferOptions, Method};
+use crate::infer::{infer, ConeModel, ConstrainedSolver, InferOptions, Method};
 use crate::report::chart::{Chart, Scale};
 use crate::report::metrics::relative_error;
 use crate::scene::{Scene, Vec3};
@@ -29,17 +29,27 @@ pub struct MethodSpec {
     pub options: InferOptions,
 }
 
-/// Names accepted by [`method_spec`]: `ls`, `qs`, `qs-relaxed`, `tikhonov`,
-/// `tikhonov-relaxed`, `tikhonov-search`, `scaled`, and in 3D `qs-pyr4`,
-/// `qs-pyr8`, `qs-pyr16` (any `qs-pyrK`, `K` ≥ 3); any name may end in
-/// `-nocheck` to skip the identifiability (uniqueness) check.
+/// Names accepted by [`method_spec`]: `ls`, `qs`, `qs-ip`, `qs-relaxed`,
+/// `tikhonov`, `tikhonov-ip`, `tikhonov-relaxed`, `tikhonov-search`, `scaled`,
+/// and in 3D `qs-pyr4`, `qs-pyr8`, `qs-pyr16` (any `qs-pyrK`, `K` ≥ 3). `qs`
+/// and `tikhonov` use the active-set solver, `-ip` the interior point (clarabel,
+/// tolerance 1e-8), `-relaxed` the interior point at tolerance 1e-4; any name
+/// may end in `-nocheck` to skip the identifiability (uniqueness) check.
 pub const METHOD_NAMES: &str =
-    "ls, qs, qs-relaxed, tikhonov, tikhonov-relaxed, tikhonov-search, scaled, qs-pyrK (3D: K facets, e.g. qs-pyr8), each optionally with -nocheck";
+    "ls, qs, qs-ip, qs-relaxed, tikhonov, tikhonov-ip, tikhonov-relaxed, tikhonov-search, scaled, qs-pyrK (3D: K facets, e.g. qs-pyr8), each optionally with -nocheck";
 
-/// The default matrix: the floor, the constrained formulations at both
-/// tolerances and, in 3D, pyramids of 4, 8 and 16 facets.
+/// The default matrix: the floor, the constrained formulations by active set
+/// and by interior point at both tolerances and, in 3D, pyramids of 4, 8 and 16 facets.
 pub fn default_methods(dim: usize) -> Vec<&'static str> {
-    let mut m = vec!["ls", "qs", "qs-relaxed", "tikhonov", "tikhonov-relaxed"];
+    let mut m = vec![
+        "ls",
+        "qs",
+        "qs-ip",
+        "qs-relaxed",
+        "tikhonov",
+        "tikhonov-ip",
+        "tikhonov-relaxed",
+    ];
     if dim == 3 {
         m.extend(["qs-pyr4", "qs-pyr8", "qs-pyr16"]);
     }
@@ -58,7 +68,12 @@ pub fn method_spec(name: &str, lambda: f64) -> Result<MethodSpec> {
         name_rest = b;
     }
     if let Some(b) = base.strip_suffix("-relaxed") {
+        // A tolerance is a knob of the interior point only.
         o.conic.tolerance = RELAXED_TOLERANCE;
+        o.solver = ConstrainedSolver::InteriorPoint;
+        base = b;
+    } else if let Some(b) = base.strip_suffix("-ip") {
+        o.solver = ConstrainedSolver::InteriorPoint;
         base = b;
     }
     match base {

@@ -27,11 +27,12 @@ pub struct Args {
     /// Dimensions to run: 2, 3 or 2,3.
     #[arg(long, value_delimiter = ',', default_value = "2")]
     pub dim: Vec<usize>,
-    /// Methods, comma-separated: ls, qs, qs-relaxed, tikhonov, tikhonov-relaxed,
-    /// tikhonov-search, scaled, qs-pyr4 / qs-pyr8 / qs-pyr16 (3D). Default: ls,
-    /// qs, qs-relaxed, tikhonov, tikhonov-relaxed, plus the pyramids in 3D.
-    /// The -relaxed variants use clarabel tolerance 1e-4 instead of 1e-8; a
-    /// -nocheck suffix (e.g. ls-nocheck) skips the uniqueness check.
+    /// Methods, comma-separated: ls, qs, qs-ip, qs-relaxed, tikhonov,
+    /// tikhonov-ip, tikhonov-relaxed, tikhonov-search, scaled, qs-pyr4 /
+    /// qs-pyr8 / qs-pyr16 (3D). Default: all but tikhonov-search and scaled,
+    /// plus the pyramids in 3D. Plain names use the active-set solver; -ip the
+    /// interior point (clarabel, tolerance 1e-8); -relaxed the interior point at
+    /// tolerance 1e-4; a -nocheck suffix (e.g. ls-nocheck) skips the uniqueness check.
     #[arg(long, value_delimiter = ',')]
     pub methods: Option<Vec<String>>,
     /// Noise levels, comma-separated: none; stress (eq. 2.16: ×(1.15 + N(0, 0.1))

@@ -5,7 +5,7 @@ use grainforce::infer::kinematics::{self, Smoother};
 use grainforce::infer::uncertainty::{
     force_uncertainty, NoiseEstimate, Uncertainty, UncertaintyOptions,
 };
-use grainforce::infer::{self, ConeModel, InferOptions, LambdaRule, Method};
+use grainforce::infer::{self, ConeModel, ConstrainedSolver, InferOptions, LambdaRule, Method};
 use grainforce::scene::{self, Forces, Selection};
 use std::path::PathBuf;
 
@@ -52,7 +52,14 @@ pub struct Args {
     /// only in some cases — see the README's speed section).
     #[arg(long, value_enum, default_value_t = ConeArg::Exact)]
     pub cone: ConeArg,
-    /// Solver tolerance (gap and feasibility) of the first attempt.
+    /// Algorithm for friction-constrained problems: active-set (primal–dual
+    /// active set on the sparse factorisation, warm-started from the
+    /// unconstrained answer; exact to round-off, falls back to the interior point
+    /// when it does not settle) or interior-point (clarabel, to --tolerance, then
+    /// polished). Pyramids always use the interior point.
+    #[arg(long, value_enum, default_value_t = SolverArg::ActiveSet)]
+    pub solver: SolverArg,
+    /// Interior-point tolerance (gap and feasibility) of the first attempt.
     #[arg(long, default_value_t = 1e-8)]
     pub tolerance: f64,
     /// On infeasible data, return the least-violation answer (momentum softened)
@@ -165,6 +172,12 @@ pub enum SmootherArg {
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
+pub enum SolverArg {
+    ActiveSet,
+    InteriorPoint,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
 pub enum ConeArg {
     Exact,
     Pyramid4,
@@ -233,6 +246,10 @@ pub fn options(args: &Args) -> Result<(InferOptions, Selection)> {
         return Err(Error::Invalid("--wall-weight must be positive".into()));
     }
     opts.conic.tolerance = args.tolerance;
+    opts.solver = match args.solver {
+        SolverArg::ActiveSet => ConstrainedSolver::ActiveSet,
+        SolverArg::InteriorPoint => ConstrainedSolver::InteriorPoint,
+    };
     opts.assemble.mu = args.mu;
     if let Some(g) = &args.gravity {
         let v = numbers("--gravity", g)?;

@@ -94,13 +94,23 @@ fn solve_one(
     let cone_list = cones(system, opts.cone);
     // Stacking squares the weight: beyond ~1e6 the normal equations lose the
     // stress rows to round-off, so only moderate λ take the shortcut.
-    if opts.exact_first && (1e-6..=1e6).contains(&lambda) {
-        let (sol, converged) = stacked_least_squares(system, lambda)?;
-        if converged {
-            if let Some(x) = super::feasible_as_is(&sol.x, &cone_list) {
-                return Ok((x, sol));
-            }
+    let mut note = None;
+    let sparse = opts.exact_first || opts.solver == super::ConstrainedSolver::ActiveSet;
+    if sparse && (1e-6..=1e6).contains(&lambda) {
+        let (a, b) = stacked(system, lambda);
+        let c = crate::solver::Triplets::new(0, system.n);
+        let problem = super::SparseProblem {
+            a: &a,
+            b: &b,
+            c: &c,
+            d: &[],
+            lambda: 0.0,
+        };
+        let route = super::sparse_route(system, problem, &cone_list, opts)?;
+        if let Some(sol) = route.constrained {
+            return Ok((sol.x.clone(), sol));
         }
+        note = route.note;
     }
     let problem = ConicProblem {
         n: system.n,
@@ -125,6 +135,7 @@ fn solve_one(
     for c in &problem.cones {
         c.project(&mut sol.x);
     }
+    sol.attempts.extend(note);
     if opts.polish {
         let objective = super::polish::Objective {
             terms: vec![
@@ -283,8 +294,7 @@ pub(crate) fn weight_from_noise(
 
 /// min ‖K_s x − b_s‖² + λ‖K_m x − b_m‖² without inequalities: one stacked
 /// least-squares problem for the sparse solver.
-fn stacked_least_squares(system: &System, lambda: f64) -> Result<(conic::ConicSolution, bool)> {
-    let start = std::time::Instant::now();
+fn stacked(system: &System, lambda: f64) -> (crate::solver::Triplets, Vec<f64>) {
     let (ms, mm) = (system.stress.nrows, system.momentum.nrows);
     let w = lambda.sqrt();
     let mut a = crate::solver::Triplets::new(ms + mm, system.n);
@@ -308,13 +318,5 @@ fn stacked_least_squares(system: &System, lambda: f64) -> Result<(conic::ConicSo
         .copied()
         .chain(system.momentum_rhs.iter().map(|v| w * v))
         .collect();
-    let c = crate::solver::Triplets::new(0, system.n);
-    let mut ls = crate::solver::sparse_ls::EqualityLeastSquares::new(&a, &c)?;
-    let sol = ls.solve(&a, &c, &b, &[], 0.0)?;
-    Ok(super::as_solution(
-        sol,
-        start,
-        "stacked least squares (faer)",
-        Vec::new(),
-    ))
+    (a, b)
 }

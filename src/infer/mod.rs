@@ -16,6 +16,7 @@ mod polish;
 mod report;
 pub mod uncertainty;
 
+pub use crate::solver::active_set::ActiveSetSettings;
 pub use dynamic::{DynamicOptions, Front, LambdaRule};
 pub use lambda::{LambdaSearch, LambdaTrace};
 pub use report::InferenceReport;
@@ -23,6 +24,7 @@ pub use report::InferenceReport;
 use crate::assemble::{self, AssembleOptions, Assembly, Friction, System};
 use crate::error::{Error, Result};
 use crate::scene::{Body, Scene, Vec3};
+use crate::solver::active_set;
 use crate::solver::conic::{self, Cone, ConicProblem, ConicSettings, Term};
 use crate::solver::{sparse_ls, Triplets};
 use std::time::Instant;
@@ -47,6 +49,17 @@ impl std::fmt::Display for Method {
             Method::Dynamic => "dynamic",
         })
     }
+}
+
+/// How friction-constrained problems are solved.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ConstrainedSolver {
+    /// Primal–dual active set on the sparse factorisation, warm-started from the
+    /// unconstrained answer; falls back to the interior point if it does not settle.
+    ActiveSet,
+    /// Clarabel's interior point (lifted QP/SOCP), then active-set polishing.
+    InteriorPoint,
 }
 
 /// How the 3D Coulomb cone is modelled.
@@ -81,6 +94,9 @@ pub struct InferOptions {
     pub identifiability_limit: usize,
     /// Refine interior-point answers by solving exactly on their active set.
     pub polish: bool,
+    /// Algorithm for the friction-constrained problems.
+    pub solver: ConstrainedSolver,
+    pub active_set: ActiveSetSettings,
 }
 
 impl Default for InferOptions {
@@ -99,6 +115,8 @@ impl Default for InferOptions {
             exact_first: true,
             identifiability_limit: 200_000,
             polish: true,
+            solver: ConstrainedSolver::ActiveSet,
+            active_set: ActiveSetSettings::default(),
         }
     }
 }
@@ -267,7 +285,7 @@ fn scaled_lambda(opts: &InferOptions, assembly: &Assembly) -> f64 {
 }
 
 /// The cones of a system's unknowns under the chosen friction and cone model.
-pub(crate) fn cones(system: &System, cone_model: ConeModel) -> Vec<Cone> {
+pub fn cones(system: &System, cone_model: ConeModel) -> Vec<Cone> {
     system
         .unknowns
         .iter()
@@ -352,18 +370,36 @@ fn solve_system(
         }
     };
     let mut unconstrained_fit = None;
-    if !opts.allow_infeasible && (opts.exact_first || !with_cones) {
-        let (ls, converged) = least_squares(system, lambda)?;
+    let mut fallback_note = None;
+    let use_active_set = with_cones && opts.solver == ConstrainedSolver::ActiveSet;
+    if !opts.allow_infeasible && (opts.exact_first || !with_cones || use_active_set) {
+        let route = sparse_route(
+            system,
+            SparseProblem {
+                a: &system.stress,
+                b: &system.stress_rhs,
+                c: &system.momentum,
+                d: &system.momentum_rhs,
+                lambda,
+            },
+            &cone_list,
+            opts,
+        )?;
         if !with_cones {
-            return Ok((ls.x.clone(), Some(ls)));
-        }
-        if converged {
-            if let Some(x) = feasible_as_is(&ls.x, &cone_list) {
-                return Ok((x, Some(ls)));
-            }
+            return Ok((route.unconstrained.x.clone(), Some(route.unconstrained)));
         }
         // Even unconverged, it shows how well the data can be fitted.
-        unconstrained_fit = Some(fit(&ls.x));
+        unconstrained_fit = Some(fit(&route.unconstrained.x));
+        fallback_note = route.note;
+        if let Some(sol) = route.constrained {
+            if sol.status == "LeastSquares" || !degenerate(fit(&sol.x), unconstrained_fit) {
+                return Ok((sol.x.clone(), Some(sol)));
+            }
+            fallback_note = Some(
+                "active set: the feasible set is (nearly) degenerate; solved by the interior point instead"
+                    .into(),
+            );
+        }
     }
     let mut problem = ConicProblem {
         n: system.n,
@@ -391,6 +427,7 @@ fn solve_system(
         for c in &problem.cones {
             c.project(&mut sol.x);
         }
+        sol.attempts.extend(fallback_note);
         sol
     });
     match solved {
@@ -466,6 +503,115 @@ fn solve_system(
     }
 }
 
+/// min ‖A x − b‖² + λ²‖x‖² s.t. C x = d (dimensionless), for the sparse route.
+pub(crate) struct SparseProblem<'a> {
+    pub a: &'a Triplets,
+    pub b: &'a [f64],
+    pub c: &'a Triplets,
+    pub d: &'a [f64],
+    pub lambda: f64,
+}
+
+/// What the sparse route found.
+pub(crate) struct SparseRoute {
+    /// The least squares without inequalities.
+    pub unconstrained: conic::ConicSolution,
+    /// The friction-constrained optimum, when found: the unconstrained answer
+    /// if admissible (status `LeastSquares`), else the converged active set.
+    pub constrained: Option<conic::ConicSolution>,
+    /// Why the active set did not deliver, for the report.
+    pub note: Option<String>,
+}
+
+/// The sparse route of a friction-constrained least squares: one symbolic
+/// analysis; the unconstrained answer (returned when it satisfies every cone and
+/// `exact_first` is on); then, with the active-set solver, the active set
+/// warm-started from it on the same analysis.
+pub(crate) fn sparse_route(
+    system: &System,
+    p: SparseProblem,
+    cone_list: &[Cone],
+    opts: &InferOptions,
+) -> Result<SparseRoute> {
+    let start = Instant::now();
+    let use_active_set = !cone_list.is_empty() && opts.solver == ConstrainedSolver::ActiveSet;
+    let mut factor = if use_active_set {
+        // Each contact's unknowns coupled, so its active rows fit the pattern.
+        let mut coupling = Triplets::new(system.unknowns.len(), system.n);
+        for (k, u) in system.unknowns.iter().enumerate() {
+            for j in u.offset..u.offset + u.count(system.dim) {
+                coupling.push(k, j, 1.0);
+            }
+        }
+        sparse_ls::EqualityLeastSquares::with_coupling(p.a, p.c, &coupling)?
+    } else {
+        sparse_ls::EqualityLeastSquares::new(p.a, p.c)?
+    };
+    let sol = factor.solve(p.a, p.c, p.b, p.d, p.lambda)?;
+    let mut warnings = Vec::new();
+    if !sol.converged {
+        warnings.push(format!(
+            "least squares: refinement stopped at KKT residual {:.1e} (momentum rows inconsistent or the forces not unique)",
+            sol.kkt_residual
+        ));
+    }
+    let (unconstrained, converged) = as_solution(
+        sol,
+        start,
+        "equality-constrained least squares (faer)",
+        warnings,
+    );
+    let mut route = SparseRoute {
+        constrained: None,
+        note: None,
+        unconstrained,
+    };
+    if cone_list.is_empty() {
+        return Ok(route);
+    }
+    if converged && opts.exact_first {
+        if let Some(x) = feasible_as_is(&route.unconstrained.x, cone_list) {
+            let mut sol = route.unconstrained.clone();
+            sol.x = x;
+            route.constrained = Some(sol);
+            return Ok(route);
+        }
+    }
+    if use_active_set {
+        let sol = active_set::solve(
+            &mut factor,
+            p.a,
+            p.b,
+            p.c,
+            p.d,
+            p.lambda,
+            cone_list,
+            &route.unconstrained.x,
+            &opts.active_set,
+        )?;
+        if sol.converged {
+            route.constrained = Some(conic::ConicSolution {
+                x: sol.x,
+                status: "ActiveSet".into(),
+                iterations: sol.iterations as u32,
+                solve_time: start.elapsed().as_secs_f64(),
+                attempts: vec![format!(
+                    "active set on the sparse factorisation: {} solves, {} sliding and {} open contacts",
+                    sol.iterations, sol.sliding, sol.open
+                )],
+                softened: false,
+                warnings: Vec::new(),
+            });
+        } else {
+            route.note = Some(format!(
+                "active set: {}; solved by the interior point instead",
+                sol.reason.unwrap_or_default()
+            ));
+        }
+    }
+    Ok(route)
+}
+
 /// Weight of the momentum rows under --allow-infeasible: heavy enough that
 /// balance gives only where it must, light enough for clarabel (1e6 failed
 /// numerically on a thin μ = 1e-3 wedge).
@@ -509,33 +655,6 @@ pub(crate) fn feasible_as_is(x: &[f64], cones: &[Cone]) -> Option<Vec<f64>> {
         c.project(&mut x);
     }
     Some(x)
-}
-
-/// min ‖K_st x − b‖² + λ²‖x‖² s.t. K_eq x = b_eq by sparse LDLᵀ (faer).
-/// Also says whether refinement converged (only then is the shortcut trusted).
-pub(crate) fn least_squares(system: &System, lambda: f64) -> Result<(conic::ConicSolution, bool)> {
-    let start = Instant::now();
-    let mut ls = sparse_ls::EqualityLeastSquares::new(&system.stress, &system.momentum)?;
-    let sol = ls.solve(
-        &system.stress,
-        &system.momentum,
-        &system.stress_rhs,
-        &system.momentum_rhs,
-        lambda,
-    )?;
-    let mut warnings = Vec::new();
-    if !sol.converged {
-        warnings.push(format!(
-            "least squares: refinement stopped at KKT residual {:.1e} (momentum rows inconsistent or the forces not unique)",
-            sol.kkt_residual
-        ));
-    }
-    Ok(as_solution(
-        sol,
-        start,
-        "equality-constrained least squares (faer)",
-        warnings,
-    ))
 }
 
 /// A sparse least-squares result in the form the report absorbs, and whether

@@ -49,6 +49,8 @@ pub struct InferenceReport {
     /// Whether the forces are uniquely determined by the data (None: not checked).
     pub unique: Option<bool>,
     pub solver_status: String,
+    /// How each solve went (algorithm, iterations, fallbacks), deduplicated.
+    pub solver_attempts: Vec<String>,
     pub iterations: u32,
     pub solver_time: f64,
     pub walls: Vec<WallReport>,
@@ -112,6 +114,7 @@ impl InferenceReport {
             stress_scale: None,
             unique: None,
             solver_status: "not run".into(),
+            solver_attempts: Vec::new(),
             iterations: 0,
             solver_time: 0.0,
             walls: Vec::new(),
@@ -126,11 +129,16 @@ impl InferenceReport {
         self.solver_time += sol.solve_time;
         let worse = |s: &str| match s {
             "not run" => 0,
-            "Solved" | "LeastSquares" | "Solved+polished" => 1,
+            "Solved" | "LeastSquares" | "Solved+polished" | "ActiveSet" => 1,
             _ => 2,
         };
         if worse(&sol.status) >= worse(&self.solver_status) {
             self.solver_status = sol.status.clone();
+        }
+        for a in &sol.attempts {
+            if !self.solver_attempts.contains(a) {
+                self.solver_attempts.push(a.clone());
+            }
         }
         for w in &sol.warnings {
             if !self.warnings.contains(w) {

@@ -1,6 +1,7 @@
 //! Solver back-ends: clarabel for the constrained QP/SOCP, faer for the sparse
 //! equality-constrained least squares (the fast floor).
 
+pub mod active_set;
 pub mod conic;
 pub mod sparse_ls;
 

@@ -82,11 +82,22 @@ pub struct LsSolution {
     pub kkt_residual: f64,
 }
 
+/// Result of [`EqualityLeastSquares::solve_with_active`].
+#[derive(Debug, Clone)]
+pub struct ActiveLsSolution {
+    pub solution: LsSolution,
+    /// Multiplier y_i of each active row G_i x = 0, signed for the inequality
+    /// G_i x ≥ 0: at a constrained optimum ∇(½‖Ax − b‖² + ½λ²‖x‖²) = Cᵀν + Gᵀy,
+    /// and y_i > 0 means the row really holds the solution back.
+    pub multipliers: Vec<f64>,
+}
+
 /// Symbolic analysis of the KKT pattern plus the cached numeric factorisation.
 pub struct EqualityLeastSquares {
     n: usize,
     a_pattern: (usize, Vec<usize>, Vec<usize>),
     c_pattern: (usize, Vec<usize>, Vec<usize>),
+    coupling: Triplets,
     a_csr: Compressed,
     a_csc: Compressed,
     c_csr: Compressed,
@@ -100,6 +111,7 @@ pub struct EqualityLeastSquares {
 /// Outcome of one factorisation + refinement.
 struct Attempt {
     x: Vec<f64>,
+    multipliers: Vec<f64>,
     dual: f64,
     primal: f64,
     steps: usize,
@@ -125,31 +137,88 @@ struct Numeric {
     lambda2_s2: Vec<f64>,
     /// ‖row i of T C S‖∞, for the round-off-level rows of the primal residual.
     c_row_max: Vec<f64>,
+    active: ActiveRows,
     l_values: Vec<f64>,
+}
+
+/// Homogeneous equalities G x = 0 eliminated by a penalty inside the KKT
+/// pattern (each row may only couple unknowns that already share a row of A),
+/// so changing them needs a new numeric factorisation but no new analysis.
+struct ActiveRows {
+    pattern: (usize, Vec<usize>, Vec<usize>),
+    vals: Vec<f64>,
+    csr: Compressed,
+    /// Row normalisation of G S.
+    row_scale: Vec<f64>,
+    /// ‖row i of T G S‖∞.
+    row_max: Vec<f64>,
+}
+
+impl ActiveRows {
+    fn same(&self, g: &Triplets) -> bool {
+        self.pattern.0 == g.nrows
+            && self.pattern.1 == g.rows
+            && self.pattern.2 == g.cols
+            && self.vals == g.vals
+    }
+
+    fn len(&self) -> usize {
+        self.pattern.0
+    }
 }
 
 impl EqualityLeastSquares {
     /// Validates sizes and indices and analyses the KKT pattern (AMD + symbolic
     /// Cholesky). Values are not looked at.
     pub fn new(a: &Triplets, c: &Triplets) -> Result<Self> {
-        let kkt_size = a.ncols + c.nrows;
-        let par = if kkt_size >= PARALLEL_MIN_SIZE {
-            Par::rayon(0)
-        } else {
-            Par::Seq
-        };
-        Self::with_parallelism(a, c, par)
+        Self::with_parallelism(a, c, default_parallelism(a.ncols + c.nrows))
     }
 
     /// As [`new`](Self::new) with an explicit faer parallelism for the numeric
     /// factorisation and solves.
     pub fn with_parallelism(a: &Triplets, c: &Triplets, par: Par) -> Result<Self> {
+        Self::analyse(a, c, &Triplets::new(0, a.ncols), par)
+    }
+
+    /// As [`new`](Self::new), with the KKT pattern widened so that the unknowns
+    /// of each row of `coupling` are coupled (values are ignored): rows of G in
+    /// [`solve_with_active`](Self::solve_with_active) may then couple them even
+    /// where A does not (e.g. a contact whose normal and tangential unknowns
+    /// meet no common stress component).
+    pub fn with_coupling(a: &Triplets, c: &Triplets, coupling: &Triplets) -> Result<Self> {
+        Self::analyse(a, c, coupling, default_parallelism(a.ncols + c.nrows))
+    }
+
+    fn analyse(a: &Triplets, c: &Triplets, coupling: &Triplets, par: Par) -> Result<Self> {
         check_pair(a, c)?;
+        check_triplets(coupling, "coupling")?;
+        if coupling.ncols != a.ncols {
+            return Err(Error::Invalid(format!(
+                "the coupling pattern has {} columns but A has {}",
+                coupling.ncols, a.ncols
+            )));
+        }
         let n = a.ncols;
         let a_csr = Compressed::from_entries(a.nrows, n, &a.rows, &a.cols);
         let a_csc = Compressed::from_entries(n, a.nrows, &a.cols, &a.rows);
         let c_csr = Compressed::from_entries(c.nrows, n, &c.rows, &c.cols);
-        let (mut col_ptr, mut row_idx) = gram_upper_pattern(&a_csr, &a_csc);
+        // Pattern of [A; coupling]ᵀ[A; coupling].
+        let stacked_rows: Vec<usize> = a
+            .rows
+            .iter()
+            .copied()
+            .chain(coupling.rows.iter().map(|r| r + a.nrows))
+            .collect();
+        let stacked_cols: Vec<usize> = a.cols.iter().chain(&coupling.cols).copied().collect();
+        let stacked_m = a.nrows + coupling.nrows;
+        let (mut col_ptr, mut row_idx) = if coupling.nrows == 0 {
+            gram_upper_pattern(&a_csr, &a_csc)
+        } else {
+            gram_upper_pattern(
+                &Compressed::from_entries(stacked_m, n, &stacked_rows, &stacked_cols),
+                &Compressed::from_entries(n, stacked_m, &stacked_cols, &stacked_rows),
+            )
+        };
         for i in 0..c.nrows {
             row_idx.extend_from_slice(&c_csr.idx[c_csr.range(i)]);
             row_idx.push(n + i);
@@ -175,6 +244,7 @@ impl EqualityLeastSquares {
             n,
             a_pattern: (a.nrows, a.rows.clone(), a.cols.clone()),
             c_pattern: (c.nrows, c.rows.clone(), c.cols.clone()),
+            coupling: coupling.clone(),
             a_csr,
             a_csc,
             c_csr,
@@ -207,7 +277,33 @@ impl EqualityLeastSquares {
         d: &[f64],
         lambda: f64,
     ) -> Result<LsSolution> {
+        let none = Triplets::new(0, a.ncols);
+        Ok(self.solve_with_active(a, c, b, d, lambda, &none)?.solution)
+    }
+
+    /// As [`solve`](Self::solve) with the extra homogeneous equalities G x = 0
+    /// (an active set of inequalities G x ≥ 0), returning their multipliers.
+    /// Each row of G may only couple unknowns that share a row of A (a contact's
+    /// own unknowns do): G enters the factorisation as a penalty GᵀG/δ on the
+    /// analysed pattern, and iterative refinement then solves the exact
+    /// augmented system `[[AᵀA + λ²I, Cᵀ, Gᵀ], [C, 0, 0], [G, 0, 0]]`.
+    pub fn solve_with_active(
+        &mut self,
+        a: &Triplets,
+        c: &Triplets,
+        b: &[f64],
+        d: &[f64],
+        lambda: f64,
+        g: &Triplets,
+    ) -> Result<ActiveLsSolution> {
         check_pair(a, c)?;
+        check_triplets(g, "G")?;
+        if g.ncols != a.ncols {
+            return Err(Error::Invalid(format!(
+                "G has {} columns but A has {}; both act on the same unknowns",
+                g.ncols, a.ncols
+            )));
+        }
         if b.len() != a.nrows {
             return Err(Error::Invalid(format!(
                 "b has {} entries but A has {} rows",
@@ -229,22 +325,27 @@ impl EqualityLeastSquares {
         }
         check_finite(&a.vals, "A value")?;
         check_finite(&c.vals, "C value")?;
+        check_finite(&g.vals, "G value")?;
         check_finite(b, "b")?;
         check_finite(d, "d")?;
         if !self.same_pattern(a, c) {
-            *self = Self::with_parallelism(a, c, self.par)?;
+            let coupling = std::mem::take(&mut self.coupling);
+            *self = Self::analyse(a, c, &coupling, self.par)?;
         }
         let n = self.n;
         if n == 0 {
             // Nothing to choose: C x = 0 for every x, so consistent iff d = 0.
             let equality_residual = d.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-            return Ok(LsSolution {
-                x: Vec::new(),
-                residual: norm2(b),
-                equality_residual,
-                refinement_steps: 0,
-                converged: equality_residual == 0.0,
-                kkt_residual: if equality_residual == 0.0 { 0.0 } else { 1.0 },
+            return Ok(ActiveLsSolution {
+                solution: LsSolution {
+                    x: Vec::new(),
+                    residual: norm2(b),
+                    equality_residual,
+                    refinement_steps: 0,
+                    converged: equality_residual == 0.0,
+                    kkt_residual: if equality_residual == 0.0 { 0.0 } else { 1.0 },
+                },
+                multipliers: vec![0.0; g.nrows],
             });
         }
         // δ ladder: the first δ suits almost everything; a larger one trades
@@ -253,14 +354,18 @@ impl EqualityLeastSquares {
         // converged, primal stuck) are not helped by a larger δ.
         let mut ladder: Vec<f64> = DELTA_LADDER.to_vec();
         if let Some(num) = &self.numeric {
-            if num.lambda == lambda && num.a_vals == a.vals && num.c_vals == c.vals {
+            if num.lambda == lambda
+                && num.a_vals == a.vals
+                && num.c_vals == c.vals
+                && num.active.same(g)
+            {
                 ladder.retain(|&delta| delta >= num.delta);
             }
         }
         let mut best: Option<Attempt> = None;
         let mut failures = Vec::new();
         for &delta in &ladder {
-            match self.attempt(a, c, b, d, lambda, delta) {
+            match self.attempt(a, c, b, d, lambda, delta, g) {
                 Ok(att) => {
                     let stop = att.rho() <= CONVERGED_TOL || att.dual <= CONVERGED_TOL;
                     let better = match &best {
@@ -280,8 +385,9 @@ impl EqualityLeastSquares {
         }
         let Some(best) = best else {
             return Err(Error::Solver(format!(
-                "sparse KKT solve failed for every regularisation tried ({n} unknowns, {} constraints, λ = {lambda}): {}",
+                "sparse KKT solve failed for every regularisation tried ({n} unknowns, {} constraints, {} active rows, λ = {lambda}): {}",
                 c.nrows,
+                g.nrows,
                 failures.join("; ")
             )));
         };
@@ -289,19 +395,24 @@ impl EqualityLeastSquares {
         let residual = norm2(&sub(&a.mul(&x), b));
         let equality_residual = sub(&c.mul(&x), d)
             .iter()
+            .chain(g.mul(&x).iter())
             .fold(0.0f64, |m, v| m.max(v.abs()));
         let kkt_residual = best.dual.max(best.primal);
-        Ok(LsSolution {
-            x,
-            residual,
-            equality_residual,
-            refinement_steps: best.steps,
-            converged: kkt_residual <= CONVERGED_TOL,
-            kkt_residual,
+        Ok(ActiveLsSolution {
+            solution: LsSolution {
+                x,
+                residual,
+                equality_residual,
+                refinement_steps: best.steps,
+                converged: kkt_residual <= CONVERGED_TOL,
+                kkt_residual,
+            },
+            multipliers: best.multipliers,
         })
     }
 
     /// One factorisation with static regularisation δ, first solve, refinement.
+    #[allow(clippy::too_many_arguments)]
     fn attempt(
         &mut self,
         a: &Triplets,
@@ -310,9 +421,10 @@ impl EqualityLeastSquares {
         d: &[f64],
         lambda: f64,
         delta: f64,
+        g: &Triplets,
     ) -> Result<Attempt> {
         let n = self.n;
-        self.factorise(a, c, lambda, delta)?;
+        self.factorise(a, c, lambda, delta, g)?;
         let num = self.numeric.as_ref().expect("factorised above");
         let symbolic = self
             .symbolic
@@ -320,25 +432,51 @@ impl EqualityLeastSquares {
             .expect("non-empty KKT has a symbolic factor");
         let ldlt = LdltRef::<usize, f64>::new(symbolic, &num.l_values);
         let size = symbolic.nrows();
+        let mg = num.active.len();
         let mut stack_buf = MemBuffer::try_new(symbolic.solve_in_place_scratch::<f64>(1, self.par))
             .map_err(|_| {
                 Error::Solver(format!(
                     "out of memory for the {size}-row KKT solve workspace"
                 ))
             })?;
+        let ones_g = vec![1.0; mg];
+        // Solves the regularised augmented system in place: the G block is
+        // eliminated through the penalty the factor already holds.
         let mut kkt_solve = |rhs: &mut [f64]| {
-            let len = rhs.len();
+            let (head, r3) = rhs.split_at_mut(size);
+            if mg > 0 {
+                let shifted: Vec<f64> = r3
+                    .iter()
+                    .zip(&num.active.row_scale)
+                    .map(|(r, t)| r * t / delta)
+                    .collect();
+                let lift = mul_t_scaled(&num.active.csr, &ones_g, &num.col_scale, &shifted, n);
+                for (h, l) in head.iter_mut().zip(&lift) {
+                    *h += l;
+                }
+            }
             ldlt.solve_in_place_with_conj(
                 Conj::No,
-                MatMut::from_column_major_slice_mut(rhs, len, 1),
+                MatMut::from_column_major_slice_mut(head, size, 1),
                 self.par,
                 MemStack::new(&mut stack_buf),
             );
+            if mg > 0 {
+                let gy = mul_scaled(
+                    &num.active.csr,
+                    &num.active.row_scale,
+                    &num.col_scale,
+                    &head[..n],
+                );
+                for (r, gyi) in r3.iter_mut().zip(&gy) {
+                    *r = (gyi - *r) / delta;
+                }
+            }
         };
 
         let ones_a = vec![1.0; a.nrows];
         let d_hat: Vec<f64> = d.iter().zip(&num.c_row_scale).map(|(v, t)| v * t).collect();
-        let zeros = vec![0.0; size];
+        let zeros = vec![0.0; size + mg];
         // The residual at z = 0 is the right-hand side.
         let (mut z, _, _) = self.kkt_residual(num, &ones_a, b, &d_hat, &zeros);
         kkt_solve(&mut z);
@@ -379,8 +517,16 @@ impl EqualityLeastSquares {
                 "the solution overflows after unscaling".into(),
             ));
         }
+        // The refined system reads (AᵀA + λ²)x + … + Gᵀ(T w) = Aᵀb, so the
+        // multiplier of G x ≥ 0 in ∇ = Cᵀν + Gᵀy is y = −T w.
+        let multipliers = best.3[size..]
+            .iter()
+            .zip(&num.active.row_scale)
+            .map(|(w, t)| -w * t)
+            .collect();
         Ok(Attempt {
             x,
+            multipliers,
             dual: best.1,
             primal: best.2,
             steps,
@@ -394,13 +540,30 @@ impl EqualityLeastSquares {
         self.n == a.ncols && same(&self.a_pattern, a) && same(&self.c_pattern, c)
     }
 
+    /// Position of entry (i, j), i ≤ j, in the upper KKT pattern.
+    fn kkt_position(&self, i: usize, j: usize) -> Option<usize> {
+        let range = self.kkt_col_ptr[j]..self.kkt_col_ptr[j + 1];
+        self.kkt_row_idx[range.clone()]
+            .binary_search(&i)
+            .ok()
+            .map(|k| range.start + k)
+    }
+
     /// Equilibration, KKT values and numeric LDLᵀ, unless cached.
-    fn factorise(&mut self, a: &Triplets, c: &Triplets, lambda: f64, delta: f64) -> Result<()> {
+    fn factorise(
+        &mut self,
+        a: &Triplets,
+        c: &Triplets,
+        lambda: f64,
+        delta: f64,
+        g: &Triplets,
+    ) -> Result<()> {
         if let Some(num) = &self.numeric {
             if num.delta == delta
                 && num.lambda == lambda
                 && num.a_vals == a.vals
                 && num.c_vals == c.vals
+                && num.active.same(g)
             {
                 return Ok(());
             }
@@ -414,6 +577,7 @@ impl EqualityLeastSquares {
 
         // Alternate C-row normalisation and column equilibration of [A; T C]; a
         // few passes settle the scales so that units of the unknowns drop out.
+        // G is left out: the scales must not depend on the active set.
         let mut col_scale = vec![1.0; n];
         let mut c_row_scale = vec![1.0; mc];
         let mut a_col_sq = vec![0.0; n];
@@ -440,14 +604,20 @@ impl EqualityLeastSquares {
         }
         c_row_scale = row_inverse_norms(&self.c_csr, &col_scale);
         let lambda2_s2: Vec<f64> = col_scale.iter().map(|s| lambda * lambda * s * s).collect();
-        let c_row_max: Vec<f64> = (0..mc)
-            .map(|i| {
-                let scaled = |q: usize| {
-                    (self.c_csr.val[q] * col_scale[self.c_csr.idx[q]] * c_row_scale[i]).abs()
-                };
-                self.c_csr.range(i).map(scaled).fold(0.0, f64::max)
-            })
-            .collect();
+        let row_max = |csr: &Compressed, row_scale: &[f64]| -> Vec<f64> {
+            (0..csr.nmajor)
+                .map(|i| {
+                    let scaled =
+                        |q: usize| (csr.val[q] * col_scale[csr.idx[q]] * row_scale[i]).abs();
+                    csr.range(i).map(scaled).fold(0.0, f64::max)
+                })
+                .collect()
+        };
+        let c_row_max = row_max(&self.c_csr, &c_row_scale);
+        let mut g_csr = Compressed::from_entries(g.nrows, n, &g.rows, &g.cols);
+        g_csr.refill(&g.vals);
+        let g_row_scale = row_inverse_norms(&g_csr, &col_scale);
+        let g_row_max = row_max(&g_csr, &g_row_scale);
 
         let size = n + mc;
         let mut values = vec![0.0; self.kkt_row_idx.len()];
@@ -465,6 +635,25 @@ impl EqualityLeastSquares {
         for j in 0..n {
             // Rows are sorted with i ≤ j: the diagonal closes the column.
             values[self.kkt_col_ptr[j + 1] - 1] += lambda2_s2[j] + delta;
+        }
+        // Penalty ĝᵀĝ/δ of each active row ĝ = T G S.
+        for (i, t) in g_row_scale.iter().enumerate() {
+            for p in g_csr.range(i) {
+                let (cp, vp) = (g_csr.idx[p], g_csr.val[p] * col_scale[g_csr.idx[p]] * t);
+                for q in g_csr.range(i) {
+                    let cq = g_csr.idx[q];
+                    if cq < cp {
+                        continue;
+                    }
+                    let vq = g_csr.val[q] * col_scale[cq] * t;
+                    let Some(pos) = self.kkt_position(cp, cq) else {
+                        return Err(Error::Invalid(format!(
+                            "active row {i} couples unknowns {cp} and {cq}, which share no row of A"
+                        )));
+                    };
+                    values[pos] += vp * vq / delta;
+                }
+            }
         }
         for (i, t) in c_row_scale.iter().enumerate() {
             let mut p = self.kkt_col_ptr[n + i];
@@ -534,14 +723,21 @@ impl EqualityLeastSquares {
             c_row_scale,
             lambda2_s2,
             c_row_max,
+            active: ActiveRows {
+                pattern: (g.nrows, g.rows.clone(), g.cols.clone()),
+                vals: g.vals.clone(),
+                csr: g_csr,
+                row_scale: g_row_scale,
+                row_max: g_row_max,
+            },
             l_values,
         });
         Ok(())
     }
 
-    /// Residual of the unregularised equilibrated KKT system at z = (y, μ), and the
-    /// relative sizes of the dual (stationarity, normwise) and primal (C x = d,
-    /// per row) parts.
+    /// Residual of the unregularised equilibrated KKT system at z = (y, μ, w), and
+    /// the relative sizes of the dual (stationarity, normwise) and primal (C x = d
+    /// and G x = 0, per row) parts.
     fn kkt_residual(
         &self,
         num: &Numeric,
@@ -551,13 +747,18 @@ impl EqualityLeastSquares {
         z: &[f64],
     ) -> (Vec<f64>, f64, f64) {
         let n = self.n;
-        let (y, mu) = z.split_at(n);
+        let mc = d_hat.len();
+        let (y, rest) = z.split_at(n);
+        let (mu, w) = rest.split_at(mc);
         let (s, t) = (&num.col_scale, &num.c_row_scale);
+        let (g_csr, tg) = (&num.active.csr, &num.active.row_scale);
         let ay = mul_scaled(&self.a_csr, ones_a, s, y);
         let ra: Vec<f64> = b.iter().zip(&ay).map(|(bi, ai)| bi - ai).collect();
         let atr = mul_t_scaled(&self.a_csr, ones_a, s, &ra, n);
         let ctmu = mul_t_scaled(&self.c_csr, t, s, mu, n);
+        let gtw = mul_t_scaled(g_csr, tg, s, w, n);
         let cy = mul_scaled(&self.c_csr, t, s, y);
+        let gy = mul_scaled(g_csr, tg, s, y);
 
         let abs_ay = abs_mul_scaled(&self.a_csr, ones_a, s, y);
         let b_bound: Vec<f64> = b
@@ -567,15 +768,17 @@ impl EqualityLeastSquares {
             .collect();
         let dual_bound = abs_mul_t_scaled(&self.a_csr, ones_a, s, &b_bound, n);
         let ctmu_bound = abs_mul_t_scaled(&self.c_csr, t, s, mu, n);
+        let gtw_bound = abs_mul_t_scaled(g_csr, tg, s, w, n);
         let primal_bound = abs_mul_scaled(&self.c_csr, t, s, y);
+        let g_bound = abs_mul_scaled(g_csr, tg, s, y);
 
         let mut r = Vec::with_capacity(z.len());
         let (mut dual_num, mut dual_den) = (0.0f64, 0.0f64);
         for j in 0..n {
             let reg = num.lambda2_s2[j] * y[j];
-            let g = atr[j] - reg - ctmu[j];
+            let g = atr[j] - reg - ctmu[j] - gtw[j];
             dual_num = dual_num.max(g.abs());
-            dual_den = dual_den.max(dual_bound[j] + reg.abs() + ctmu_bound[j]);
+            dual_den = dual_den.max(dual_bound[j] + reg.abs() + ctmu_bound[j] + gtw_bound[j]);
             r.push(g);
         }
         // Constraints are checked row by row (componentwise): each equation must
@@ -594,19 +797,35 @@ impl EqualityLeastSquares {
         let y_max = y.iter().fold(0.0f64, |m, v| m.max(v.abs()));
         let roundoff_level = ADD_FACTOR * z.len() as f64 * f64::EPSILON;
         let mut primal = 0.0f64;
-        for i in 0..d_hat.len() {
-            let rc = d_hat[i] - cy[i];
-            let own_terms = primal_bound[i] + d_hat[i].abs();
-            let normwise = num.c_row_max[i] * y_max;
-            let den = if own_terms > roundoff_level * (normwise + d_hat[i].abs()) {
+        let mut row_check = |rc: f64, own: f64, rhs: f64, row_max: f64| {
+            let own_terms = own + rhs.abs();
+            let normwise = row_max * y_max;
+            let den = if own_terms > roundoff_level * (normwise + rhs.abs()) {
                 own_terms
             } else {
                 own_terms + normwise
             };
             primal = primal.max(ratio(rc.abs(), den));
+        };
+        for i in 0..mc {
+            let rc = d_hat[i] - cy[i];
+            row_check(rc, primal_bound[i], d_hat[i], num.c_row_max[i]);
             r.push(rc);
         }
+        for i in 0..gy.len() {
+            row_check(gy[i], g_bound[i], 0.0, num.active.row_max[i]);
+            r.push(-gy[i]);
+        }
         (r, ratio(dual_num, dual_den), primal)
+    }
+}
+
+/// Sequential below [`PARALLEL_MIN_SIZE`] KKT unknowns, all threads above.
+fn default_parallelism(kkt_size: usize) -> Par {
+    if kkt_size >= PARALLEL_MIN_SIZE {
+        Par::rayon(0)
+    } else {
+        Par::Seq
     }
 }
 

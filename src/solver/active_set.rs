@@ -1,0 +1,429 @@
+//! Friction-constrained least squares by a primal–dual active-set
+//! (semismooth Newton) method on the sparse factorisation:
+//!
+//! ```text
+//!     minimise ‖A x − b‖² + λ²‖x‖²   subject to   C x = d,   x_c ∈ K_c
+//! ```
+//!
+//! with K_c each contact's cone (f_n ≥ 0, the 2D wedge, the 3D Coulomb cone).
+//! The optimality conditions per contact read x_c = Π_K(x_c − ρ_c v_c), with
+//! v_c the force the cone exerts (its multipliers) and Π_K the projection onto
+//! the cone. Each iteration guesses from that projection which piece of the
+//! cone is active at every contact — interior (free), the boundary (sliding,
+//! one linear row: the face of the wedge or the tangent plane of the cone at
+//! the sliding direction), or the apex (open, f_c = 0) — and solves the
+//! equality-constrained least squares with those rows by [`EqualityLeastSquares`]
+//! on its *fixed* symbolic analysis: one numeric factorisation per iteration.
+//!
+//! Started from the unconstrained answer, the active set is usually right in a
+//! handful of iterations. Convergence is declared only when every contact meets
+//! its fixed-point condition to `tolerance` and the linear solve converged; then
+//! the answer satisfies the KKT conditions of the convex problem and *is* the
+//! optimum. Otherwise (cycling, inconsistent rows) the caller falls back to the
+//! interior-point solver. Pyramids are not handled (their facets meet in edges;
+//! the interior-point solver takes them).
+
+use super::conic::Cone;
+use super::sparse_ls::EqualityLeastSquares;
+use super::Triplets;
+use crate::error::Result;
+
+/// Smallest damping of a Newton step before the method gives up.
+const MIN_STEP: f64 = 1.0 / 16.0;
+/// Full steps taken without descent before the method gives up.
+const MAX_FORCED_STEPS: usize = 8;
+
+/// Solves without a decrease of the best residual by this factor before the
+/// method gives up (cycling between active sets).
+const STALL_FACTOR: f64 = 0.9;
+const MAX_STALLED: usize = 8;
+
+/// Settings of [`solve`].
+#[derive(Debug, Clone, Copy)]
+pub struct ActiveSetSettings {
+    /// Linear solves before giving up.
+    pub max_iterations: usize,
+    /// Fixed-point residual ‖x_c − Π_K(x_c − ρ v_c)‖ accepted, relative to the
+    /// largest unknown.
+    pub tolerance: f64,
+}
+
+impl Default for ActiveSetSettings {
+    fn default() -> Self {
+        ActiveSetSettings {
+            max_iterations: 40,
+            tolerance: 1e-10,
+        }
+    }
+}
+
+/// Outcome of [`solve`].
+#[derive(Debug, Clone)]
+pub struct ActiveSetSolution {
+    pub x: Vec<f64>,
+    /// True when the KKT conditions hold to the tolerance: x is the optimum.
+    pub converged: bool,
+    /// Linear solves done (numeric factorisations).
+    pub iterations: usize,
+    /// Contacts on their friction limit and open contacts at the end.
+    pub sliding: usize,
+    pub open: usize,
+    /// Largest fixed-point residual at the end, relative to the largest unknown.
+    pub residual: f64,
+    /// Why it stopped when not converged.
+    pub reason: Option<String>,
+    /// One entry per linear solve.
+    pub history: Vec<ActiveSetStep>,
+}
+
+/// One iteration of [`solve`].
+#[derive(Debug, Clone, Copy)]
+pub struct ActiveSetStep {
+    /// Rows imposed in this solve.
+    pub active_rows: usize,
+    /// Damping of the Newton step taken (1 = full).
+    pub step: f64,
+    /// Contacts whose piece changed for the next solve.
+    pub changed: usize,
+    /// Largest fixed-point residual after the step, relative to the largest unknown.
+    pub residual: f64,
+}
+
+/// Which piece of its cone a contact's force lies on.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Piece {
+    Interior,
+    /// On the boundary; the unit tangential direction of sliding (1D: ±1).
+    Boundary([f64; 2]),
+    Apex,
+}
+
+/// A cone in a uniform view: the normal unknown, up to two tangential ones, μ.
+struct Contact {
+    normal: usize,
+    tangents: Vec<usize>,
+    mu: f64,
+}
+
+impl Contact {
+    fn of(cone: &Cone) -> Option<Contact> {
+        match *cone {
+            Cone::NonNegative { normal } => Some(Contact {
+                normal,
+                tangents: Vec::new(),
+                mu: 0.0,
+            }),
+            Cone::Wedge {
+                normal,
+                tangent,
+                mu,
+            } => Some(Contact {
+                normal,
+                tangents: vec![tangent],
+                mu,
+            }),
+            Cone::Circular { normal, t1, t2, mu } => Some(Contact {
+                normal,
+                tangents: vec![t1, t2],
+                mu,
+            }),
+            Cone::Pyramid { .. } => None,
+        }
+    }
+
+    /// (normal, tangential) components of a vector over all unknowns.
+    fn split(&self, x: &[f64]) -> (f64, [f64; 2]) {
+        let mut t = [0.0; 2];
+        for (k, &j) in self.tangents.iter().enumerate() {
+            t[k] = x[j];
+        }
+        (x[self.normal], t)
+    }
+
+    /// Projection of (n, t) onto the cone and the piece it lands on.
+    fn project(&self, n: f64, t: [f64; 2]) -> (Piece, f64, [f64; 2]) {
+        let tau = t[0].hypot(t[1]);
+        if self.tangents.is_empty() {
+            return if n > 0.0 {
+                (Piece::Interior, n, t)
+            } else {
+                (Piece::Apex, 0.0, [0.0; 2])
+            };
+        }
+        if tau <= self.mu * n {
+            return (Piece::Interior, n, t);
+        }
+        if self.mu * tau <= -n {
+            return (Piece::Apex, 0.0, [0.0; 2]);
+        }
+        // Onto the generator (1, μ ĉ) of the boundary.
+        let dir = [t[0] / tau, t[1] / tau];
+        let alpha = (n + self.mu * tau) / (1.0 + self.mu * self.mu);
+        (
+            Piece::Boundary(dir),
+            alpha,
+            [alpha * self.mu * dir[0], alpha * self.mu * dir[1]],
+        )
+    }
+
+    /// Unit rows a·x = 0 imposing a piece, oriented so that a·x ≥ 0 is the
+    /// feasible side (a multiplier > 0 then holds the force back).
+    fn rows(&self, piece: Piece) -> Vec<Vec<(usize, f64)>> {
+        match piece {
+            Piece::Interior => Vec::new(),
+            Piece::Apex => std::iter::once(self.normal)
+                .chain(self.tangents.iter().copied())
+                .map(|j| vec![(j, 1.0)])
+                .collect(),
+            Piece::Boundary(dir) => {
+                // μ f_n − ĉ·f_t ≥ 0: the face of the wedge, the tangent plane of the cone.
+                let norm = (1.0 + self.mu * self.mu).sqrt();
+                let mut row = vec![(self.normal, self.mu / norm)];
+                for (k, &j) in self.tangents.iter().enumerate() {
+                    row.push((j, -dir[k] / norm));
+                }
+                vec![row]
+            }
+        }
+    }
+}
+
+/// Solves the friction-constrained least squares, starting from `start` (the
+/// unconstrained answer, or any guess). `ls` is reused: its symbolic analysis is
+/// kept across iterations. Returns `Ok` with `converged: false` (and the reason)
+/// when the method does not settle; errors only on invalid input.
+#[allow(clippy::too_many_arguments)]
+pub fn solve(
+    ls: &mut EqualityLeastSquares,
+    a: &Triplets,
+    b: &[f64],
+    c: &Triplets,
+    d: &[f64],
+    lambda: f64,
+    cones: &[Cone],
+    start: &[f64],
+    settings: &ActiveSetSettings,
+) -> Result<ActiveSetSolution> {
+    let n = a.ncols;
+    let fail = |x: Vec<f64>, history: Vec<ActiveSetStep>, reason: String| ActiveSetSolution {
+        x,
+        converged: false,
+        iterations: history.len(),
+        sliding: 0,
+        open: 0,
+        residual: history.last().map_or(f64::INFINITY, |h| h.residual),
+        reason: Some(reason),
+        history,
+    };
+    let Some(contacts) = cones.iter().map(Contact::of).collect::<Option<Vec<_>>>() else {
+        return Ok(fail(
+            start.to_vec(),
+            Vec::new(),
+            "pyramidal cones are left to the interior-point solver".into(),
+        ));
+    };
+    // ρ_c = 1 / (mean diagonal of AᵀA + λ² over the contact's unknowns): the
+    // step that turns a multiplier (a gradient) into a force.
+    let mut diag = vec![lambda * lambda; n];
+    for k in 0..a.nnz() {
+        diag[a.cols[k]] += a.vals[k] * a.vals[k];
+    }
+    let rho: Vec<f64> = contacts
+        .iter()
+        .map(|ct| {
+            let idx = std::iter::once(ct.normal).chain(ct.tangents.iter().copied());
+            let h = idx.clone().map(|j| diag[j]).sum::<f64>() / idx.count() as f64;
+            if h > 0.0 && h.is_finite() {
+                1.0 / h
+            } else {
+                1.0
+            }
+        })
+        .collect();
+
+    // The natural residual of each contact at (x, v): x_c − Π_K(x_c − ρ_c v_c),
+    // and the piece that projection lands on.
+    let natural = |x: &[f64], v: &[(f64, [f64; 2])], k: usize| -> (f64, Piece) {
+        let ct = &contacts[k];
+        let (xn, xt) = ct.split(x);
+        let (vn, vt) = v[k];
+        let (piece, pn, pt) = ct.project(
+            xn - rho[k] * vn,
+            [xt[0] - rho[k] * vt[0], xt[1] - rho[k] * vt[1]],
+        );
+        ((pn - xn).hypot((pt[0] - xt[0]).hypot(pt[1] - xt[1])), piece)
+    };
+    let merit = |x: &[f64], v: &[(f64, [f64; 2])]| -> f64 {
+        (0..contacts.len())
+            .map(|k| natural(x, v, k).0.powi(2))
+            .sum()
+    };
+
+    let mut x = start.to_vec();
+    let mut forced = 0;
+    let mut history = Vec::new();
+    let (mut best_merit, mut stalled) = (f64::INFINITY, 0);
+    let mut v = vec![(0.0, [0.0; 2]); contacts.len()];
+    let mut pieces: Vec<Piece> = (0..contacts.len()).map(|k| natural(&x, &v, k).1).collect();
+    for iteration in 1..=settings.max_iterations {
+        let mut g = Triplets::new(0, n);
+        let mut owner = Vec::new();
+        for (k, (ct, piece)) in contacts.iter().zip(&pieces).enumerate() {
+            for row in ct.rows(*piece) {
+                g.nrows += 1;
+                for (j, val) in row {
+                    g.push(g.nrows - 1, j, val);
+                }
+                owner.push(k);
+            }
+        }
+        let sol = ls.solve_with_active(a, c, b, d, lambda, &g)?;
+        history.push(ActiveSetStep {
+            active_rows: g.nrows,
+            step: 0.0,
+            changed: 0,
+            residual: f64::NAN,
+        });
+        let x_full = sol.solution.x;
+        // v_c = Σ y_i a_i over the contact's rows.
+        let mut v_full = vec![(0.0, [0.0; 2]); contacts.len()];
+        for k in 0..g.nnz() {
+            let (row, j, val) = (g.rows[k], g.cols[k], g.vals[k]);
+            let ct = &contacts[owner[row]];
+            let y = sol.multipliers[row] * val;
+            let vc = &mut v_full[owner[row]];
+            if j == ct.normal {
+                vc.0 += y;
+            } else if let Some(p) = ct.tangents.iter().position(|&t| t == j) {
+                vc.1[p] += y;
+            }
+        }
+        // Damped step: the full Newton step can overshoot far from the
+        // solution; halve it until the natural residual decreases. Both ends
+        // satisfy the (linear) stationarity and momentum rows, so every point
+        // between them does too.
+        let before = merit(&x, &v);
+        let mut step = 1.0;
+        let (mut x_new, mut v_new) = (x_full.clone(), v_full.clone());
+        let mut after = merit(&x_new, &v_new);
+        while after > (1.0 - 1e-4 * step) * before && step > MIN_STEP {
+            step *= 0.5;
+            x_new = x
+                .iter()
+                .zip(&x_full)
+                .map(|(a, b)| a + step * (b - a))
+                .collect();
+            v_new = v
+                .iter()
+                .zip(&v_full)
+                .map(|(a, b)| {
+                    (
+                        a.0 + step * (b.0 - a.0),
+                        [
+                            a.1[0] + step * (b.1[0] - a.1[0]),
+                            a.1[1] + step * (b.1[1] - a.1[1]),
+                        ],
+                    )
+                })
+                .collect();
+            after = merit(&x_new, &v_new);
+        }
+        if after > (1.0 - 1e-4 * step) * before {
+            // No descent: at a kink of the projection the Newton step can be
+            // uphill for the residual. Take the full step anyway (a watchdog),
+            // a bounded number of times.
+            forced += 1;
+            if forced > MAX_FORCED_STEPS {
+                return Ok(fail(
+                    x,
+                    history,
+                    format!(
+                        "no descent of the natural residual ({:.1e}) along the Newton step",
+                        before.sqrt()
+                    ),
+                ));
+            }
+            step = 1.0;
+            x_new = x_full.clone();
+            v_new = v_full.clone();
+            after = merit(&x_new, &v_new);
+        }
+        x = x_new;
+        v = v_new;
+        if after < STALL_FACTOR * best_merit {
+            best_merit = after;
+            stalled = 0;
+        } else {
+            stalled += 1;
+            if stalled >= MAX_STALLED {
+                return Ok(fail(
+                    x,
+                    history,
+                    format!(
+                        "the natural residual stalled at {:.1e} ({MAX_STALLED} solves without a 10 % decrease)",
+                        after.sqrt()
+                    ),
+                ));
+            }
+        }
+        let scale = x
+            .iter()
+            .fold(0.0f64, |m, v| m.max(v.abs()))
+            .max(f64::MIN_POSITIVE);
+        let tol = settings.tolerance * scale;
+        let mut worst = 0.0f64;
+        let mut changed = 0;
+        for k in 0..contacts.len() {
+            let (e, piece) = natural(&x, &v, k);
+            worst = worst.max(e);
+            if e > tol {
+                if piece != pieces[k] {
+                    changed += 1;
+                }
+                pieces[k] = piece;
+            }
+        }
+        let residual = worst / scale;
+        if let Some(last) = history.last_mut() {
+            (last.step, last.changed, last.residual) = (step, changed, residual);
+        }
+        if worst <= tol && step == 1.0 && sol.solution.converged {
+            for cone in cones {
+                cone.project(&mut x);
+            }
+            let sliding = pieces
+                .iter()
+                .filter(|p| matches!(p, Piece::Boundary(_)))
+                .count();
+            let open = pieces.iter().filter(|p| **p == Piece::Apex).count();
+            return Ok(ActiveSetSolution {
+                x,
+                converged: true,
+                iterations: iteration,
+                sliding,
+                open,
+                residual,
+                reason: None,
+                history,
+            });
+        }
+        if changed == 0 && step == 1.0 {
+            return Ok(fail(
+                x,
+                history,
+                format!(
+                    "no progress at fixed-point residual {residual:.1e} (linear solve converged: {})",
+                    sol.solution.converged
+                ),
+            ));
+        }
+    }
+    Ok(fail(
+        x,
+        history,
+        format!(
+            "the active set did not settle in {} solves",
+            settings.max_iterations
+        ),
+    ))
+}

@@ -1,0 +1,221 @@
+//! The active-set solver for friction-constrained problems: its linear kernel
+//! (equalities added to the sparse factorisation, with multipliers), agreement
+//! with the interior point on noisy packings where friction binds, and the
+//! fallback when it does not settle.
+
+use grainforce::bench::{generate, perturb, Noise, PackingSpec};
+use grainforce::infer::{infer, ConstrainedSolver, InferOptions, Method};
+use grainforce::report::metrics::relative_error;
+use grainforce::scene::{Scene, Vec3};
+use grainforce::solver::sparse_ls::EqualityLeastSquares;
+use grainforce::solver::Triplets;
+use grainforce::Error;
+
+fn identity(n: usize) -> Triplets {
+    let mut t = Triplets::new(n, n);
+    for i in 0..n {
+        t.push(i, i, 1.0);
+    }
+    t
+}
+
+/// min ‖x − b‖² s.t. x₀ = x₁: the projection (1.5, 1.5, 3), and the multiplier
+/// of x₀ − x₁ ≥ 0 from ∇ = x − b = (0.5, −0.5, 0) = Gᵀy, i.e. y = 0.5.
+#[test]
+fn active_rows_give_the_constrained_least_squares_and_its_multipliers() {
+    let a = identity(3);
+    let c = Triplets::new(0, 3);
+    let mut coupling = Triplets::new(1, 3);
+    coupling.push(0, 0, 1.0);
+    coupling.push(0, 1, 1.0);
+    let mut g = Triplets::new(1, 3);
+    g.push(0, 0, 1.0);
+    g.push(0, 1, -1.0);
+    let b = [1.0, 2.0, 3.0];
+    let mut ls = EqualityLeastSquares::with_coupling(&a, &c, &coupling).unwrap();
+    let sol = ls.solve_with_active(&a, &c, &b, &[], 0.0, &g).unwrap();
+    assert!(sol.solution.converged);
+    for (x, want) in sol.solution.x.iter().zip([1.5, 1.5, 3.0]) {
+        assert!((x - want).abs() < 1e-12, "{:?}", sol.solution.x);
+    }
+    assert!(
+        (sol.multipliers[0] - 0.5).abs() < 1e-10,
+        "{:?}",
+        sol.multipliers
+    );
+    // The same factorisation object without the row: back to x = b.
+    let free = ls
+        .solve_with_active(&a, &c, &b, &[], 0.0, &Triplets::new(0, 3))
+        .unwrap();
+    for (x, want) in free.solution.x.iter().zip(b) {
+        assert!((x - want).abs() < 1e-12);
+    }
+}
+
+/// Rows and equalities together, against a dense KKT solve.
+#[test]
+fn active_rows_with_equalities_match_a_dense_solve() {
+    use nalgebra::{DMatrix, DVector};
+    // A: 4×4 upper bidiagonal (couples neighbours), C: x₀ + x₁ + x₂ + x₃ = 1, G: x₁ = 2 x₂.
+    let mut a = Triplets::new(4, 4);
+    for i in 0..4 {
+        a.push(i, i, 2.0 + i as f64);
+        if i + 1 < 4 {
+            a.push(i, i + 1, -1.0);
+        }
+    }
+    let mut c = Triplets::new(1, 4);
+    for j in 0..4 {
+        c.push(0, j, 1.0);
+    }
+    let mut g = Triplets::new(1, 4);
+    g.push(0, 1, 1.0);
+    g.push(0, 2, -2.0);
+    let b = [1.0, -1.0, 0.5, 2.0];
+    let lambda = 0.3;
+    let mut ls = EqualityLeastSquares::new(&a, &c).unwrap();
+    let sol = ls
+        .solve_with_active(&a, &c, &b, &[1.0], lambda, &g)
+        .unwrap();
+    assert!(sol.solution.converged);
+
+    let dense = |t: &Triplets| {
+        let mut m = DMatrix::zeros(t.nrows, t.ncols);
+        for k in 0..t.nnz() {
+            m[(t.rows[k], t.cols[k])] += t.vals[k];
+        }
+        m
+    };
+    let (am, cm, gm) = (dense(&a), dense(&c), dense(&g));
+    let mut k = DMatrix::zeros(6, 6);
+    let h = am.transpose() * &am + DMatrix::identity(4, 4) * lambda * lambda;
+    k.view_mut((0, 0), (4, 4)).copy_from(&h);
+    k.view_mut((4, 0), (1, 4)).copy_from(&cm);
+    k.view_mut((0, 4), (4, 1)).copy_from(&cm.transpose());
+    k.view_mut((5, 0), (1, 4)).copy_from(&gm);
+    k.view_mut((0, 5), (4, 1)).copy_from(&gm.transpose());
+    let mut rhs = DVector::zeros(6);
+    rhs.rows_mut(0, 4)
+        .copy_from(&(am.transpose() * DVector::from_column_slice(&b)));
+    rhs[4] = 1.0;
+    let z = k.lu().solve(&rhs).unwrap();
+    for i in 0..4 {
+        assert!((sol.solution.x[i] - z[i]).abs() < 1e-12, "x{i}");
+    }
+    // Dense KKT: H x + Cᵀν + Gᵀw = Aᵀb, so ∇ = H x − Aᵀb = −Gᵀw − …: y = −w.
+    assert!((sol.multipliers[0] + z[5]).abs() < 1e-10);
+}
+
+#[test]
+fn an_active_row_outside_the_pattern_is_a_clear_error() {
+    let a = identity(2);
+    let c = Triplets::new(0, 2);
+    let mut g = Triplets::new(1, 2);
+    g.push(0, 0, 1.0);
+    g.push(0, 1, 1.0);
+    let mut ls = EqualityLeastSquares::new(&a, &c).unwrap();
+    match ls.solve_with_active(&a, &c, &[1.0, 1.0], &[], 0.0, &g) {
+        Err(Error::Invalid(m)) => assert!(m.contains("share no row"), "{m}"),
+        other => panic!("expected an error, got {other:?}"),
+    }
+}
+
+fn noisy_packing(dim: usize, grains: usize, mu: f64, noise: Noise) -> (Scene, Vec<Vec3>) {
+    let mut spec = PackingSpec::new(dim, grains);
+    spec.mu = mu;
+    spec.shear = 0.5 * mu;
+    let p = generate(&spec).unwrap();
+    (perturb(&p.scene, noise, 1), p.truth)
+}
+
+fn with_solver(method: Method, solver: ConstrainedSolver) -> InferOptions {
+    InferOptions {
+        method,
+        solver,
+        lambda: (method == Method::Tikhonov).then_some(1e-4),
+        ..InferOptions::default()
+    }
+}
+
+/// Where friction binds (stress noise), the active set reaches the optimum the
+/// interior point finds, to the interior point's own accuracy, exactly inside
+/// the cones — for qs and for Tikhonov.
+#[test]
+fn active_set_matches_the_interior_point_where_friction_binds() {
+    let (scene, truth) = noisy_packing(2, 400, 0.5, Noise::Stress);
+    for method in [Method::Qs, Method::Tikhonov] {
+        let fast = infer(&scene, &with_solver(method, ConstrainedSolver::ActiveSet)).unwrap();
+        let ip = infer(
+            &scene,
+            &with_solver(method, ConstrainedSolver::InteriorPoint),
+        )
+        .unwrap();
+        assert_eq!(
+            fast.report.solver_status, "ActiveSet",
+            "{:?}",
+            fast.report.solver_attempts
+        );
+        assert!(fast.report.coulomb_violation <= 1e-12);
+        let (f, g) = (fast.forces_or_zero(), ip.forces_or_zero());
+        let gap = relative_error(&g, &f);
+        assert!(
+            gap < 1e-6,
+            "{method}: active set vs interior point differ by {gap:.2e}"
+        );
+        // Friction bound somewhere: the unconstrained answer differs.
+        let ls = infer(
+            &scene,
+            &with_solver(Method::Ls, ConstrainedSolver::ActiveSet),
+        )
+        .unwrap();
+        assert!(relative_error(&f, &ls.forces_or_zero()) > 1e-3);
+        // Same optimum, so the same distance from the truth.
+        let (e_fast, e_ip) = (relative_error(&truth, &f), relative_error(&truth, &g));
+        assert!((e_fast - e_ip).abs() < 1e-6, "{e_fast} vs {e_ip}");
+        // Not worse than the interior point on the objective.
+        assert!(fast.report.stress_residual <= ip.report.stress_residual * (1.0 + 1e-9));
+    }
+}
+
+/// Dynamic inference with weighted momentum takes the same route.
+#[test]
+fn dynamic_weighted_momentum_uses_the_active_set() {
+    let (scene, _) = noisy_packing(2, 300, 0.5, Noise::Stress);
+    let mut fast = with_solver(Method::Dynamic, ConstrainedSolver::ActiveSet);
+    fast.dynamic.rule = grainforce::infer::LambdaRule::Fixed(1.0);
+    let mut ip = fast.clone();
+    ip.solver = ConstrainedSolver::InteriorPoint;
+    let (a, b) = (infer(&scene, &fast).unwrap(), infer(&scene, &ip).unwrap());
+    assert_eq!(
+        a.report.solver_status, "ActiveSet",
+        "{:?}",
+        a.report.solver_attempts
+    );
+    let gap = relative_error(&b.forces_or_zero(), &a.forces_or_zero());
+    assert!(gap < 1e-6, "{gap:.2e}");
+}
+
+/// With too few solves allowed it cannot settle: the interior point answers
+/// and the report says why.
+#[test]
+fn an_unsettled_active_set_falls_back_to_the_interior_point_and_says_so() {
+    let (scene, _) = noisy_packing(2, 400, 0.5, Noise::Stress);
+    let mut o = with_solver(Method::Qs, ConstrainedSolver::ActiveSet);
+    o.active_set.max_iterations = 1;
+    let r = infer(&scene, &o).unwrap();
+    assert_ne!(r.report.solver_status, "ActiveSet");
+    assert!(
+        r.report
+            .solver_attempts
+            .iter()
+            .any(|a| a.contains("active set") && a.contains("interior point instead")),
+        "{:?}",
+        r.report.solver_attempts
+    );
+    let ip = infer(
+        &scene,
+        &with_solver(Method::Qs, ConstrainedSolver::InteriorPoint),
+    )
+    .unwrap();
+    assert!(relative_error(&ip.forces_or_zero(), &r.forces_or_zero()) < 1e-6);
+}
