@@ -333,6 +333,13 @@ fn impulse_check_rejects_bad_options_and_skips_short_tracks() {
         ..Default::default()
     };
     assert!(impulse_check(&frames, &forces, fps, [0.0; 3], &options).is_err());
+    // Unequal time steps are named, not integrated over.
+    let mut gappy = frames.clone();
+    gappy[20..]
+        .iter_mut()
+        .for_each(|f| f.frame = Some(f.frame.unwrap() + 5));
+    let err = impulse_check(&gappy, &forces, fps, [0.0; 3], &Default::default()).unwrap_err();
+    assert!(err.to_string().contains("impulse check"), "{err}");
     // 30 frames cannot hold two disjoint-enough 31-frame windows.
     let options = ImpulseOptions {
         window: 31,

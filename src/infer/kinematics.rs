@@ -103,7 +103,7 @@ fn check_frames(frames: &[Scene], fps: f64) -> Result<()> {
         .any(|w| w[1].frame.unwrap_or(0) - w[0].frame.unwrap_or(0) != 1)
     {
         return Err(Error::Invalid(
-            "deriving accelerations needs consecutive frame numbers (equal time steps); select a range with --frames".into(),
+            "deriving accelerations and the impulse check need consecutive frame numbers (equal time steps); select a range with --frames".into(),
         ));
     }
     Ok(())
