@@ -1,7 +1,8 @@
 //! Accelerations from tracks and the impulse check.
 
+use grainforce::dem::perturb::{perturb, PerturbConfig};
 use grainforce::infer::kinematics::{
-    derive_accelerations, fir_zero_phase, impulse_check, savitzky_golay, Smoother,
+    derive_accelerations, fir_zero_phase, impulse_check, savitzky_golay, ImpulseOptions, Smoother,
 };
 use grainforce::scene::{Grain, Scene};
 
@@ -136,18 +137,30 @@ fn gaps_in_frame_numbers_are_an_error() {
     .is_err());
 }
 
-#[test]
-fn impulse_of_a_constant_force() {
-    // One grain pushed by a wall with a constant force: Δv = F T / m.
-    let fps = 1000.0;
-    let force = [0.3, -0.2, 0.0];
+/// Per frame, the force of each contact.
+type FrameForces = Vec<Vec<Option<[f64; 3]>>>;
+
+/// One grain pushed by a wall with `force(t)` (mass 0.1, no gravity), its
+/// track integrated exactly for piecewise-constant force between frames.
+fn pushed_grain(
+    n: usize,
+    fps: f64,
+    force: impl Fn(usize) -> [f64; 3],
+) -> (Vec<Scene>, FrameForces) {
     let m = 0.1;
-    let mut frames = track_frames(50, fps, |t| {
-        [0.5 * force[0] / m * t * t, 0.5 * force[1] / m * t * t, 0.0]
-    });
-    for f in &mut frames {
-        let w = f.wall_or_insert("pusher");
-        f.contacts.push(grainforce::scene::Contact {
+    let dt = 1.0 / fps;
+    let (mut x, mut v) = ([0.0; 3], [0.02, -0.01, 0.0]);
+    let mut frames = Vec::new();
+    let mut forces = Vec::new();
+    for k in 0..n {
+        let f = force(k);
+        let mut s = Scene::new(2);
+        s.frame = Some(k as i64);
+        let mut g = Grain::new("7", x, 1e-4, [0.0; 6]);
+        g.mass = Some(m);
+        s.grains.push(g);
+        let w = s.wall_or_insert("pusher");
+        s.contacts.push(grainforce::scene::Contact {
             id: "c".into(),
             a: 0,
             b: grainforce::scene::Body::Wall(w),
@@ -155,24 +168,184 @@ fn impulse_of_a_constant_force() {
             normal: [-1.0, 0.0, 0.0],
             mu: None,
         });
+        frames.push(s);
+        forces.push(vec![Some(f)]);
+        // Exact for a force linear between frames: the check's own rule.
+        let f1 = force(k + 1);
+        for i in 0..2 {
+            x[i] += v[i] * dt + dt * dt * (f[i] / 3.0 + f1[i] / 6.0) / m;
+            v[i] += 0.5 * dt * (f[i] + f1[i]) / m;
+        }
     }
-    let forces: Vec<Vec<Option<[f64; 3]>>> = frames.iter().map(|_| vec![Some(force)]).collect();
-    let rows = impulse_check(
-        &frames,
-        &forces,
-        fps,
-        Smoother::SavitzkyGolay {
-            window: 7,
-            degree: 2,
+    (frames, forces)
+}
+
+/// A 4 ms half-sine push of 14 N along (3, 4)/5 in the middle of a
+/// 100-frame track: Δv = 0.36 m/s.
+fn pulse(k: usize) -> [f64; 3] {
+    let t = k as f64;
+    let f = if (40.0..=60.0).contains(&t) {
+        14.0 * (std::f64::consts::PI * (t - 40.0) / 20.0).sin()
+    } else {
+        0.0
+    };
+    [0.6 * f, 0.8 * f, 0.0]
+}
+
+#[test]
+fn impulse_of_a_constant_force() {
+    // Constant force: both sides are the slope difference of a parabola, F/m
+    // times the time between the window centres.
+    let fps = 1000.0;
+    let force = [0.3, -0.2, 0.0];
+    let (frames, forces) = pushed_grain(50, fps, |_| force);
+    let options = ImpulseOptions {
+        window: 7,
+        ..Default::default()
+    };
+    let check = impulse_check(&frames, &forces, fps, [0.0; 3], &options).unwrap();
+    assert_eq!(check.rows.len(), 1);
+    let r = &check.rows[0];
+    assert_eq!((r.first_frame, r.last_frame), (0, 49));
+    let t = (50.0 - 7.0) / fps;
+    for k in 0..2 {
+        let expected = force[k] / 0.1 * t;
+        assert!((r.inferred[k] - expected).abs() < 1e-9, "{r:?}");
+        assert!((r.measured[k] - expected).abs() < 1e-9, "{r:?}");
+    }
+    assert!(r.moves && r.disagreement < 1e-8, "{r:?}");
+}
+
+#[test]
+fn measured_impulse_noise_is_as_stated() {
+    // 200 noisy copies of a pushed grain: the measured Δv scatters around the
+    // exact one with the stated sd, and the noise is estimated from the tracks.
+    let fps = 5000.0;
+    let (exact, forces) = pushed_grain(100, fps, pulse);
+    let options = ImpulseOptions::default();
+    let truth = impulse_check(&exact, &forces, fps, [0.0; 3], &options).unwrap();
+    let truth = &truth.rows[0];
+    assert!(truth.disagreement < 1e-9, "{truth:?}");
+    let noise = 2e-5;
+    let (mut sum_sq, mut count, mut sd_estimates) = (0.0, 0, Vec::new());
+    for seed in 0..200 {
+        let config = PerturbConfig {
+            position_noise: noise,
+            seed,
+            ..Default::default()
+        };
+        let noisy = perturb(&exact, &config).unwrap();
+        let check = impulse_check(&noisy, &forces, fps, [0.0; 3], &options).unwrap();
+        let r = &check.rows[0];
+        for k in 0..2 {
+            sum_sq += ((r.measured[k] - truth.measured[k]) / r.measured_sd).powi(2);
+            count += 1;
+        }
+        sd_estimates.push(check.position_sd / noise);
+        // The inferred side uses the true forces: only the tracks are noisy.
+        assert_eq!(r.inferred, truth.inferred);
+    }
+    let z_rms = (sum_sq / count as f64).sqrt();
+    // With the noise as estimated from each track (a 100-frame track gives
+    // ±8 % on σ) the z-scores still have unit spread within sampling error.
+    assert!((z_rms - 1.0).abs() < 0.1, "rms z {z_rms}");
+    let mean_ratio = sd_estimates.iter().sum::<f64>() / sd_estimates.len() as f64;
+    eprintln!("measured Δv: rms z {z_rms:.3}, estimated σ / true σ {mean_ratio:.3}");
+    assert!(
+        (mean_ratio - 1.0).abs() < 0.05,
+        "estimated σ / true σ {mean_ratio}"
+    );
+}
+
+#[test]
+fn impulse_check_flags_wrong_forces_and_resting_grains() {
+    let fps = 5000.0;
+    let (exact, forces) = pushed_grain(100, fps, pulse);
+    let noisy = perturb(
+        &exact,
+        &PerturbConfig {
+            position_noise: 2e-5,
+            seed: 9,
+            ..Default::default()
         },
-        [0.0; 3],
     )
     .unwrap();
-    assert_eq!(rows.len(), 1);
-    let t = 49.0 / fps;
-    for k in 0..2 {
-        let expected = force[k] / m * t;
-        assert!((rows[0].inferred[k] - expected).abs() < 1e-9);
-        assert!((rows[0].measured[k] - expected).abs() < 1e-6 * expected.abs().max(1.0));
+    let options = ImpulseOptions {
+        position_sd: Some(2e-5),
+        ..Default::default()
+    };
+    let right = impulse_check(&noisy, &forces, fps, [0.0; 3], &options).unwrap();
+    let r = &right.rows[0];
+    // Δv = 0.36 m/s against an sd of 0.005 m/s: the grain moves, and the
+    // correct forces agree within noise.
+    assert!(
+        r.moves && r.disagreement < 0.05 && r.gap_in_sd < 4.0,
+        "{r:?}"
+    );
+    assert!(!right.position_sd_estimated);
+    // Forces 20 % too small are a real disagreement, far outside the noise.
+    let weak: FrameForces = forces
+        .iter()
+        .map(|fs| fs.iter().map(|f| f.map(|f| f.map(|x| 0.8 * x))).collect())
+        .collect();
+    let wrong = impulse_check(&noisy, &weak, fps, [0.0; 3], &options).unwrap();
+    let w = &wrong.rows[0];
+    eprintln!("right forces: {r:?}\nforces × 0.8: {w:?}");
+    assert!(w.disagreement > 0.15 && w.gap_in_sd > 10.0, "{w:?}");
+    // A grain at rest does not move: its Δv is noise.
+    let (still, zero) = pushed_grain(100, fps, |_| [0.0; 3]);
+    let still: Vec<Scene> = still
+        .into_iter()
+        .map(|mut s| {
+            s.grains[0].position = [0.0; 3];
+            s
+        })
+        .collect();
+    let still = perturb(
+        &still,
+        &PerturbConfig {
+            position_noise: 2e-5,
+            seed: 4,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let rest = impulse_check(&still, &zero, fps, [0.0; 3], &options).unwrap();
+    assert!(!rest.rows[0].moves, "{:?}", rest.rows[0]);
+    assert_eq!(rest.moving().count(), 0);
+    assert_eq!(rest.worst_moving_disagreement(), 0.0);
+}
+
+#[test]
+fn impulse_check_rejects_bad_options_and_skips_short_tracks() {
+    let fps = 1000.0;
+    let (frames, forces) = pushed_grain(30, fps, |_| [0.1, 0.0, 0.0]);
+    for window in [0, 2, 4] {
+        let options = ImpulseOptions {
+            window,
+            ..Default::default()
+        };
+        let err = impulse_check(&frames, &forces, fps, [0.0; 3], &options).unwrap_err();
+        assert!(err.to_string().contains("window"), "{err}");
     }
+    let options = ImpulseOptions {
+        position_sd: Some(-1.0),
+        ..Default::default()
+    };
+    assert!(impulse_check(&frames, &forces, fps, [0.0; 3], &options).is_err());
+    // Unequal time steps are named, not integrated over.
+    let mut gappy = frames.clone();
+    gappy[20..]
+        .iter_mut()
+        .for_each(|f| f.frame = Some(f.frame.unwrap() + 5));
+    let err = impulse_check(&gappy, &forces, fps, [0.0; 3], &Default::default()).unwrap_err();
+    assert!(err.to_string().contains("impulse check"), "{err}");
+    // 30 frames cannot hold two disjoint-enough 31-frame windows.
+    let options = ImpulseOptions {
+        window: 31,
+        ..Default::default()
+    };
+    let check = impulse_check(&frames, &forces, fps, [0.0; 3], &options).unwrap();
+    assert!(check.rows.is_empty());
+    assert_eq!(check.skipped, vec!["7".to_string()]);
 }

@@ -122,10 +122,26 @@ pub struct Args {
     /// Savitzky–Golay polynomial degree.
     #[arg(long, default_value_t = 3)]
     pub savgol_degree: usize,
-    /// Sequences: write the impulse check (Δv integrated from the inferred
-    /// forces vs Δv of the tracks, per grain) to this CSV.
+    /// Sequences: write the impulse check (table 3.1) to this CSV, one row per
+    /// grain tracked over at least --impulse-window + 1 consecutive frames.
+    /// Columns: grain, first_frame, last_frame; dv_x_measured, dv_x_inferred
+    /// (and y, z): the change of velocity between the first and the last
+    /// --impulse-window frames, measured = least-squares slopes of the track,
+    /// inferred = the same slopes of the track integrated twice from
+    /// (Σ inferred contact forces)/m + g; dv_sd: standard deviation of each
+    /// measured component due to the position noise; disagreement:
+    /// |Δv inferred − Δv measured| / |Δv measured|; gap_in_sd: that gap over
+    /// dv_sd (a few units is noise); moves: 1 when |Δv measured| ≥ 20 dv_sd.
     #[arg(long, value_name = "IMPULSE.csv")]
     pub impulse: Option<PathBuf>,
+    /// Frames in each end window of the impulse check (odd); longer windows
+    /// give quieter velocities.
+    #[arg(long, default_value_t = 21)]
+    pub impulse_window: usize,
+    /// Standard deviation of each tracked coordinate (metres) for the impulse
+    /// check's dv_sd; estimated from the tracks when not given.
+    #[arg(long, value_name = "METRES")]
+    pub position_sd: Option<f64>,
     /// Also draw the force chains of the (first) frame to this PNG.
     #[arg(long, value_name = "FORCES.png")]
     pub plot: Option<PathBuf>,
@@ -452,6 +468,7 @@ pub fn run(args: Args) -> Result<()> {
     // Outputs are gathered first and written once nothing can fail any more,
     // so a failed run leaves no file behind.
     let mut pending: Vec<(PathBuf, Vec<u8>)> = Vec::new();
+    let mut impulse_summary = None;
     if let Some(path) = &args.report {
         let reports: Vec<&infer::InferenceReport> = results.iter().map(|r| &r.report).collect();
         let json = if reports.len() == 1 {
@@ -469,21 +486,33 @@ pub fn run(args: Args) -> Result<()> {
         let gravity = opts.assemble.gravity.unwrap_or_else(|| frames[0].gravity());
         let forces: Vec<Vec<Option<grainforce::scene::Vec3>>> =
             results.iter().map(|r| r.forces.clone()).collect();
-        let rows = kinematics::impulse_check(&frames, &forces, fps, smoother, gravity)?;
+        let options = kinematics::ImpulseOptions {
+            window: args.impulse_window,
+            position_sd: args.position_sd,
+            ..Default::default()
+        };
+        let check = kinematics::impulse_check(&frames, &forces, fps, gravity, &options)?;
         let dim = frames[0].dim;
         let axes = &["x", "y", "z"][..dim];
-        let mut text = String::from("grain");
+        let mut text = String::from("grain,first_frame,last_frame");
         for a in axes {
             text.push_str(&format!(",dv_{a}_measured,dv_{a}_inferred"));
         }
-        text.push('\n');
-        for r in &rows {
-            text.push_str(&r.grain);
+        text.push_str(",dv_sd,disagreement,gap_in_sd,moves\n");
+        for r in &check.rows {
+            text.push_str(&format!("{},{},{}", r.grain, r.first_frame, r.last_frame));
             for k in 0..dim {
                 text.push_str(&format!(",{},{}", r.measured[k], r.inferred[k]));
             }
-            text.push('\n');
+            text.push_str(&format!(
+                ",{},{},{},{}\n",
+                r.measured_sd,
+                r.disagreement,
+                r.gap_in_sd,
+                u8::from(r.moves)
+            ));
         }
+        impulse_summary = Some(check);
         pending.push((path.clone(), text.into_bytes()));
     }
     let mut front_to_write = None;
@@ -544,6 +573,24 @@ pub fn run(args: Args) -> Result<()> {
                     "stated"
                 },
                 u.time
+            );
+        }
+        if let Some(check) = &impulse_summary {
+            let moving: Vec<f64> = check.moving().map(|r| r.disagreement).collect();
+            eprintln!(
+                "impulse check: {} grains ({} skipped, tracks shorter than {} frames), position sd {:.3e} m ({}), {} move (|Δv| ≥ {} sd); worst disagreement of a moving grain {:.1} %",
+                check.rows.len(),
+                check.skipped.len(),
+                check.options.window + 1,
+                check.position_sd,
+                if check.position_sd_estimated {
+                    "estimated from the tracks"
+                } else {
+                    "stated"
+                },
+                moving.len(),
+                check.options.moving_factor,
+                100.0 * check.worst_moving_disagreement()
             );
         }
         eprintln!(

@@ -1,7 +1,8 @@
 //! Accelerations from centroid tracks, as the original experiments derived
 //! them: a zero-phase low-pass FIR filter (windowed sinc, Hamming window) then
 //! central differences — or a Savitzky–Golay fit — and the impulse check
-//! (table 3.1): Δv from the integrated inferred contact forces vs Δv measured.
+//! (table 3.1): Δv from the integrated inferred contact forces vs Δv measured,
+//! with the measured side's noise.
 
 use crate::error::{Error, Result};
 use crate::scene::{Body, Scene, Vec3};
@@ -102,7 +103,7 @@ fn check_frames(frames: &[Scene], fps: f64) -> Result<()> {
         .any(|w| w[1].frame.unwrap_or(0) - w[0].frame.unwrap_or(0) != 1)
     {
         return Err(Error::Invalid(
-            "deriving accelerations needs consecutive frame numbers (equal time steps); select a range with --frames".into(),
+            "deriving accelerations and the impulse check need consecutive frame numbers (equal time steps); select a range with --frames".into(),
         ));
     }
     Ok(())
@@ -273,43 +274,182 @@ pub fn derive_accelerations(
     Ok(report)
 }
 
+/// How the impulse check compares velocities.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct ImpulseOptions {
+    /// Frames in each end window (odd, ≥ 3). The velocity at either end of a
+    /// track is the least-squares slope over its first / last `window` frames:
+    /// its noise falls as window^(-3/2), whereas a velocity from two or three
+    /// frames carries the position noise almost undamped.
+    pub window: usize,
+    /// Standard deviation of each tracked coordinate [m]; `None` estimates it
+    /// from the tracks ([`estimate_position_sd`]).
+    pub position_sd: Option<f64>,
+    /// A grain moves when |Δv measured| ≥ `moving_factor` × the standard
+    /// deviation of one measured Δv component.
+    pub moving_factor: f64,
+}
+
+impl Default for ImpulseOptions {
+    fn default() -> Self {
+        ImpulseOptions {
+            window: 21,
+            position_sd: None,
+            // Noise alone then moves the relative disagreement by at most
+            // 10 % at two standard deviations.
+            moving_factor: 20.0,
+        }
+    }
+}
+
 /// One grain's impulse check.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct ImpulseRow {
     pub grain: String,
-    /// Δv from the tracked positions (smoothed), first to last frame.
+    /// Frame numbers of the first and last frame of the grain's track used.
+    pub first_frame: i64,
+    pub last_frame: i64,
+    /// Δv from the tracked positions: end-window slope minus start-window slope.
     pub measured: Vec3,
-    /// Δv = (1/m) ∫ (Σ contact forces + m g) dt from the inferred forces.
+    /// The same two slopes of the trajectory integrated twice from
+    /// (Σ inferred contact forces)/m + g.
     pub inferred: Vec3,
+    /// Standard deviation of each measured Δv component caused by the position noise.
+    pub measured_sd: f64,
+    /// |Δv inferred − Δv measured| / |Δv measured|.
+    pub disagreement: f64,
+    /// |Δv inferred − Δv measured| / measured_sd: a few units (the norm of
+    /// `dim` unit normals) is what noise in the tracks alone explains.
+    pub gap_in_sd: f64,
+    /// |Δv measured| ≥ moving_factor × measured_sd.
+    pub moves: bool,
 }
 
-/// Table 3.1 of the method: for each grain present in every frame, Δv from
-/// the time integral (trapezoid) of its inferred net force vs Δv from its track.
+/// Table 3.1 of the method, per grain, with what is needed to judge it.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct ImpulseCheck {
+    pub rows: Vec<ImpulseRow>,
+    /// Position noise used for `measured_sd` [m].
+    pub position_sd: f64,
+    /// Whether `position_sd` was estimated from the tracks (else stated).
+    pub position_sd_estimated: bool,
+    pub options: ImpulseOptions,
+    /// Grains whose longest contiguous track is shorter than window + 1 frames.
+    pub skipped: Vec<String>,
+}
+
+impl ImpulseCheck {
+    pub fn moving(&self) -> impl Iterator<Item = &ImpulseRow> {
+        self.rows.iter().filter(|r| r.moves)
+    }
+
+    /// Largest relative disagreement among the moving grains (0 when none moves).
+    pub fn worst_moving_disagreement(&self) -> f64 {
+        self.moving().map(|r| r.disagreement).fold(0.0, f64::max)
+    }
+}
+
+/// Robust estimate of the position noise from the tracks: the median absolute
+/// fourth difference over all grains and axes. For white noise of sd σ a
+/// fourth difference has sd √70·σ; smooth motion contributes ~ x⁗·dt⁴, far
+/// less, and the median ignores the few frames of a violent impact.
+pub fn estimate_position_sd(frames: &[Scene]) -> f64 {
+    let dim = frames.first().map_or(3, |f| f.dim);
+    let mut diffs = Vec::new();
+    for track in tracks(frames).values() {
+        for seg in segments(track) {
+            for w in seg.windows(5) {
+                for k in 0..dim {
+                    let x = |i: usize| w[i].1[k];
+                    diffs.push((x(0) - 4.0 * x(1) + 6.0 * x(2) - 4.0 * x(3) + x(4)).abs());
+                }
+            }
+        }
+    }
+    if diffs.is_empty() {
+        return 0.0;
+    }
+    let mid = diffs.len() / 2;
+    let median = *diffs.select_nth_unstable_by(mid, f64::total_cmp).1;
+    // Median of |N(0, s)| is 0.6745 s.
+    median / 0.674_489_75 / 70f64.sqrt()
+}
+
+/// Weights of the least-squares slope over `window` samples starting at
+/// `start` of a series of length `n` (zero elsewhere), per unit time.
+fn slope_weights(n: usize, start: usize, window: usize, dt: f64) -> Vec<f64> {
+    let centre = (window - 1) as f64 / 2.0;
+    let sum_sq: f64 = (0..window).map(|i| (i as f64 - centre).powi(2)).sum();
+    let mut w = vec![0.0; n];
+    for i in 0..window {
+        w[start + i] = (i as f64 - centre) / (sum_sq * dt);
+    }
+    w
+}
+
+/// Table 3.1 of the method. For each grain, over its longest contiguous
+/// track: the velocity change between the first and the last `window` frames
+/// measured from the positions (least-squares slopes), against the same
+/// slopes of the trajectory obtained by integrating (Σ inferred contact
+/// forces)/m + g twice. Applying one linear operator to both sides makes them
+/// estimate the same quantity whatever the window, so only the errors of the
+/// data and of the inferred forces remain; the measured side's noise
+/// sd follows exactly from the position noise.
 pub fn impulse_check(
     frames: &[Scene],
     forces: &[Vec<Option<Vec3>>],
     fps: f64,
-    smoother: Smoother,
     gravity: Vec3,
-) -> Result<Vec<ImpulseRow>> {
+    options: &ImpulseOptions,
+) -> Result<ImpulseCheck> {
     check_frames(frames, fps)?;
-    smoother.validate()?;
+    let window = options.window;
+    if window < 3 || window % 2 == 0 {
+        return Err(Error::Invalid(format!(
+            "impulse check: the end window must be odd and ≥ 3 frames, got {window}"
+        )));
+    }
+    if !(options.moving_factor >= 0.0 && options.moving_factor.is_finite()) {
+        return Err(Error::Invalid(format!(
+            "impulse check: the moving factor must be ≥ 0, got {}",
+            options.moving_factor
+        )));
+    }
+    if let Some(sd) = options.position_sd {
+        if !(sd >= 0.0 && sd.is_finite()) {
+            return Err(Error::Invalid(format!(
+                "impulse check: the position noise must be ≥ 0, got {sd}"
+            )));
+        }
+    }
     if forces.len() != frames.len() {
         return Err(Error::Invalid("one force set per frame is needed".into()));
     }
+    let (position_sd, position_sd_estimated) = match options.position_sd {
+        Some(sd) => (sd, false),
+        None => (estimate_position_sd(frames), true),
+    };
     let dt = 1.0 / fps;
+    let dim = frames[0].dim;
     let mut rows = Vec::new();
+    let mut skipped = Vec::new();
     for (id, track) in tracks(frames) {
-        if track.len() != frames.len() || track.len() < 3 {
+        let Some(seg) = segments(&track).into_iter().max_by_key(|s| s.len()) else {
+            continue;
+        };
+        let n = seg.len();
+        if n < window + 1 {
+            skipped.push(id);
             continue;
         }
-        let mut net = Vec::with_capacity(frames.len());
+        let mut accel = Vec::with_capacity(n);
         let mut mass = None;
-        for (f, fs) in frames.iter().zip(forces) {
+        for &(k, _) in seg {
+            let f = &frames[k];
             let p = f.grains.iter().position(|g| g.id == id).unwrap_or(0);
             mass = f.grains[p].mass.or(mass);
             let mut sum = [0.0; 3];
-            for (c, fc) in f.contacts.iter().zip(fs) {
+            for (c, fc) in f.contacts.iter().zip(&forces[k]) {
                 let Some(fc) = fc else { continue };
                 let sign = if c.a == p {
                     1.0
@@ -322,27 +462,81 @@ pub fn impulse_check(
                     sum[k] += sign * fc[k];
                 }
             }
-            net.push(sum);
+            accel.push(sum);
         }
-        let Some(m) = mass else { continue };
-        let mut inferred = [0.0; 3];
-        for w in net.windows(2) {
+        let Some(m) = mass else {
+            skipped.push(id);
+            continue;
+        };
+        for a in &mut accel {
             for k in 0..3 {
-                inferred[k] += 0.5 * (w[0][k] + w[1][k]) * dt / m;
+                a[k] = a[k] / m + gravity[k];
             }
         }
-        let duration = dt * (frames.len() - 1) as f64;
-        for k in 0..3 {
-            inferred[k] += gravity[k] * duration;
+        // Integrated with the acceleration linear between frames (exact for
+        // piecewise-linear a): v trapezoidal, x with dt²(a₀/3 + a₁/6).
+        let mut integrated = vec![[0.0; 3]; n];
+        let mut v = [0.0; 3];
+        for i in 1..n {
+            let (a0, a1) = (accel[i - 1], accel[i]);
+            for k in 0..3 {
+                integrated[i][k] =
+                    integrated[i - 1][k] + v[k] * dt + dt * dt * (a0[k] / 3.0 + a1[k] / 6.0);
+                v[k] += 0.5 * dt * (a0[k] + a1[k]);
+            }
         }
-        let positions: Vec<Vec3> = track.iter().map(|s| s.1).collect();
-        let v = differentiate(&positions, dt, smoother, 1);
-        let (first, last) = (v[0], v[v.len() - 1]);
+        let begin = slope_weights(n, 0, window, dt);
+        let end = slope_weights(n, n - window, window, dt);
+        let weights: Vec<f64> = end.iter().zip(&begin).map(|(e, b)| e - b).collect();
+        let apply = |x: &dyn Fn(usize, usize) -> f64| -> Vec3 {
+            let mut out = [0.0; 3];
+            for (k, o) in out.iter_mut().enumerate().take(dim) {
+                // Relative to the first sample, so a far origin adds no rounding.
+                *o = weights
+                    .iter()
+                    .enumerate()
+                    .map(|(i, w)| w * (x(i, k) - x(0, k)))
+                    .sum();
+            }
+            out
+        };
+        let measured = apply(&|i, k| seg[i].1[k]);
+        let inferred = apply(&|i, k| integrated[i][k]);
+        let measured_sd = position_sd * weights.iter().map(|w| w * w).sum::<f64>().sqrt();
+        let norm = |v: Vec3| v.iter().map(|x| x * x).sum::<f64>().sqrt();
+        let gap = norm([
+            inferred[0] - measured[0],
+            inferred[1] - measured[1],
+            inferred[2] - measured[2],
+        ]);
+        let size = norm(measured);
+        let ratio = |num: f64, den: f64| {
+            if den > 0.0 {
+                num / den
+            } else if num == 0.0 {
+                0.0
+            } else {
+                f64::INFINITY
+            }
+        };
+        let disagreement = ratio(gap, size);
         rows.push(ImpulseRow {
             grain: id,
-            measured: [last[0] - first[0], last[1] - first[1], last[2] - first[2]],
+            first_frame: frames[seg[0].0].frame.unwrap_or(seg[0].0 as i64),
+            last_frame: frames[seg[n - 1].0].frame.unwrap_or(seg[n - 1].0 as i64),
+            measured,
             inferred,
+            measured_sd,
+            disagreement,
+            gap_in_sd: ratio(gap, measured_sd),
+            moves: size > 0.0 && size >= options.moving_factor * measured_sd,
         });
     }
-    Ok(rows)
+    Ok(ImpulseCheck {
+        rows,
+        position_sd,
+        position_sd_estimated,
+        options: *options,
+        skipped,
+    })
 }
