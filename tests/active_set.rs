@@ -33,7 +33,9 @@ fn active_rows_give_the_constrained_least_squares_and_its_multipliers() {
     g.push(0, 1, -1.0);
     let b = [1.0, 2.0, 3.0];
     let mut ls = EqualityLeastSquares::with_coupling(&a, &c, &coupling).unwrap();
-    let sol = ls.solve_with_active(&a, &c, &b, &[], 0.0, &g).unwrap();
+    let sol = ls
+        .solve_with_active(&a, &c, &b, &[], 0.0, &g, &Triplets::new(0, 3))
+        .unwrap();
     assert!(sol.solution.converged);
     for (x, want) in sol.solution.x.iter().zip([1.5, 1.5, 3.0]) {
         assert!((x - want).abs() < 1e-12, "{:?}", sol.solution.x);
@@ -45,11 +47,32 @@ fn active_rows_give_the_constrained_least_squares_and_its_multipliers() {
     );
     // The same factorisation object without the row: back to x = b.
     let free = ls
-        .solve_with_active(&a, &c, &b, &[], 0.0, &Triplets::new(0, 3))
+        .solve_with_active(
+            &a,
+            &c,
+            &b,
+            &[],
+            0.0,
+            &Triplets::new(0, 3),
+            &Triplets::new(0, 3),
+        )
         .unwrap();
     for (x, want) in free.solution.x.iter().zip(b) {
         assert!((x - want).abs() < 1e-12);
     }
+    // A spring row r = (0, 0, 2) adds ‖r·x‖²: x₂ = b₂ / (1 + 4).
+    let mut spring = Triplets::new(1, 3);
+    spring.push(0, 2, 2.0);
+    let soft = ls
+        .solve_with_active(&a, &c, &b, &[], 0.0, &g, &spring)
+        .unwrap();
+    assert!(soft.solution.converged);
+    assert!(
+        (soft.solution.x[2] - 0.6).abs() < 1e-12,
+        "{:?}",
+        soft.solution.x
+    );
+    assert!((soft.solution.x[0] - 1.5).abs() < 1e-12);
 }
 
 /// Rows and equalities together, against a dense KKT solve.
@@ -75,7 +98,7 @@ fn active_rows_with_equalities_match_a_dense_solve() {
     let lambda = 0.3;
     let mut ls = EqualityLeastSquares::new(&a, &c).unwrap();
     let sol = ls
-        .solve_with_active(&a, &c, &b, &[1.0], lambda, &g)
+        .solve_with_active(&a, &c, &b, &[1.0], lambda, &g, &Triplets::new(0, 4))
         .unwrap();
     assert!(sol.solution.converged);
 
@@ -114,7 +137,7 @@ fn an_active_row_outside_the_pattern_is_a_clear_error() {
     g.push(0, 0, 1.0);
     g.push(0, 1, 1.0);
     let mut ls = EqualityLeastSquares::new(&a, &c).unwrap();
-    match ls.solve_with_active(&a, &c, &[1.0, 1.0], &[], 0.0, &g) {
+    match ls.solve_with_active(&a, &c, &[1.0, 1.0], &[], 0.0, &g, &Triplets::new(0, 2)) {
         Err(Error::Invalid(m)) => assert!(m.contains("share no row"), "{m}"),
         other => panic!("expected an error, got {other:?}"),
     }
@@ -175,6 +198,46 @@ fn active_set_matches_the_interior_point_where_friction_binds() {
         // Not worse than the interior point on the objective.
         assert!(fast.report.stress_residual <= ip.report.stress_residual * (1.0 + 1e-9));
     }
+}
+
+/// 3D with the exact Coulomb cone (sliding contacts need the cone's curvature
+/// in the Newton step): the same optimum as the interior point.
+#[test]
+fn active_set_matches_the_interior_point_on_3d_cones() {
+    let (scene, truth) = noisy_packing(3, 216, 0.1, Noise::Geometry);
+    let fast = infer(
+        &scene,
+        &with_solver(Method::Qs, ConstrainedSolver::ActiveSet),
+    )
+    .unwrap();
+    let ip = infer(
+        &scene,
+        &with_solver(Method::Qs, ConstrainedSolver::InteriorPoint),
+    )
+    .unwrap();
+    assert_eq!(
+        fast.report.solver_status, "ActiveSet",
+        "{:?}",
+        fast.report.solver_attempts
+    );
+    assert!(fast.report.coulomb_violation <= 1e-12);
+    let (f, g) = (fast.forces_or_zero(), ip.forces_or_zero());
+    let gap = relative_error(&g, &f);
+    assert!(
+        gap < 1e-6,
+        "active set vs interior point differ by {gap:.2e}"
+    );
+    let ls = infer(
+        &scene,
+        &with_solver(Method::Ls, ConstrainedSolver::ActiveSet),
+    )
+    .unwrap();
+    assert!(
+        relative_error(&f, &ls.forces_or_zero()) > 1e-3,
+        "friction must bind here"
+    );
+    assert!((relative_error(&truth, &f) - relative_error(&truth, &g)).abs() < 1e-6);
+    assert!(fast.report.stress_residual <= ip.report.stress_residual * (1.0 + 1e-9));
 }
 
 /// Dynamic inference with weighted momentum takes the same route.

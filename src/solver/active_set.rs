@@ -1,5 +1,5 @@
-//! Friction-constrained least squares by a primal–dual active-set
-//! (semismooth Newton) method on the sparse factorisation:
+//! Friction-constrained least squares by a damped semismooth Newton
+//! (primal–dual active-set) method on the sparse factorisation:
 //!
 //! ```text
 //!     minimise ‖A x − b‖² + λ²‖x‖²   subject to   C x = d,   x_c ∈ K_c
@@ -8,30 +8,40 @@
 //! with K_c each contact's cone (f_n ≥ 0, the 2D wedge, the 3D Coulomb cone).
 //! The optimality conditions per contact read x_c = Π_K(x_c − ρ_c v_c), with
 //! v_c the force the cone exerts (its multipliers) and Π_K the projection onto
-//! the cone. Each iteration guesses from that projection which piece of the
-//! cone is active at every contact — interior (free), the boundary (sliding,
-//! one linear row: the face of the wedge or the tangent plane of the cone at
-//! the sliding direction), or the apex (open, f_c = 0) — and solves the
-//! equality-constrained least squares with those rows by [`EqualityLeastSquares`]
-//! on its *fixed* symbolic analysis: one numeric factorisation per iteration.
+//! the cone. Each iteration reads from that projection which piece of the cone
+//! is active at every contact — interior (free), the boundary (sliding: the
+//! face of the wedge; for the 3D cone its tangent plane plus the curvature of
+//! the projection, a spring across the sliding direction), or the apex (open,
+//! f_c = 0) — and solves the equality-constrained least squares with those rows
+//! by [`EqualityLeastSquares`] on its *fixed* symbolic analysis: one numeric
+//! factorisation per iteration. That solve is the Newton step of the fixed-point
+//! equations; the step is halved until their residual decreases.
 //!
-//! Started from the unconstrained answer, the active set is usually right in a
-//! handful of iterations. Convergence is declared only when every contact meets
-//! its fixed-point condition to `tolerance` and the linear solve converged; then
-//! the answer satisfies the KKT conditions of the convex problem and *is* the
-//! optimum. Otherwise (cycling, inconsistent rows) the caller falls back to the
-//! interior-point solver. Pyramids are not handled (their facets meet in edges;
-//! the interior-point solver takes them).
+//! Started from the unconstrained answer it settles in a handful of solves.
+//! Convergence is declared only when every contact meets its fixed-point
+//! condition to `tolerance` and the linear solve converged; the answer then
+//! satisfies the KKT conditions of the convex problem and *is* the optimum.
+//! Otherwise (no descent, stalling, too many solves) the caller falls back to
+//! the interior-point solver. Pyramids are not handled (their facets meet in
+//! edges; the interior point takes them).
 
 use super::conic::Cone;
-use super::sparse_ls::EqualityLeastSquares;
+use super::sparse_ls::{EqualityLeastSquares, CONVERGED_TOL};
 use super::Triplets;
 use crate::error::Result;
 
 /// Smallest damping of a Newton step before the method gives up.
-const MIN_STEP: f64 = 1.0 / 16.0;
-/// Full steps taken without descent before the method gives up.
-const MAX_FORCED_STEPS: usize = 8;
+const MIN_STEP: f64 = 1.0 / 1024.0;
+
+/// ρ relative to the inverse Hessian diagonal. Measured on noisy packings:
+/// 3D, μ = 0.1, 10³ grains: 1 stalls, 0.1 converges in 22 solves, 0.01 and
+/// 0.001 in 18; 2D 10⁴: 5 solves for all; 2D 10⁵: 0.01 in 6, 1 in 7 (only
+/// with full steps forced against the line search). A small ρ lets the
+/// forces, not the multipliers, decide the pieces.
+const RHO_FACTOR: f64 = 0.01;
+
+/// Smallest κ kept, so that a spring stays finite.
+const KAPPA_MIN: f64 = 1e-12;
 
 /// Solves without a decrease of the best residual by this factor before the
 /// method gives up (cycling between active sets).
@@ -93,8 +103,13 @@ pub struct ActiveSetStep {
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum Piece {
     Interior,
-    /// On the boundary; the unit tangential direction of sliding (1D: ±1).
-    Boundary([f64; 2]),
+    /// On the boundary: the unit tangential direction of sliding (1D: ±1) and,
+    /// for the 3D cone, κ = μα/τ, the projection's contraction across the
+    /// sliding direction (its curvature term).
+    Boundary {
+        dir: [f64; 2],
+        kappa: f64,
+    },
     Apex,
 }
 
@@ -159,8 +174,9 @@ impl Contact {
         // Onto the generator (1, μ ĉ) of the boundary.
         let dir = [t[0] / tau, t[1] / tau];
         let alpha = (n + self.mu * tau) / (1.0 + self.mu * self.mu);
+        let kappa = (self.mu * alpha / tau).clamp(KAPPA_MIN, 1.0);
         (
-            Piece::Boundary(dir),
+            Piece::Boundary { dir, kappa },
             alpha,
             [alpha * self.mu * dir[0], alpha * self.mu * dir[1]],
         )
@@ -175,7 +191,7 @@ impl Contact {
                 .chain(self.tangents.iter().copied())
                 .map(|j| vec![(j, 1.0)])
                 .collect(),
-            Piece::Boundary(dir) => {
+            Piece::Boundary { dir, .. } => {
                 // μ f_n − ĉ·f_t ≥ 0: the face of the wedge, the tangent plane of the cone.
                 let norm = (1.0 + self.mu * self.mu).sqrt();
                 let mut row = vec![(self.normal, self.mu / norm)];
@@ -184,6 +200,24 @@ impl Contact {
                 }
                 vec![row]
             }
+        }
+    }
+}
+
+impl Contact {
+    /// The Newton linearisation of the 3D cone's projection on its boundary
+    /// adds, besides the tangent plane, a spring on the tangential component
+    /// across the sliding direction: v⊥ = −k x⊥ with k = (1 − κ)/(κρ). Returned
+    /// as the row √k e⊥ of the extra term ‖R x‖² (= ½ k x⊥² in the halved
+    /// objective), with k.
+    fn spring(&self, piece: Piece, rho: f64) -> Option<(Vec<(usize, f64)>, f64)> {
+        match (piece, self.tangents.as_slice()) {
+            (Piece::Boundary { dir, kappa }, &[t1, t2]) if kappa < 1.0 => {
+                let k = (1.0 - kappa) / (kappa * rho);
+                let r = k.sqrt();
+                Some((vec![(t1, -dir[1] * r), (t2, dir[0] * r)], k))
+            }
+            _ => None,
         }
     }
 }
@@ -205,16 +239,6 @@ pub fn solve(
     settings: &ActiveSetSettings,
 ) -> Result<ActiveSetSolution> {
     let n = a.ncols;
-    let fail = |x: Vec<f64>, history: Vec<ActiveSetStep>, reason: String| ActiveSetSolution {
-        x,
-        converged: false,
-        iterations: history.len(),
-        sliding: 0,
-        open: 0,
-        residual: history.last().map_or(f64::INFINITY, |h| h.residual),
-        reason: Some(reason),
-        history,
-    };
     let Some(contacts) = cones.iter().map(Contact::of).collect::<Option<Vec<_>>>() else {
         return Ok(fail(
             start.to_vec(),
@@ -222,8 +246,8 @@ pub fn solve(
             "pyramidal cones are left to the interior-point solver".into(),
         ));
     };
-    // ρ_c = 1 / (mean diagonal of AᵀA + λ² over the contact's unknowns): the
-    // step that turns a multiplier (a gradient) into a force.
+    // ρ_c = RHO_FACTOR / (mean diagonal of AᵀA + λ² over the contact's
+    // unknowns): the step that turns a multiplier (a gradient) into a force.
     let mut diag = vec![lambda * lambda; n];
     for k in 0..a.nnz() {
         diag[a.cols[k]] += a.vals[k] * a.vals[k];
@@ -234,13 +258,52 @@ pub fn solve(
             let idx = std::iter::once(ct.normal).chain(ct.tangents.iter().copied());
             let h = idx.clone().map(|j| diag[j]).sum::<f64>() / idx.count() as f64;
             if h > 0.0 && h.is_finite() {
-                1.0 / h
+                RHO_FACTOR / h
             } else {
                 1.0
             }
         })
         .collect();
 
+    // Each solve only needs the accuracy at which convergence is declared.
+    ls.set_refinement_target(0.1 * CONVERGED_TOL);
+    let outcome = iterate(
+        ls, a, b, c, d, lambda, cones, &contacts, &rho, start, settings,
+    );
+    ls.set_refinement_target(0.0);
+    outcome
+}
+
+/// An unconverged outcome.
+fn fail(x: Vec<f64>, history: Vec<ActiveSetStep>, reason: String) -> ActiveSetSolution {
+    ActiveSetSolution {
+        x,
+        converged: false,
+        iterations: history.len(),
+        sliding: 0,
+        open: 0,
+        residual: history.last().map_or(f64::INFINITY, |h| h.residual),
+        reason: Some(reason),
+        history,
+    }
+}
+
+/// The damped semismooth Newton iteration of [`solve`].
+#[allow(clippy::too_many_arguments)]
+fn iterate(
+    ls: &mut EqualityLeastSquares,
+    a: &Triplets,
+    b: &[f64],
+    c: &Triplets,
+    d: &[f64],
+    lambda: f64,
+    cones: &[Cone],
+    contacts: &[Contact],
+    rho: &[f64],
+    start: &[f64],
+    settings: &ActiveSetSettings,
+) -> Result<ActiveSetSolution> {
+    let n = a.ncols;
     // The natural residual of each contact at (x, v): x_c − Π_K(x_c − ρ_c v_c),
     // and the piece that projection lands on.
     let natural = |x: &[f64], v: &[(f64, [f64; 2])], k: usize| -> (f64, Piece) {
@@ -260,14 +323,15 @@ pub fn solve(
     };
 
     let mut x = start.to_vec();
-    let mut forced = 0;
     let mut history = Vec::new();
     let (mut best_merit, mut stalled) = (f64::INFINITY, 0);
     let mut v = vec![(0.0, [0.0; 2]); contacts.len()];
     let mut pieces: Vec<Piece> = (0..contacts.len()).map(|k| natural(&x, &v, k).1).collect();
     for iteration in 1..=settings.max_iterations {
         let mut g = Triplets::new(0, n);
+        let mut springs = Triplets::new(0, n);
         let mut owner = Vec::new();
+        let mut spring_of = Vec::new();
         for (k, (ct, piece)) in contacts.iter().zip(&pieces).enumerate() {
             for row in ct.rows(*piece) {
                 g.nrows += 1;
@@ -276,8 +340,15 @@ pub fn solve(
                 }
                 owner.push(k);
             }
+            if let Some((row, stiffness)) = ct.spring(*piece, rho[k]) {
+                springs.nrows += 1;
+                for (j, val) in row {
+                    springs.push(springs.nrows - 1, j, val);
+                }
+                spring_of.push((k, stiffness));
+            }
         }
-        let sol = ls.solve_with_active(a, c, b, d, lambda, &g)?;
+        let sol = ls.solve_with_active(a, c, b, d, lambda, &g, &springs)?;
         history.push(ActiveSetStep {
             active_rows: g.nrows,
             step: 0.0,
@@ -297,6 +368,18 @@ pub fn solve(
             } else if let Some(p) = ct.tangents.iter().position(|&t| t == j) {
                 vc.1[p] += y;
             }
+        }
+        // The springs' force, v = −k (e⊥·x) e⊥.
+        for &(k, stiffness) in &spring_of {
+            let Piece::Boundary { dir, .. } = pieces[k] else {
+                continue;
+            };
+            let ct = &contacts[k];
+            let (_, xt) = ct.split(&x_full);
+            let across = -dir[1] * xt[0] + dir[0] * xt[1];
+            let force = -stiffness * across;
+            v_full[k].1[0] += force * -dir[1];
+            v_full[k].1[1] += force * dir[0];
         }
         // Damped step: the full Newton step can overshoot far from the
         // solution; halve it until the natural residual decreases. Both ends
@@ -329,24 +412,14 @@ pub fn solve(
             after = merit(&x_new, &v_new);
         }
         if after > (1.0 - 1e-4 * step) * before {
-            // No descent: at a kink of the projection the Newton step can be
-            // uphill for the residual. Take the full step anyway (a watchdog),
-            // a bounded number of times.
-            forced += 1;
-            if forced > MAX_FORCED_STEPS {
-                return Ok(fail(
-                    x,
-                    history,
-                    format!(
-                        "no descent of the natural residual ({:.1e}) along the Newton step",
-                        before.sqrt()
-                    ),
-                ));
-            }
-            step = 1.0;
-            x_new = x_full.clone();
-            v_new = v_full.clone();
-            after = merit(&x_new, &v_new);
+            return Ok(fail(
+                x,
+                history,
+                format!(
+                    "no descent of the natural residual ({:.1e}) along the Newton step",
+                    before.sqrt()
+                ),
+            ));
         }
         x = x_new;
         v = v_new;
@@ -393,7 +466,7 @@ pub fn solve(
             }
             let sliding = pieces
                 .iter()
-                .filter(|p| matches!(p, Piece::Boundary(_)))
+                .filter(|p| matches!(p, Piece::Boundary { .. }))
                 .count();
             let open = pieces.iter().filter(|p| **p == Piece::Apex).count();
             return Ok(ActiveSetSolution {

@@ -105,6 +105,8 @@ pub struct EqualityLeastSquares {
     kkt_row_idx: Vec<usize>,
     symbolic: Option<SymbolicCholesky<usize>>,
     par: Par,
+    /// Refinement stops once the relative KKT residual is below this.
+    refine_to: f64,
     numeric: Option<Numeric>,
 }
 
@@ -152,14 +154,23 @@ struct ActiveRows {
     row_scale: Vec<f64>,
     /// ‖row i of T G S‖∞.
     row_max: Vec<f64>,
+    /// Extra least-squares rows ‖R x‖² (zero right-hand side), e.g. the
+    /// curvature of a Coulomb cone at a sliding contact.
+    springs_pattern: (usize, Vec<usize>, Vec<usize>),
+    springs_vals: Vec<f64>,
+    springs: Compressed,
 }
 
 impl ActiveRows {
-    fn same(&self, g: &Triplets) -> bool {
+    fn same(&self, g: &Triplets, springs: &Triplets) -> bool {
         self.pattern.0 == g.nrows
             && self.pattern.1 == g.rows
             && self.pattern.2 == g.cols
             && self.vals == g.vals
+            && self.springs_pattern.0 == springs.nrows
+            && self.springs_pattern.1 == springs.rows
+            && self.springs_pattern.2 == springs.cols
+            && self.springs_vals == springs.vals
     }
 
     fn len(&self) -> usize {
@@ -252,6 +263,7 @@ impl EqualityLeastSquares {
             kkt_row_idx: row_idx,
             symbolic,
             par,
+            refine_to: ROUNDOFF_FLOOR,
             numeric: None,
         })
     }
@@ -259,6 +271,13 @@ impl EqualityLeastSquares {
     /// Parallelism used by the numeric factorisation and triangular solves.
     pub fn set_parallelism(&mut self, par: Par) {
         self.par = par;
+    }
+
+    /// Stop refinement at this relative KKT residual instead of round-off
+    /// (≥ round-off; a value above [`CONVERGED_TOL`] leaves solutions unconverged).
+    /// Iterative callers that only need [`CONVERGED_TOL`] save solves.
+    pub fn set_refinement_target(&mut self, target: f64) {
+        self.refine_to = target.max(ROUNDOFF_FLOOR);
     }
 
     /// Number of stored entries in the factor L (0 for an empty problem).
@@ -278,15 +297,19 @@ impl EqualityLeastSquares {
         lambda: f64,
     ) -> Result<LsSolution> {
         let none = Triplets::new(0, a.ncols);
-        Ok(self.solve_with_active(a, c, b, d, lambda, &none)?.solution)
+        Ok(self
+            .solve_with_active(a, c, b, d, lambda, &none, &none)?
+            .solution)
     }
 
     /// As [`solve`](Self::solve) with the extra homogeneous equalities G x = 0
-    /// (an active set of inequalities G x ≥ 0), returning their multipliers.
+    /// (an active set of inequalities G x ≥ 0), returning their multipliers, and
+    /// the extra term ‖R x‖² (`springs`) in the objective.
     /// Each row of G may only couple unknowns that share a row of A (a contact's
     /// own unknowns do): G enters the factorisation as a penalty GᵀG/δ on the
     /// analysed pattern, and iterative refinement then solves the exact
     /// augmented system `[[AᵀA + λ²I, Cᵀ, Gᵀ], [C, 0, 0], [G, 0, 0]]`.
+    #[allow(clippy::too_many_arguments)]
     pub fn solve_with_active(
         &mut self,
         a: &Triplets,
@@ -295,14 +318,18 @@ impl EqualityLeastSquares {
         d: &[f64],
         lambda: f64,
         g: &Triplets,
+        springs: &Triplets,
     ) -> Result<ActiveLsSolution> {
         check_pair(a, c)?;
         check_triplets(g, "G")?;
-        if g.ncols != a.ncols {
-            return Err(Error::Invalid(format!(
-                "G has {} columns but A has {}; both act on the same unknowns",
-                g.ncols, a.ncols
-            )));
+        check_triplets(springs, "R")?;
+        for (name, m) in [("G", g), ("R", springs)] {
+            if m.ncols != a.ncols {
+                return Err(Error::Invalid(format!(
+                    "{name} has {} columns but A has {}; both act on the same unknowns",
+                    m.ncols, a.ncols
+                )));
+            }
         }
         if b.len() != a.nrows {
             return Err(Error::Invalid(format!(
@@ -326,11 +353,14 @@ impl EqualityLeastSquares {
         check_finite(&a.vals, "A value")?;
         check_finite(&c.vals, "C value")?;
         check_finite(&g.vals, "G value")?;
+        check_finite(&springs.vals, "R value")?;
         check_finite(b, "b")?;
         check_finite(d, "d")?;
         if !self.same_pattern(a, c) {
             let coupling = std::mem::take(&mut self.coupling);
+            let refine_to = self.refine_to;
             *self = Self::analyse(a, c, &coupling, self.par)?;
+            self.refine_to = refine_to;
         }
         let n = self.n;
         if n == 0 {
@@ -357,7 +387,7 @@ impl EqualityLeastSquares {
             if num.lambda == lambda
                 && num.a_vals == a.vals
                 && num.c_vals == c.vals
-                && num.active.same(g)
+                && num.active.same(g, springs)
             {
                 ladder.retain(|&delta| delta >= num.delta);
             }
@@ -365,7 +395,7 @@ impl EqualityLeastSquares {
         let mut best: Option<Attempt> = None;
         let mut failures = Vec::new();
         for &delta in &ladder {
-            match self.attempt(a, c, b, d, lambda, delta, g) {
+            match self.attempt(a, c, b, d, lambda, delta, g, springs) {
                 Ok(att) => {
                     let stop = att.rho() <= CONVERGED_TOL || att.dual <= CONVERGED_TOL;
                     let better = match &best {
@@ -422,9 +452,10 @@ impl EqualityLeastSquares {
         lambda: f64,
         delta: f64,
         g: &Triplets,
+        springs: &Triplets,
     ) -> Result<Attempt> {
         let n = self.n;
-        self.factorise(a, c, lambda, delta, g)?;
+        self.factorise(a, c, lambda, delta, g, springs)?;
         let num = self.numeric.as_ref().expect("factorised above");
         let symbolic = self
             .symbolic
@@ -491,7 +522,7 @@ impl EqualityLeastSquares {
         let mut best = (dual.max(primal), dual, primal, z.clone());
         let mut steps = 0;
         let mut stalled = 0;
-        while steps < MAX_REFINEMENT_STEPS && best.0 > ROUNDOFF_FLOOR && stalled < STALL_STEPS {
+        while steps < MAX_REFINEMENT_STEPS && best.0 > self.refine_to && stalled < STALL_STEPS {
             kkt_solve(&mut r);
             for (zi, ri) in z.iter_mut().zip(&r) {
                 *zi += ri;
@@ -557,13 +588,14 @@ impl EqualityLeastSquares {
         lambda: f64,
         delta: f64,
         g: &Triplets,
+        springs: &Triplets,
     ) -> Result<()> {
         if let Some(num) = &self.numeric {
             if num.delta == delta
                 && num.lambda == lambda
                 && num.a_vals == a.vals
                 && num.c_vals == c.vals
-                && num.active.same(g)
+                && num.active.same(g, springs)
             {
                 return Ok(());
             }
@@ -655,6 +687,28 @@ impl EqualityLeastSquares {
                 }
             }
         }
+        // Springs: (R S)ᵀ(R S), on the same contact blocks.
+        let mut springs_csr =
+            Compressed::from_entries(springs.nrows, n, &springs.rows, &springs.cols);
+        springs_csr.refill(&springs.vals);
+        for i in 0..springs_csr.nmajor {
+            for p in springs_csr.range(i) {
+                let cp = springs_csr.idx[p];
+                let vp = springs_csr.val[p] * col_scale[cp];
+                for q in springs_csr.range(i) {
+                    let cq = springs_csr.idx[q];
+                    if cq < cp {
+                        continue;
+                    }
+                    let Some(pos) = self.kkt_position(cp, cq) else {
+                        return Err(Error::Invalid(format!(
+                            "spring row {i} couples unknowns {cp} and {cq}, which share no row of A"
+                        )));
+                    };
+                    values[pos] += vp * springs_csr.val[q] * col_scale[cq];
+                }
+            }
+        }
         for (i, t) in c_row_scale.iter().enumerate() {
             let mut p = self.kkt_col_ptr[n + i];
             for q in self.c_csr.range(i) {
@@ -729,6 +783,9 @@ impl EqualityLeastSquares {
                 csr: g_csr,
                 row_scale: g_row_scale,
                 row_max: g_row_max,
+                springs_pattern: (springs.nrows, springs.rows.clone(), springs.cols.clone()),
+                springs_vals: springs.vals.clone(),
+                springs: springs_csr,
             },
             l_values,
         });
@@ -757,6 +814,17 @@ impl EqualityLeastSquares {
         let atr = mul_t_scaled(&self.a_csr, ones_a, s, &ra, n);
         let ctmu = mul_t_scaled(&self.c_csr, t, s, mu, n);
         let gtw = mul_t_scaled(g_csr, tg, s, w, n);
+        let springs = &num.active.springs;
+        let ones_r = vec![1.0; springs.nmajor];
+        let ry = mul_scaled(springs, &ones_r, s, y);
+        let rtry = mul_t_scaled(springs, &ones_r, s, &ry, n);
+        let rtry_bound = abs_mul_t_scaled(
+            springs,
+            &ones_r,
+            s,
+            &abs_mul_scaled(springs, &ones_r, s, y),
+            n,
+        );
         let cy = mul_scaled(&self.c_csr, t, s, y);
         let gy = mul_scaled(g_csr, tg, s, y);
 
@@ -776,9 +844,10 @@ impl EqualityLeastSquares {
         let (mut dual_num, mut dual_den) = (0.0f64, 0.0f64);
         for j in 0..n {
             let reg = num.lambda2_s2[j] * y[j];
-            let g = atr[j] - reg - ctmu[j] - gtw[j];
+            let g = atr[j] - reg - ctmu[j] - gtw[j] - rtry[j];
             dual_num = dual_num.max(g.abs());
-            dual_den = dual_den.max(dual_bound[j] + reg.abs() + ctmu_bound[j] + gtw_bound[j]);
+            dual_den = dual_den
+                .max(dual_bound[j] + reg.abs() + ctmu_bound[j] + gtw_bound[j] + rtry_bound[j]);
             r.push(g);
         }
         // Constraints are checked row by row (componentwise): each equation must
