@@ -1,8 +1,9 @@
 //! The active-set solver step by step on a synthetic packing, beside the
 //! interior point: solves, damping, changed contacts, fixed-point residual.
 //!
-//! Run: `cargo run --release --example active_set_trace [grains] [dim] [stress|geometry] [mu]`
-//! (defaults: 1000 2 stress 0.5; the interior point is skipped above 20 000 grains).
+//! Run: `cargo run --release --example active_set_trace [grains] [dim] [stress|geometry] [mu] [seed]`
+//! (defaults: 1000 2 stress 0.5 18 — noise seed 18 is `grainforce bench`'s; the
+//! interior point is skipped above 20 000 grains).
 
 use grainforce::assemble::{assemble, AssembleOptions};
 use grainforce::bench::{generate, perturb, Noise, PackingSpec};
@@ -24,7 +25,7 @@ fn main() -> grainforce::Result<()> {
     spec.mu = arg(4, "0.5").parse().expect("mu");
     spec.shear = 0.5 * spec.mu;
     let packing = generate(&spec)?;
-    let scene = perturb(&packing.scene, noise, 1);
+    let scene = perturb(&packing.scene, noise, arg(5, "18").parse().expect("seed"));
 
     // The bare solver on the largest cluster, to print its iterations.
     let assembly = assemble(&scene, &AssembleOptions::default())?;
