@@ -2,7 +2,7 @@
 //! of a diameter): relerr of the forces and the impulse check of the moving
 //! grains, against the measured Δv and against the noise-free one.
 //!
-//!     cargo run --example impulse_draws [fir ORDER CUTOFF | savgol WINDOW DEGREE] [REL_ACCEL_SD]
+//!     cargo run --example impulse_draws [fir ORDER CUTOFF | savgol WINDOW DEGREE] [REL_ACCEL_SD | knee]
 //!
 //! Without REL_ACCEL_SD the momentum weights are the library's per-frame ones
 //! for derived accelerations; with it, one relative m·a noise for all frames.
@@ -57,6 +57,11 @@ fn main() -> grainforce::Result<()> {
         let report = derive_accelerations(&mut noisy, fps, smoother)?;
         let mut per_frame = vec![base.clone(); noisy.len()];
         match relative {
+            _ if args.get(3).is_some_and(|a| a == "knee") => {
+                for o in &mut per_frame {
+                    o.dynamic.rule = LambdaRule::Knee;
+                }
+            }
             Some(sd) => {
                 for o in &mut per_frame {
                     o.dynamic.rule = LambdaRule::Weights {
@@ -101,6 +106,7 @@ fn main() -> grainforce::Result<()> {
     };
     relerrs.sort_by(f64::total_cmp);
     let weights = match relative {
+        _ if args.get(3).is_some_and(|a| a == "knee") => "knee".into(),
         Some(sd) => format!("relative m·a noise {sd}"),
         None => "per-frame derived-acceleration noise".into(),
     };
