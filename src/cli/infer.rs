@@ -429,8 +429,8 @@ pub fn run(args: Args) -> Result<()> {
         per_frame.push(o);
     }
     // Derived accelerations without a stated --accel-sd: per-frame noise.
-    if let (Some(k), None, LambdaRule::Weights { stress_sd, .. }) =
-        (&derived, args.accel_sd, opts.dynamic.rule)
+    if let (Some(k), None, LambdaRule::Weights { stress_sd, .. }, Method::Dynamic) =
+        (&derived, args.accel_sd, opts.dynamic.rule, opts.method)
     {
         kinematics::weight_derived_momentum(&frames, &mut per_frame, k, stress_sd)?;
     }
