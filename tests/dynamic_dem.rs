@@ -3,9 +3,9 @@
 use grainforce::dem::perturb::{perturb, PerturbConfig};
 use grainforce::dem::{simulate, DemConfig, Preset};
 use grainforce::infer::kinematics::{
-    derive_accelerations, impulse_check, ImpulseOptions, Smoother, DERIVED_ACCEL_SD,
+    derive_accelerations, impulse_check, weight_derived_momentum, ImpulseOptions, Smoother,
 };
-use grainforce::infer::{infer_sequence, InferOptions, LambdaRule, Method};
+use grainforce::infer::{infer_frames, infer_sequence, InferOptions, LambdaRule, Method};
 use grainforce::report::metrics::relative_error;
 use grainforce::scene::Vec3;
 
@@ -111,16 +111,10 @@ fn impact_with_accelerations_from_noisy_tracks() {
             ..Default::default()
         };
         let mut noisy = perturb(&run.frames, &config).unwrap();
-        derive_accelerations(&mut noisy, fps, Smoother::default_fir()).unwrap();
-        let results = infer_sequence(
-            &noisy,
-            &dynamic(LambdaRule::Weights {
-                stress_sd: 0.1,
-                momentum_sd: DERIVED_ACCEL_SD,
-            }),
-            false,
-        )
-        .unwrap();
+        let report = derive_accelerations(&mut noisy, fps, Smoother::default_fir()).unwrap();
+        let mut per_frame = vec![dynamic(LambdaRule::Knee); noisy.len()];
+        weight_derived_momentum(&noisy, &mut per_frame, &report, 0.1).unwrap();
+        let results = infer_frames(&noisy, &per_frame, false).unwrap();
         let forces: Vec<Vec<Vec3>> = results.iter().map(|r| r.forces_or_zero()).collect();
         let e = overall(&run.forces, &forces);
         let inferred: Vec<Vec<Option<Vec3>>> = results.iter().map(|r| r.forces.clone()).collect();
@@ -154,6 +148,13 @@ fn impact_with_accelerations_from_noisy_tracks() {
         // |Δv| ≈ 0.13 m/s, sits under 20 noise sd).
         assert!(count >= 4, "seed {seed}: only {count} grains move");
         moving.extend(check.moving().map(|r| r.disagreement));
+        // Against the noise-free Δv (exact tracks), the inferred impulses of
+        // the moving grains are off by 9 % at worst.
+        for (r, t) in check.rows.iter().zip(&exact.rows).filter(|(r, _)| r.moves) {
+            let gap = (r.inferred[0] - t.measured[0]).hypot(r.inferred[1] - t.measured[1]);
+            let off = gap / t.measured[0].hypot(t.measured[1]);
+            assert!(off <= 0.10, "seed {seed}, grain {}: {off}", r.grain);
+        }
         if seed == 3 {
             // Trusting these accelerations exactly is refused (noisy
             // accelerations of grains at rest would need tension), not
@@ -165,19 +166,19 @@ fn impact_with_accelerations_from_noisy_tracks() {
         }
     }
     moving.sort_by(f64::total_cmp);
-    let within = moving.iter().filter(|&&d| d <= 0.10).count() as f64 / moving.len() as f64;
+    let outside = moving.iter().filter(|&&d| d > 0.10).count();
     let median = moving[moving.len() / 2];
     let worst = moving[moving.len() - 1];
     eprintln!(
-        "impulse check over {} moving grain-draws: median {median:.3}, {:.0} % within 10 %, worst {worst:.3}",
+        "impulse check over {} moving grain-draws: median {median:.3}, {outside} outside 10 %, worst {worst:.3}",
         moving.len(),
-        100.0 * within
     );
-    // Measured: median 0.048, 90 % within 10 %, worst 0.167 — the remaining
-    // gap is the inferred forces' own error, not the tracks' noise.
-    assert!(median <= 0.10, "median disagreement {median}");
-    assert!(within >= 0.8, "only {:.0} % within 10 %", 100.0 * within);
-    assert!(worst <= 0.25, "worst disagreement {worst}");
+    // Measured: median 0.038, 59 of 60 within 10 %, worst 0.137 (seed 11,
+    // grain 1, |Δv| 0.53 m/s: its measured Δv is 2.3 sd, 5 %, off the
+    // noise-free one and the inferred one 9 % off the other way).
+    assert!(median <= 0.05, "median disagreement {median}");
+    assert!(outside <= 1, "{outside} moving grain-draws outside 10 %");
+    assert!(worst <= 0.15, "worst disagreement {worst}");
 }
 
 #[test]

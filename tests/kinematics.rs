@@ -2,7 +2,8 @@
 
 use grainforce::dem::perturb::{perturb, PerturbConfig};
 use grainforce::infer::kinematics::{
-    derive_accelerations, fir_zero_phase, impulse_check, savitzky_golay, ImpulseOptions, Smoother,
+    acceleration_noise_gain, derive_accelerations, fir_zero_phase, impulse_check, savitzky_golay,
+    ImpulseOptions, Smoother,
 };
 use grainforce::scene::{Grain, Scene};
 
@@ -348,4 +349,53 @@ fn impulse_check_rejects_bad_options_and_skips_short_tracks() {
     let check = impulse_check(&frames, &forces, fps, [0.0; 3], &options).unwrap();
     assert!(check.rows.is_empty());
     assert_eq!(check.skipped, vec!["7".to_string()]);
+}
+
+#[test]
+fn stated_acceleration_noise_matches_noisy_tracks() {
+    // White position noise of sd σ on a still grain: the derived acceleration's
+    // sd per frame is the stated gain × σ, larger at the track's ends.
+    let (fps, n, sigma, draws) = (5000.0, 80, 1e-5, 400);
+    for smoother in [
+        Smoother::default_fir(),
+        Smoother::SavitzkyGolay {
+            window: 11,
+            degree: 3,
+        },
+    ] {
+        let gain = acceleration_noise_gain(n, 1.0 / fps, smoother);
+        // The shortcut for long tracks gives what the full computation gives.
+        let long = acceleration_noise_gain(300, 1.0 / fps, smoother);
+        assert!((long[150] - gain[40]).abs() <= 1e-9 * gain[40]);
+        assert!((long[299] - gain[79]).abs() <= 1e-9 * gain[79]);
+        let edge = gain[..6].iter().copied().fold(0.0, f64::max);
+        assert!(edge > 1.3 * gain[40], "{smoother:?}: {gain:?}");
+        let still = track_frames(n, fps, |_| [0.3, 0.2, 0.0]);
+        let (mut sum_sq, mut ratios) = (vec![0.0; n], 0.0);
+        for seed in 0..draws {
+            let config = PerturbConfig {
+                position_noise: sigma,
+                seed,
+                ..Default::default()
+            };
+            let mut frames = perturb(&still, &config).unwrap();
+            let report = derive_accelerations(&mut frames, fps, smoother).unwrap();
+            assert_eq!(report.acceleration_sd.len(), n);
+            // Stated from the position noise estimated on this one track.
+            ratios += report.acceleration_sd[40] / (sigma * gain[40]) / draws as f64;
+            for (s, f) in sum_sq.iter_mut().zip(&frames) {
+                *s += f.grains[0].acceleration.unwrap()[0].powi(2);
+            }
+        }
+        assert!((0.95..1.05).contains(&ratios), "{smoother:?}: {ratios}");
+        // 400 draws: the sample sd is within ±10 % at 3 sd (≈ 3.5 % each).
+        for k in [0, 1, 5, 40, 79] {
+            let measured = (sum_sq[k] / draws as f64).sqrt();
+            let stated = sigma * gain[k];
+            assert!(
+                (measured / stated - 1.0).abs() < 0.1,
+                "{smoother:?} frame {k}: measured {measured}, stated {stated}"
+            );
+        }
+    }
 }

@@ -80,8 +80,9 @@ pub struct Args {
     pub stress_sd: f64,
     /// Dynamic, rule weights: relative noise of m·a (0 = accelerations exact).
     /// Default: 0 for accelerations read from grains.csv (trusted, momentum
-    /// exact), 0.3 for accelerations derived here from noisy tracks (measured
-    /// best on the impact preset; see the README).
+    /// exact); for accelerations derived here from tracks, per frame, twice the
+    /// position noise (estimated from the tracks) propagated through the
+    /// filter (measured best on the impact preset; see the README).
     #[arg(long)]
     pub accel_sd: Option<f64>,
     /// Dynamic: dimensionless λ range of the Pareto sweep, MIN..MAX.
@@ -114,7 +115,7 @@ pub struct Args {
     #[arg(long, default_value_t = 20)]
     pub fir_order: usize,
     /// FIR cut-off as a fraction of the Nyquist frequency (fps/2).
-    #[arg(long, default_value_t = 0.2)]
+    #[arg(long, default_value_t = 0.15)]
     pub cutoff: f64,
     /// Savitzky–Golay window (odd number of frames).
     #[arg(long, default_value_t = 11)]
@@ -375,7 +376,7 @@ fn uncertainty(
 }
 
 pub fn run(args: Args) -> Result<()> {
-    let (mut opts, selection) = options(&args)?;
+    let (opts, selection) = options(&args)?;
     let mut frames = scene::read_sequence(&args.scene)?;
     if let Some(r) = &args.frames {
         let (lo, hi) = range("--frames", r)?;
@@ -399,6 +400,7 @@ pub fn run(args: Args) -> Result<()> {
             degree: args.savgol_degree,
         },
     };
+    let mut derived = None;
     let lacks_accelerations = frames.len() > 1 && !frames.iter().any(|f| f.has_accelerations());
     if args.derive_accelerations || (lacks_accelerations && opts.method == Method::Dynamic) {
         let fps = args.fps.ok_or_else(|| {
@@ -407,20 +409,16 @@ pub fn run(args: Args) -> Result<()> {
             )
         })?;
         let k = kinematics::derive_accelerations(&mut frames, fps, smoother)?;
-        if let (None, LambdaRule::Weights { stress_sd, .. }) = (args.accel_sd, opts.dynamic.rule) {
-            opts.dynamic.rule = LambdaRule::Weights {
-                stress_sd,
-                momentum_sd: kinematics::DERIVED_ACCEL_SD,
-            };
-        }
         if !args.quiet {
             eprintln!(
-                "accelerations derived from {} tracks ({} partial, {} too short: zero)",
+                "accelerations derived from {} tracks ({} partial, {} too short: zero); position noise {:.3e} m estimated from the tracks",
                 k.tracks,
                 k.partial_tracks,
-                k.short_tracks.len()
+                k.short_tracks.len(),
+                k.position_sd
             );
         }
+        derived = Some(k);
     }
     let mut per_frame = Vec::with_capacity(frames.len());
     for frame in &frames {
@@ -429,6 +427,12 @@ pub fn run(args: Args) -> Result<()> {
             o.assemble.active = Some(scene::select_subassembly(frame, &selection)?);
         }
         per_frame.push(o);
+    }
+    // Derived accelerations without a stated --accel-sd: per-frame noise.
+    if let (Some(k), None, LambdaRule::Weights { stress_sd, .. }, Method::Dynamic) =
+        (&derived, args.accel_sd, opts.dynamic.rule, opts.method)
+    {
+        kinematics::weight_derived_momentum(&frames, &mut per_frame, k, stress_sd)?;
     }
     let results = if frames.len() == 1 {
         vec![infer::infer(&frames[0], &per_frame[0])?]

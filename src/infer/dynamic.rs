@@ -270,26 +270,33 @@ pub(crate) fn weight_from_noise(
     stress_sd: f64,
     momentum_sd: f64,
 ) -> Option<f64> {
-    let rms = |f: &dyn Fn(&System) -> &Vec<f64>| {
-        let (sum, n) = assembly.systems.iter().fold((0.0, 0usize), |(s, n), sys| {
-            let v = f(sys);
-            (s + v.iter().map(|x| x * x).sum::<f64>(), n + v.len())
-        });
-        if n > 0 {
-            (sum / n as f64).sqrt()
-        } else {
-            0.0
-        }
-    };
-    let sigma_s = stress_sd * rms(&|s: &System| &s.stress_rhs);
-    // A floor so grains at rest (b_m = 0) still get a finite weight.
-    let sigma_m = momentum_sd
-        * rms(&|s: &System| &s.momentum_rhs).max(1e-3 * rms(&|s: &System| &s.stress_rhs));
+    let sigma_s = stress_sd * rms(assembly, &|s: &System| &s.stress_rhs);
+    let sigma_m = momentum_sd * momentum_row_scale(assembly);
     if sigma_m <= 0.0 {
         None
     } else {
         Some((sigma_s / sigma_m).powi(2).clamp(1e-12, 1e12))
     }
+}
+
+fn rms(assembly: &Assembly, f: &dyn Fn(&System) -> &Vec<f64>) -> f64 {
+    let (sum, n) = assembly.systems.iter().fold((0.0, 0usize), |(s, n), sys| {
+        let v = f(sys);
+        (s + v.iter().map(|x| x * x).sum::<f64>(), n + v.len())
+    });
+    if n > 0 {
+        (sum / n as f64).sqrt()
+    } else {
+        0.0
+    }
+}
+
+/// What `LambdaRule::Weights` multiplies its momentum_sd by to get σ of a
+/// (dimensionless) momentum row: the rms of the momentum right-hand sides,
+/// with a floor so grains at rest (b_m = 0) still get a finite weight.
+pub(crate) fn momentum_row_scale(assembly: &Assembly) -> f64 {
+    rms(assembly, &|s: &System| &s.momentum_rhs)
+        .max(1e-3 * rms(assembly, &|s: &System| &s.stress_rhs))
 }
 
 /// min ‖K_s x − b_s‖² + λ‖K_m x − b_m‖² without inequalities: one stacked

@@ -4,6 +4,7 @@
 //! (table 3.1): Δv from the integrated inferred contact forces vs Δv measured,
 //! with the measured side's noise.
 
+use super::{InferOptions, LambdaRule};
 use crate::error::{Error, Result};
 use crate::scene::{Body, Scene, Vec3};
 use std::collections::BTreeMap;
@@ -18,12 +19,22 @@ pub enum Smoother {
 }
 
 impl Smoother {
-    /// Defaults from the frame rate: keep motion below fps/10 (cut-off 0.2 of
-    /// Nyquist), 20th order — measured on the `impact` preset (see README).
+    /// Defaults from the frame rate: keep motion below 0.075 fps (cut-off
+    /// 0.15 of Nyquist), 20th order — measured on the `impact` preset at
+    /// 5000 frames/s with 0.1 % of a diameter position noise (see README):
+    /// 0.2 passes more noise, 0.1 smears the impacts.
     pub fn default_fir() -> Self {
         Smoother::Fir {
             order: 20,
-            cutoff: 0.2,
+            cutoff: 0.15,
+        }
+    }
+
+    /// Frames on either side of a sample that its derivative depends on.
+    fn reach(&self) -> usize {
+        match *self {
+            Smoother::Fir { order, .. } => order / 2 + 1,
+            Smoother::SavitzkyGolay { window, .. } => window / 2,
         }
     }
 
@@ -48,12 +59,15 @@ impl Smoother {
     }
 }
 
-/// Relative noise of m·a to state (`LambdaRule::Weights { momentum_sd }`) for
-/// accelerations derived here from tracked positions. Measured on `impact`
-/// with 0.1 % of a diameter position noise and exact stresses: 0.1 → relerr
-/// 0.051, 0.3 → 0.038, 1 → 0.026; 0.3 also leaves room for noisy stresses.
-/// Treating derived accelerations as exact is usually infeasible.
-pub const DERIVED_ACCEL_SD: f64 = 0.3;
+/// Accelerations derived here are inferred with a stated noise of this many
+/// times the position noise propagated through the filter
+/// ([`KinematicsReport::acceleration_sd`]): the rest covers the filter's
+/// smoothing of impacts. Measured on `impact` (0.1 % of a diameter position
+/// noise, twelve draws; relerr, moving grain-draws within 10 % of the
+/// measured Δv, worst): 1 → 0.037–0.043, 57/60, 0.12; 1.5 → 0.033–0.038,
+/// 59/60, 0.13; 2 → 0.030–0.035, 59/60, 0.14 (all within 9.1 % of the
+/// noise-free Δv); 3 → 0.027–0.031, 58/60, 0.16.
+pub const DERIVED_ACCEL_NOISE_FACTOR: f64 = 2.0;
 
 /// What happened while deriving accelerations.
 #[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
@@ -63,6 +77,12 @@ pub struct KinematicsReport {
     pub short_tracks: Vec<String>,
     /// Grains that appear or disappear during the sequence.
     pub partial_tracks: usize,
+    /// Position noise estimated from the tracks [m] ([`estimate_position_sd`]).
+    pub position_sd: f64,
+    /// Per frame: rms over its tracked grains of the derived acceleration's
+    /// noise sd [m/s²], the position noise propagated through the filter and
+    /// the difference — largest near the ends of tracks.
+    pub acceleration_sd: Vec<f64>,
 }
 
 /// Positions of each grain id by frame index (frames must be sorted by number).
@@ -132,6 +152,39 @@ fn differentiate(samples: &[Vec3], dt: f64, smoother: Smoother, deriv: usize) ->
         }
     }
     out
+}
+
+/// Standard deviation of the derived acceleration at each of `n` consecutive
+/// samples per unit standard deviation of white position noise: the filter
+/// and difference are linear, so it is the norm of each output's weights.
+/// It is largest at the ends of a track, where the filter has fewer neighbours.
+pub fn acceleration_noise_gain(n: usize, dt: f64, smoother: Smoother) -> Vec<f64> {
+    // Samples out of the stencil's reach of both ends share one gain, so a
+    // long track is computed on a short one (cost independent of n).
+    let reach = smoother.reach() + 1;
+    let short = n.min(2 * reach + 1);
+    let mut sum_sq = vec![0.0; short];
+    let mut unit = vec![[0.0; 3]; short];
+    for j in 0..short {
+        unit[j][0] = 1.0;
+        let response = differentiate(&unit, dt, smoother, 2);
+        unit[j][0] = 0.0;
+        for (s, r) in sum_sq.iter_mut().zip(&response) {
+            *s += r[0] * r[0];
+        }
+    }
+    (0..n)
+        .map(|i| {
+            let k = if i < reach {
+                i
+            } else if i + reach >= n {
+                i + short - n
+            } else {
+                reach
+            };
+            sum_sq[k].sqrt()
+        })
+        .collect()
 }
 
 /// Low-pass windowed sinc (Hamming), applied as a centred (zero-phase)
@@ -228,8 +281,8 @@ pub fn savitzky_golay(x: &[f64], dt: f64, window: usize, degree: usize, deriv: u
 }
 
 /// Fills every grain's centroid acceleration from its track. Frames must be
-/// consecutive and sorted; grains are matched by id. Infer with
-/// [`DERIVED_ACCEL_SD`] as the acceleration noise, not as exact momentum.
+/// consecutive and sorted; grains are matched by id. Infer with the noise
+/// this reports ([`weight_derived_momentum`]), not with exact momentum.
 pub fn derive_accelerations(
     frames: &mut [Scene],
     fps: f64,
@@ -241,6 +294,8 @@ pub fn derive_accelerations(
     let mut report = KinematicsReport::default();
     let all = tracks(frames);
     report.tracks = all.len();
+    report.position_sd = estimate_position_sd(frames);
+    let mut gain_sq = vec![(0.0, 0usize); frames.len()];
     let mut accel: Vec<BTreeMap<String, Vec3>> = vec![BTreeMap::new(); frames.len()];
     for (id, track) in &all {
         if track.len() < frames.len() {
@@ -256,11 +311,24 @@ pub fn derive_accelerations(
             }
             let positions: Vec<Vec3> = seg.iter().map(|s| s.1).collect();
             let a = differentiate(&positions, dt, smoother, 2);
-            for (&(k, _), a) in seg.iter().zip(a) {
+            let gain = acceleration_noise_gain(seg.len(), dt, smoother);
+            for ((&(k, _), a), g) in seg.iter().zip(a).zip(gain) {
                 accel[k].insert(id.clone(), a);
+                gain_sq[k].0 += g * g;
+                gain_sq[k].1 += 1;
             }
         }
     }
+    report.acceleration_sd = gain_sq
+        .iter()
+        .map(|&(sq, n)| {
+            if n > 0 {
+                report.position_sd * (sq / n as f64).sqrt()
+            } else {
+                0.0
+            }
+        })
+        .collect();
     for (frame, acc) in frames.iter_mut().zip(accel) {
         let dim = frame.dim;
         for g in &mut frame.grains {
@@ -273,6 +341,56 @@ pub fn derive_accelerations(
     }
     Ok(report)
 }
+
+/// Sets each frame's momentum weight for accelerations derived by
+/// [`derive_accelerations`]: `LambdaRule::Weights` with the stresses'
+/// relative noise `stress_sd` and, for m·a, the absolute acceleration noise
+/// [`DERIVED_ACCEL_NOISE_FACTOR`] × `report.acceleration_sd` of that frame.
+/// Per frame, because the noise is larger near the ends of tracks and its
+/// size relative to m·a varies from impact to rest; a weight relative to each
+/// frame's m·a would trust the noise of grains at rest.
+pub fn weight_derived_momentum(
+    frames: &[Scene],
+    options: &mut [InferOptions],
+    report: &KinematicsReport,
+    stress_sd: f64,
+) -> Result<()> {
+    if options.len() != frames.len() || report.acceleration_sd.len() != frames.len() {
+        return Err(Error::Invalid(
+            "one set of options and one acceleration noise per frame are needed".into(),
+        ));
+    }
+    for ((frame, o), &sigma_a) in frames.iter().zip(options).zip(&report.acceleration_sd) {
+        // The assembly infer() builds for a soft momentum weight.
+        let mut assemble = o.assemble.clone();
+        assemble.prune_single_contacts = false;
+        assemble.single_system = false;
+        let assembly = crate::assemble::assemble(frame, &assemble)?;
+        let (sum, count) = assembly
+            .systems
+            .iter()
+            .flat_map(|s| &s.grains)
+            .filter_map(|&p| frame.grains[p].mass)
+            .fold((0.0, 0usize), |(s, n), m| (s + m * m, n + 1));
+        let scale = super::dynamic::momentum_row_scale(&assembly);
+        let momentum_sd = if count > 0 && scale > 0.0 {
+            let mass = (sum / count as f64).sqrt();
+            let sigma_row = DERIVED_ACCEL_NOISE_FACTOR * sigma_a * mass / assembly.scales.force;
+            // Noise-free tracks still carry the filter's smoothing: never exact.
+            (sigma_row / scale).max(MIN_DERIVED_MOMENTUM_SD)
+        } else {
+            1.0
+        };
+        o.dynamic.rule = LambdaRule::Weights {
+            stress_sd,
+            momentum_sd,
+        };
+    }
+    Ok(())
+}
+
+/// Floor of the relative momentum noise of derived accelerations.
+const MIN_DERIVED_MOMENTUM_SD: f64 = 0.01;
 
 /// How the impulse check compares velocities.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
