@@ -527,16 +527,21 @@ impl System {
             let delta = reach - dist;
             let arm_i = ri - 0.5 * delta;
             let arm_j = rj - 0.5 * delta;
-            let r_i = [arm_i * n[0], arm_i * n[1], arm_i * n[2]];
-            let r_j = [-arm_j * n[0], -arm_j * n[1], -arm_j * n[2]];
-            let vi = v[i];
-            let vj = v[j];
-            let ci = cross(w[i], r_i);
-            let cj = cross(w[j], r_j);
+            let (vi, vj, wi, wj) = (v[i], v[j], w[i], w[j]);
+            // The contact point is at arm_i n from i and −arm_j n from j:
+            // ω_i × r_i − ω_j × r_j = (arm_i ω_i + arm_j ω_j) × n.
+            let spin = cross(
+                [
+                    arm_i * wi[0] + arm_j * wj[0],
+                    arm_i * wi[1] + arm_j * wj[1],
+                    arm_i * wi[2] + arm_j * wj[2],
+                ],
+                n,
+            );
             let rel = [
-                vi[0] + ci[0] - vj[0] - cj[0],
-                vi[1] + ci[1] - vj[1] - cj[1],
-                vi[2] + ci[2] - vj[2] - cj[2],
+                vi[0] - vj[0] + spin[0],
+                vi[1] - vj[1] + spin[1],
+                vi[2] - vj[2] + spin[2],
             ];
             let vn = dot(rel, n);
             let vt = [rel[0] - vn * n[0], rel[1] - vn * n[1], rel[2] - vn * n[2]];
@@ -552,8 +557,17 @@ impl System {
             ];
             add_to(&mut f[i], fa);
             sub_from(&mut f[j], fa);
-            add_to(&mut t[i], cross(r_i, fa));
-            sub_from(&mut t[j], cross(r_j, fa));
+            // Only the tangential force has a moment about the centres
+            // (r ∥ n): r_i × f = arm_i n × f_t, −r_j × f = arm_j n × f_t.
+            let moment = cross(n, cf.tangential);
+            add_to(
+                &mut t[i],
+                [arm_i * moment[0], arm_i * moment[1], arm_i * moment[2]],
+            );
+            add_to(
+                &mut t[j],
+                [arm_j * moment[0], arm_j * moment[1], arm_j * moment[2]],
+            );
             force_sum += dot(fa, fa).sqrt();
             count += 1;
             // Divides only for a candidate maximum.
@@ -566,7 +580,11 @@ impl System {
                     a: i as u32,
                     b: j as u32,
                     wall: false,
-                    point: [x[i][0] + r_i[0], x[i][1] + r_i[1], x[i][2] + r_i[2]],
+                    point: [
+                        x[i][0] + arm_i * n[0],
+                        x[i][1] + arm_i * n[1],
+                        x[i][2] + arm_i * n[2],
+                    ],
                     normal: n,
                     force: fa,
                     id: pair.hist.id,
