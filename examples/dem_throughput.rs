@@ -7,8 +7,8 @@
 //! takes minutes) and tiled into larger boxes (≈10⁴, and ≈10⁵ with --large).
 //! The walls are moved 0.5 % of a copy into the packing so it stays jammed. Each
 //! system then runs with fixed walls (linear spring–dashpot with history,
-//! friction, no numerical damping) and the particle-steps per second are
-//! printed. The same systems are written as LAMMPS inputs (pair gran/hooke/history,
+//! friction, no numerical damping) and the particle-steps per CPU second
+//! (per wall-clock second where the CPU time is not available) are printed. The same systems are written as LAMMPS inputs (pair gran/hooke/history,
 //! fix wall/gran, nve/sphere) into DIR; when `lmp` is on the PATH (see
 //! benches/lammps/run.sh) they are run and the ratio printed.
 
@@ -23,8 +23,8 @@ struct Case {
     grains: usize,
     steps: u64,
     ours: f64,
+    theirs: Option<f64>,
     contacts_per_grain: f64,
-    input: PathBuf,
 }
 
 fn main() {
@@ -42,6 +42,7 @@ fn main() {
         .and_then(|i| args.get(i + 1))
         .map(|d| d.parse().expect("--dim takes 2 or 3"));
     std::fs::create_dir_all(&out).expect("output folder");
+    let lammps = which("lmp").filter(|_| !args.iter().any(|a| a == "--no-lammps"));
     let mut cases = Vec::new();
     for dim in [2usize, 3] {
         if only_dim.is_some_and(|d| d != dim) {
@@ -64,41 +65,47 @@ fn main() {
                 sys.step();
             }
             let t = Instant::now();
+            let cpu = cpu_seconds();
             let mut contacts = 0usize;
             for _ in 0..steps {
                 sys.step();
                 contacts += sys.contact_count;
             }
-            let seconds = t.elapsed().as_secs_f64();
+            let wall = t.elapsed().as_secs_f64();
+            let seconds = match (cpu, cpu_seconds()) {
+                (Some(a), Some(b)) => b - a,
+                _ => wall,
+            };
             let ours = sys.len() as f64 * steps as f64 / seconds;
+            // Right after ours, so both see about the same load on a shared machine.
+            let theirs = lammps
+                .as_ref()
+                .and_then(|lmp| run_lammps(lmp, &input, sys.len()));
             cases.push(Case {
                 dim,
                 grains: sys.len(),
                 steps,
                 ours,
+                theirs,
                 contacts_per_grain: 2.0 * contacts as f64 / steps as f64 / sys.len() as f64,
-                input,
             });
             eprintln!(
-                "{dim}D {:>7} grains: {:.3e} particle-steps/s ({} steps, {} neighbour-list builds)",
+                "{dim}D {:>7} grains: {:.3e} particle-steps/s ({} steps, {} neighbour-list builds, {:.0} % CPU)",
                 sys.len(),
                 ours,
                 steps,
-                sys.neighbour_builds()
+                sys.neighbour_builds(),
+                100.0 * seconds / wall
             );
         }
     }
-    let lammps = which("lmp").filter(|_| !args.iter().any(|a| a == "--no-lammps"));
     if lammps.is_none() {
         eprintln!("lmp not found on PATH: LAMMPS inputs written to {} (benches/lammps/run.sh installs and runs it)", out.display());
     }
     println!("| dim | grains | contacts/grain | steps | grainforce [particle-steps/s] | LAMMPS [particle-steps/s] | ratio |");
     println!("|---|---|---|---|---|---|---|");
     for case in &cases {
-        let theirs = lammps
-            .as_ref()
-            .and_then(|lmp| run_lammps(lmp, &case.input, case.grains));
-        let (t, r) = match theirs {
+        let (t, r) = match case.theirs {
             Some(v) => (format!("{v:.3e}"), format!("{:.2}", case.ours / v)),
             None => ("–".into(), "–".into()),
         };
@@ -271,6 +278,15 @@ fn tile(base: &System, copies: [usize; 3], density: f64, rmax: f64) -> System {
     sys
 }
 
+/// CPU time of this thread (Linux: /proc/thread-self/schedstat, ns on CPU).
+/// On a shared machine it counts only the time we ran, as LAMMPS' "% CPU use"
+/// lets us count for it.
+fn cpu_seconds() -> Option<f64> {
+    let text = std::fs::read_to_string("/proc/thread-self/schedstat").ok()?;
+    let ns: f64 = text.split_whitespace().next()?.parse().ok()?;
+    Some(ns * 1e-9)
+}
+
 fn which(name: &str) -> Option<PathBuf> {
     let path = std::env::var_os("PATH")?;
     std::env::split_paths(&path)
@@ -386,7 +402,8 @@ fn write_lammps(dir: &Path, sys: &System, steps: u64, mu: f64) -> PathBuf {
     path
 }
 
-/// Runs LAMMPS on one input; parses "Loop time of T on 1 procs for S steps with N atoms".
+/// Runs LAMMPS on one input; parses "Loop time of T on 1 procs for S steps
+/// with N atoms" and the "% CPU use" below it: particle-steps per CPU second.
 fn run_lammps(lmp: &Path, input: &Path, grains: usize) -> Option<f64> {
     let dir = input.parent()?;
     let log = format!("{}.log", input.file_stem()?.to_str()?);
@@ -403,10 +420,21 @@ fn run_lammps(lmp: &Path, input: &Path, grains: usize) -> Option<f64> {
         .output()
         .ok()?;
     let text = std::fs::read_to_string(dir.join(&log)).ok()?;
-    let line = text.lines().rev().find(|l| l.starts_with("Loop time of"))?;
-    let words: Vec<&str> = line.split_whitespace().collect();
-    let seconds: f64 = words.get(3)?.parse().ok()?;
+    let lines: Vec<&str> = text.lines().collect();
+    let at = lines.iter().rposition(|l| l.starts_with("Loop time of"))?;
+    let words: Vec<&str> = lines[at].split_whitespace().collect();
+    let wall: f64 = words.get(3)?.parse().ok()?;
     let steps: f64 = words.get(8)?.parse().ok()?;
+    // "97.3% CPU use with 1 MPI tasks x 1 OpenMP threads": CPU time, as for ours.
+    let cpu_share = lines[at + 1..]
+        .iter()
+        .find_map(|l| {
+            l.split_once("% CPU use")
+                .map(|(p, _)| p.trim().parse::<f64>())
+        })
+        .and_then(|p| p.ok())
+        .map(|p| p / 100.0);
+    let seconds = wall * cpu_share.unwrap_or(1.0);
     if !output.status.success() || seconds <= 0.0 {
         eprintln!("LAMMPS failed on {}", input.display());
         return None;
