@@ -1,13 +1,14 @@
 //! Throughput of the DEM on the `box` scene, and of LAMMPS on the same system.
 //!
-//! `cargo run --release --example dem_throughput [-- --large] [--out DIR]`
+//! `cargo run --release --example dem_throughput [-- --large] [--dim D] [--no-lammps] [--out DIR]`
 //!
 //! A `box` packing of 1000 grains is prepared (servo compression, loose gate)
-//! in 2D and 3D and tiled into larger boxes (≈10⁴, and ≈10⁵ with --large).
-//! The walls are moved 0.5 % into the packing so it stays jammed. Each
+//! in 2D and 3D (the relaxed state is cached in DIR: preparing the 3D box
+//! takes minutes) and tiled into larger boxes (≈10⁴, and ≈10⁵ with --large).
+//! The walls are moved 0.5 % of a copy into the packing so it stays jammed. Each
 //! system then runs with fixed walls (linear spring–dashpot with history,
-//! friction, no numerical damping) and the particle-steps per second are
-//! printed. The same systems are written as LAMMPS inputs (pair gran/hooke/history,
+//! friction, no numerical damping) and the particle-steps per CPU second
+//! (per wall-clock second where the CPU time is not available) are printed. The same systems are written as LAMMPS inputs (pair gran/hooke/history,
 //! fix wall/gran, nve/sphere) into DIR; when `lmp` is on the PATH (see
 //! benches/lammps/run.sh) they are run and the ratio printed.
 
@@ -22,8 +23,8 @@ struct Case {
     grains: usize,
     steps: u64,
     ours: f64,
+    theirs: Option<f64>,
     contacts_per_grain: f64,
-    input: PathBuf,
 }
 
 fn main() {
@@ -35,71 +36,76 @@ fn main() {
         .and_then(|i| args.get(i + 1))
         .map(PathBuf::from)
         .unwrap_or_else(|| PathBuf::from("target/dem_bench"));
+    let only_dim: Option<usize> = args
+        .iter()
+        .position(|a| a == "--dim")
+        .and_then(|i| args.get(i + 1))
+        .map(|d| d.parse().expect("--dim takes 2 or 3"));
     std::fs::create_dir_all(&out).expect("output folder");
+    let lammps = which("lmp").filter(|_| !args.iter().any(|a| a == "--no-lammps"));
     let mut cases = Vec::new();
     for dim in [2usize, 3] {
+        if only_dim.is_some_and(|d| d != dim) {
+            continue;
+        }
         let config = DemConfig::preset(Preset::Box, dim).grains(1000).gate(1e-2);
-        let t = Instant::now();
-        let (base, report) = prepare(&config).expect("box preparation");
-        eprintln!(
-            "{dim}D base box: {} grains, {} contacts, unbalanced {:.1e}, prepared in {:.1} s ({} steps)",
-            base.len(),
-            report.contacts,
-            report.unbalanced_ratio,
-            t.elapsed().as_secs_f64(),
-            report.steps
-        );
+        let base = prepared_base(&config, &out);
         let mut targets = vec![1_000usize, 10_000];
         if large {
             targets.push(100_000);
         }
         for target in targets {
-            let k = ((target as f64 / base.len() as f64).powf(1.0 / dim as f64))
-                .round()
-                .max(1.0) as usize;
-            let mut sys = tile(&base, k, config.density, config.sizes.max_radius());
+            let copies = copies_for(target, base.len(), dim);
+            let mut sys = tile(&base, copies, config.density, config.sizes.max_radius());
             // About 3·10⁷ particle-steps per case.
             let steps = ((3e7 / sys.len() as f64) as u64).clamp(100, 30_000);
+            // LAMMPS starts from the same state: the tiled packing at rest.
+            let input = write_lammps(&out, &sys, steps, config.grain.mu);
             for _ in 0..20 {
                 sys.step();
             }
             let t = Instant::now();
+            let cpu = cpu_seconds();
             let mut contacts = 0usize;
             for _ in 0..steps {
                 sys.step();
                 contacts += sys.contact_count;
             }
-            let seconds = t.elapsed().as_secs_f64();
+            let wall = t.elapsed().as_secs_f64();
+            let seconds = match (cpu, cpu_seconds()) {
+                (Some(a), Some(b)) => b - a,
+                _ => wall,
+            };
             let ours = sys.len() as f64 * steps as f64 / seconds;
-            let input = write_lammps(&out, &sys, steps, config.grain.mu);
+            // Right after ours, so both see about the same load on a shared machine.
+            let theirs = lammps
+                .as_ref()
+                .and_then(|lmp| run_lammps(lmp, &input, sys.len()));
             cases.push(Case {
                 dim,
                 grains: sys.len(),
                 steps,
                 ours,
+                theirs,
                 contacts_per_grain: 2.0 * contacts as f64 / steps as f64 / sys.len() as f64,
-                input,
             });
             eprintln!(
-                "{dim}D {:>7} grains: {:.3e} particle-steps/s ({} steps, {} neighbour-list builds)",
+                "{dim}D {:>7} grains: {:.3e} particle-steps/s ({} steps, {} neighbour-list builds, {:.0} % CPU)",
                 sys.len(),
                 ours,
                 steps,
-                sys.neighbour_builds()
+                sys.neighbour_builds(),
+                100.0 * seconds / wall
             );
         }
     }
-    let lammps = which("lmp");
     if lammps.is_none() {
         eprintln!("lmp not found on PATH: LAMMPS inputs written to {} (benches/lammps/run.sh installs and runs it)", out.display());
     }
     println!("| dim | grains | contacts/grain | steps | grainforce [particle-steps/s] | LAMMPS [particle-steps/s] | ratio |");
     println!("|---|---|---|---|---|---|---|");
     for case in &cases {
-        let theirs = lammps
-            .as_ref()
-            .and_then(|lmp| run_lammps(lmp, &case.input, case.grains));
-        let (t, r) = match theirs {
+        let (t, r) = match case.theirs {
             Some(v) => (format!("{v:.3e}"), format!("{:.2}", case.ours / v)),
             None => ("–".into(), "–".into()),
         };
@@ -110,8 +116,94 @@ fn main() {
     }
 }
 
-/// k^dim copies of the base packing side by side, inside walls around them all.
-fn tile(base: &System, k: usize, density: f64, rmax: f64) -> System {
+/// The relaxed base box. Preparing it takes minutes (the 3D box most), so the
+/// relaxed positions are cached in `out` under a name that hashes the whole
+/// configuration; a cached state is put back into the freshly built (not
+/// relaxed) system of the same configuration, whose radii must match.
+fn prepared_base(config: &DemConfig, out: &Path) -> System {
+    use std::hash::{Hash, Hasher};
+    let mut hasher = std::collections::hash_map::DefaultHasher::new();
+    format!("{config:?}").hash(&mut hasher);
+    let dim = config.dim;
+    let cache = out.join(format!("base{dim}d_{:016x}.txt", hasher.finish()));
+    if let Ok(text) = std::fs::read_to_string(&cache) {
+        let (mut sys, _) = prepare(&config.clone().max_steps(1)).expect("box build");
+        let mut grains = 0;
+        let mut walls = 0;
+        for line in text.lines() {
+            let words: Vec<&str> = line.split_whitespace().collect();
+            let num = |k: usize| -> f64 { words[k].parse().expect("cached number") };
+            match words.first() {
+                Some(&"grain") => {
+                    assert_eq!(sys.radius[grains], num(4), "cached radii differ");
+                    sys.x[grains] = [num(1), num(2), num(3)];
+                    grains += 1;
+                }
+                Some(&"wall") => {
+                    assert_eq!(sys.walls[walls].name, words[1], "cached walls differ");
+                    sys.walls[walls].position = [num(2), num(3), num(4)];
+                    walls += 1;
+                }
+                _ => {}
+            }
+        }
+        assert!(
+            grains == sys.len() && walls == sys.walls.len(),
+            "cache incomplete"
+        );
+        eprintln!(
+            "{dim}D base box: {grains} grains, read from {}",
+            cache.display()
+        );
+        return sys;
+    }
+    let t = Instant::now();
+    let (base, report) = prepare(config).expect("box preparation");
+    eprintln!(
+        "{dim}D base box: {} grains, {} contacts, unbalanced {:.1e}, prepared in {:.1} s ({} steps)",
+        base.len(),
+        report.contacts,
+        report.unbalanced_ratio,
+        t.elapsed().as_secs_f64(),
+        report.steps
+    );
+    let mut text = String::new();
+    for (x, r) in base.x.iter().zip(&base.radius) {
+        writeln!(text, "grain {:?} {:?} {:?} {:?}", x[0], x[1], x[2], r).unwrap();
+    }
+    for wall in &base.walls {
+        let p = wall.position;
+        writeln!(text, "wall {} {:?} {:?} {:?}", wall.name, p[0], p[1], p[2]).unwrap();
+    }
+    std::fs::write(&cache, text).expect("writing the base cache");
+    base
+}
+
+/// Copies of the base box per axis whose product is nearest `target` grains
+/// (in ratio): each axis gets ⌊c⌋ or ⌈c⌉ copies, c = (target/base)^(1/dim).
+fn copies_for(target: usize, base: usize, dim: usize) -> [usize; 3] {
+    let c = (target as f64 / base as f64).powf(1.0 / dim as f64);
+    let (lo, hi) = ((c.floor() as usize).max(1), (c.ceil() as usize).max(1));
+    let mut best = [1usize; 3];
+    let mut best_miss = f64::INFINITY;
+    for high_axes in 0..=dim {
+        let mut k = [1usize; 3];
+        for (a, ka) in k.iter_mut().enumerate().take(dim) {
+            *ka = if a < high_axes { hi } else { lo };
+        }
+        let n = (k[0] * k[1] * k[2] * base) as f64;
+        let miss = (n / target as f64).ln().abs();
+        if miss < best_miss - 1e-12 {
+            best = k;
+            best_miss = miss;
+        }
+    }
+    best
+}
+
+/// copies[a] copies of the base packing along each axis, side by side, inside
+/// walls around them all.
+fn tile(base: &System, copies: [usize; 3], density: f64, rmax: f64) -> System {
     let dim = base.dim;
     let mut lo = [0.0f64; 3];
     let mut hi = [0.0f64; 3];
@@ -129,10 +221,9 @@ fn tile(base: &System, k: usize, density: f64, rmax: f64) -> System {
     let span: Vec<f64> = (0..3).map(|a| hi[a] - lo[a]).collect();
     let mut x = Vec::new();
     let mut radius = Vec::new();
-    let kz = if dim == 3 { k } else { 1 };
-    for i in 0..k {
-        for j in 0..k {
-            for l in 0..kz {
+    for i in 0..copies[0] {
+        for j in 0..copies[1] {
+            for l in 0..copies[2] {
                 for (p, r) in base.x.iter().zip(&base.radius) {
                     x.push([
                         p[0] + i as f64 * span[0],
@@ -158,17 +249,19 @@ fn tile(base: &System, k: usize, density: f64, rmax: f64) -> System {
         let WallShape::Plane { normal } = wall.shape else {
             continue;
         };
-        // Walls 0.5 % inside the packing on every side: tiling and the fresh
-        // start (no tangential history, in both codes) would otherwise let the
-        // packing relax away from its walls and lose its contacts; squeezed,
-        // it stays jammed with a realistic number of contacts per grain.
+        // Walls 0.5 % of one copy's span inside the packing on every side:
+        // tiling and the fresh start (no tangential history, in both codes)
+        // would otherwise let the packing relax away from its walls and lose
+        // its contacts; squeezed, it stays jammed with a realistic number of
+        // contacts per grain. (A squeeze growing with the copies would put
+        // the walls of a 10⁵-grain box through the grains' centres.)
         let squeeze = 0.005;
         let mut position = wall.position;
         for a in 0..dim {
             if normal[a] > 0.5 {
-                position[a] = lo[a] + squeeze * k as f64 * span[a];
+                position[a] = lo[a] + squeeze * span[a];
             } else if normal[a] < -0.5 {
-                position[a] = lo[a] + (1.0 - squeeze) * k as f64 * span[a];
+                position[a] = lo[a] + (copies[a] as f64 - squeeze) * span[a];
             }
         }
         sys.add_wall(
@@ -183,6 +276,15 @@ fn tile(base: &System, k: usize, density: f64, rmax: f64) -> System {
     }
     sys.evaluate();
     sys
+}
+
+/// CPU time of this thread (Linux: /proc/thread-self/schedstat, ns on CPU).
+/// On a shared machine it counts only the time we ran, as LAMMPS' "% CPU use"
+/// lets us count for it.
+fn cpu_seconds() -> Option<f64> {
+    let text = std::fs::read_to_string("/proc/thread-self/schedstat").ok()?;
+    let ns: f64 = text.split_whitespace().next()?.parse().ok()?;
+    Some(ns * 1e-9)
 }
 
 fn which(name: &str) -> Option<PathBuf> {
@@ -300,7 +402,8 @@ fn write_lammps(dir: &Path, sys: &System, steps: u64, mu: f64) -> PathBuf {
     path
 }
 
-/// Runs LAMMPS on one input; parses "Loop time of T on 1 procs for S steps with N atoms".
+/// Runs LAMMPS on one input; parses "Loop time of T on 1 procs for S steps
+/// with N atoms" and the "% CPU use" below it: particle-steps per CPU second.
 fn run_lammps(lmp: &Path, input: &Path, grains: usize) -> Option<f64> {
     let dir = input.parent()?;
     let log = format!("{}.log", input.file_stem()?.to_str()?);
@@ -317,10 +420,21 @@ fn run_lammps(lmp: &Path, input: &Path, grains: usize) -> Option<f64> {
         .output()
         .ok()?;
     let text = std::fs::read_to_string(dir.join(&log)).ok()?;
-    let line = text.lines().rev().find(|l| l.starts_with("Loop time of"))?;
-    let words: Vec<&str> = line.split_whitespace().collect();
-    let seconds: f64 = words.get(3)?.parse().ok()?;
+    let lines: Vec<&str> = text.lines().collect();
+    let at = lines.iter().rposition(|l| l.starts_with("Loop time of"))?;
+    let words: Vec<&str> = lines[at].split_whitespace().collect();
+    let wall: f64 = words.get(3)?.parse().ok()?;
     let steps: f64 = words.get(8)?.parse().ok()?;
+    // "97.3% CPU use with 1 MPI tasks x 1 OpenMP threads": CPU time, as for ours.
+    let cpu_share = lines[at + 1..]
+        .iter()
+        .find_map(|l| {
+            l.split_once("% CPU use")
+                .map(|(p, _)| p.trim().parse::<f64>())
+        })
+        .and_then(|p| p.ok())
+        .map(|p| p / 100.0);
+    let seconds = wall * cpu_share.unwrap_or(1.0);
     if !output.status.success() || seconds <= 0.0 {
         eprintln!("LAMMPS failed on {}", input.display());
         return None;

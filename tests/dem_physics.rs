@@ -398,3 +398,90 @@ fn momentum_is_conserved_to_round_off() {
         }
     }
 }
+
+/// Walls only look at grains that were within the skin of them at the last
+/// neighbour-list build: a wall that moves (with its velocity, or moved by
+/// hand) must still find every grain it overlaps, and no other.
+#[test]
+fn moving_and_moved_walls_find_exactly_the_grains_they_overlap() {
+    let law = Interaction::new(ContactLaw::Linear, 1e5, 1e5, 0.5, 0.0, 0.5);
+    let r = 1e-3;
+    // A row of grains at rest; a plane rises under them from ten skins below
+    // and a ball sweeps along above them.
+    let x: Vec<[f64; 3]> = (0..8).map(|k| [3.0 * r * k as f64, 0.0, 0.0]).collect();
+    let skin = 0.3 * r;
+    let mut s = System::new(3, x, vec![r; 8], 2500.0, law, [0.0; 3], 1e-6, skin);
+    let plane = s.add_wall(
+        "floor",
+        WallShape::Plane {
+            normal: [0.0, 1.0, 0.0],
+        },
+        [0.0, -r - 10.0 * skin, 0.0],
+        [0.0, 0.5, 0.0],
+        Motion::Prescribed,
+        law,
+        0.0,
+    );
+    let ball = s.add_wall(
+        "ball",
+        WallShape::Ball { radius: 2.0 * r },
+        [-10.0 * r, 2.9 * r, 0.0],
+        [20.0, 0.0, 0.0],
+        Motion::Prescribed,
+        law,
+        0.0,
+    );
+    s.evaluate();
+    // Every overlap, found by brute force (grains pushed by the walls may
+    // also touch each other).
+    let touching = |s: &System| -> usize {
+        let mut n = 0;
+        for i in 0..s.len() {
+            for j in i + 1..s.len() {
+                let d = norm([
+                    s.x[j][0] - s.x[i][0],
+                    s.x[j][1] - s.x[i][1],
+                    s.x[j][2] - s.x[i][2],
+                ]);
+                if d < s.radius[i] + s.radius[j] {
+                    n += 1;
+                }
+            }
+        }
+        for (x, r) in s.x.iter().zip(&s.radius) {
+            if x[1] - r < s.walls[plane].position[1] {
+                n += 1;
+            }
+            let c = s.walls[ball].position;
+            let d = norm([x[0] - c[0], x[1] - c[1], x[2] - c[2]]);
+            if d < r + 2.0 * r {
+                n += 1;
+            }
+        }
+        n
+    };
+    let (mut plane_hits, mut ball_hits) = (0, 0);
+    for step in 0..2000 {
+        if step == 1000 {
+            // Moved by hand far beyond the skin: from below the grains to into them.
+            s.walls[plane].velocity = [0.0; 3];
+            s.walls[plane].position = [0.0, -r - 20.0 * skin, 0.0];
+            s.step();
+            s.walls[plane].position = [0.0, -0.9 * r, 0.0];
+            s.evaluate();
+        } else {
+            s.step();
+        }
+        assert_eq!(s.contact_count, touching(&s), "step {step}");
+        if s.walls[plane].force[1].abs() > 0.0 {
+            plane_hits += 1;
+        }
+        if norm(s.walls[ball].force) > 0.0 {
+            ball_hits += 1;
+        }
+    }
+    assert!(
+        plane_hits > 100 && ball_hits > 100,
+        "{plane_hits} {ball_hits}"
+    );
+}

@@ -86,26 +86,72 @@ impl Interaction {
         xi: &mut Vec3,
         dt: f64,
     ) -> ContactForce {
-        let (spring, kn_tangent, damper_k, kt) = match self.law {
+        let constants = self.pair_constants(rstar, mstar);
+        self.force_with(delta, constants, vn, vt, n, xi, dt)
+    }
+
+    /// What [`Interaction::force_with`] needs of a pair besides its state:
+    /// the normal and tangential dashpot coefficients (linear law, where they
+    /// do not depend on the overlap) or R* and m* (Hertz). A neighbour list
+    /// computes them once per pair instead of once per step.
+    #[inline(always)]
+    pub(crate) fn pair_constants(&self, rstar: f64, mstar: f64) -> [f64; 2] {
+        match self.law {
+            ContactLaw::Linear => [
+                self.damp_n * (mstar * self.normal).sqrt(),
+                self.tangential_dashpot(mstar, self.tangential),
+            ],
+            ContactLaw::Hertz => [rstar, mstar],
+        }
+    }
+
+    #[inline(always)]
+    fn tangential_dashpot(&self, mstar: f64, kt: f64) -> f64 {
+        if self.damp_t > 0.0 {
+            self.damp_t * (mstar * kt).sqrt()
+        } else {
+            0.0
+        }
+    }
+
+    /// [`Interaction::force`] with the pair's [`Interaction::pair_constants`].
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn force_with(
+        &self,
+        delta: f64,
+        constants: [f64; 2],
+        vn: f64,
+        vt: Vec3,
+        n: Vec3,
+        xi: &mut Vec3,
+        dt: f64,
+    ) -> ContactForce {
+        let (spring, kn_tangent, cn, kt, ct) = match self.law {
             ContactLaw::Linear => (
                 self.normal * delta,
                 self.normal,
-                self.normal,
+                constants[0],
                 self.tangential,
+                constants[1],
             ),
             ContactLaw::Hertz => {
+                let [rstar, mstar] = constants;
                 let s = (rstar * delta).sqrt();
                 let k = 2.0 * self.normal * s;
+                let kt = 8.0 * self.tangential * s;
                 // (4/3) E* √(R*δ) is k_h δ^{1/2}: the dashpot ∝ √(m* k_h) δ^{1/4}.
+                let damper_k = (4.0 / 3.0) * self.normal * s;
                 (
                     (2.0 / 3.0) * k * delta,
                     k,
-                    (4.0 / 3.0) * self.normal * s,
-                    8.0 * self.tangential * s,
+                    self.damp_n * (mstar * damper_k).sqrt(),
+                    kt,
+                    self.tangential_dashpot(mstar, kt),
                 )
             }
         };
-        let normal = (spring + self.damp_n * (mstar * damper_k).sqrt() * vn).max(0.0);
+        let normal = (spring + cn * vn).max(0.0);
 
         // Keep the history in the current tangent plane. Projection only: it
         // never adds elastic energy (rescaling to the old length can pump
@@ -117,11 +163,6 @@ impl Interaction {
         for k in 0..3 {
             xi[k] += vt[k] * dt;
         }
-        let ct = if self.damp_t > 0.0 {
-            self.damp_t * (mstar * kt).sqrt()
-        } else {
-            0.0
-        };
         let mut ft = [
             -kt * xi[0] - ct * vt[0],
             -kt * xi[1] - ct * vt[1],

@@ -120,20 +120,31 @@ struct Pair {
     i: u32,
     j: u32,
     hist: History,
+    /// The grain law's [`Interaction::pair_constants`] for this pair.
+    constants: [f64; 2],
 }
 
 /// Cell-grid Verlet list: all pairs closer than the sum of radii plus a skin,
-/// sorted by (i, j), rebuilt when some grain has moved more than half the skin.
+/// sorted by (i, j), and per wall the grains within the skin of it; rebuilt
+/// when some grain or wall has moved more than half the skin.
 #[derive(Debug, Clone, Default)]
 struct NeighbourList {
     pairs: Vec<Pair>,
     skin: f64,
     reference: Vec<Vec3>,
+    /// Per wall: its shape and position at the build, and the grains (in
+    /// increasing order) that may touch it before the next build.
+    wall_reference: Vec<(WallShape, Vec3)>,
+    wall_near: Vec<Vec<u32>>,
+    /// The grain law the pair constants were computed with.
+    law: Option<Interaction>,
     builds: u64,
-    // Scratch for the counting sort.
+    // Scratch for the counting sort and the next list.
     cell_of: Vec<u32>,
     cell_start: Vec<u32>,
+    fill: Vec<u32>,
     sorted: Vec<u32>,
+    spare: Vec<Pair>,
 }
 
 pub struct System {
@@ -280,18 +291,57 @@ impl System {
     }
 
     fn needs_rebuild(&self) -> bool {
-        if self.nlist.reference.len() != self.len() {
+        if self.nlist.reference.len() != self.len()
+            || self.nlist.wall_reference.len() != self.walls.len()
+        {
             return true;
         }
         let limit = 0.25 * self.nlist.skin * self.nlist.skin;
-        self.x.iter().zip(&self.nlist.reference).any(|(x, r)| {
+        let moved = |x: &Vec3, r: &Vec3| {
             let d = sub(*x, *r);
             dot(d, d) > limit
-        })
+        };
+        self.walls
+            .iter()
+            .zip(&self.nlist.wall_reference)
+            .any(|(wall, (shape, at))| wall.shape != *shape || moved(&wall.position, at))
+            || self
+                .x
+                .iter()
+                .zip(&self.nlist.reference)
+                .any(|(x, r)| moved(x, r))
+    }
+
+    /// Per wall, the grains that can touch it while neither they nor the wall
+    /// move more than half the skin: gap below the skin (with a sliver of
+    /// margin against round-off in the gap).
+    fn near_walls(&mut self) {
+        let skin = self.nlist.skin * (1.0 + 1e-9) + 1e-300;
+        self.nlist.wall_near.resize(self.walls.len(), Vec::new());
+        self.nlist.wall_reference.clear();
+        for (wall, near) in self.walls.iter().zip(self.nlist.wall_near.iter_mut()) {
+            near.clear();
+            for (i, (x, &ri)) in self.x.iter().zip(&self.radius).enumerate() {
+                let gap = match wall.shape {
+                    WallShape::Plane { normal } => dot(sub(*x, wall.position), normal) - ri,
+                    WallShape::Ball { radius } => {
+                        let d = sub(wall.position, *x);
+                        dot(d, d).sqrt() - ri - radius
+                    }
+                };
+                // A NaN gap keeps the grain a candidate.
+                if gap < skin || gap.is_nan() {
+                    near.push(i as u32);
+                }
+            }
+            self.nlist.wall_reference.push((wall.shape, wall.position));
+        }
     }
 
     /// Rebuilds the pair list with a cell grid (O(N)), keeping the history of
     /// pairs present in both lists.
+    // Out of line: it is rare, and inlined it crowds the force loop.
+    #[inline(never)]
     fn rebuild(&mut self) {
         let n = self.len();
         let dim = self.dim;
@@ -339,16 +389,18 @@ impl System {
         }
         nl.sorted.clear();
         nl.sorted.resize(n, 0);
-        {
-            let mut fill: Vec<u32> = nl.cell_start[..total].to_vec();
-            for i in 0..n {
-                let c = nl.cell_of[i] as usize;
-                nl.sorted[fill[c] as usize] = i as u32;
-                fill[c] += 1;
-            }
+        nl.fill.clear();
+        nl.fill.extend_from_slice(&nl.cell_start[..total]);
+        for i in 0..n {
+            let c = nl.cell_of[i] as usize;
+            nl.sorted[nl.fill[c] as usize] = i as u32;
+            nl.fill[c] += 1;
         }
         let skin = nl.skin;
-        let mut pairs: Vec<Pair> = Vec::with_capacity(nl.pairs.len().max(4 * n));
+        let mut pairs = std::mem::take(&mut nl.spare);
+        pairs.clear();
+        let law = self.grain_law;
+        let (radius, mass) = (&self.radius, &self.mass);
         let mut near: Vec<u32> = Vec::with_capacity(64);
         let zr: std::ops::RangeInclusive<isize> = if dim == 3 { -1..=1 } else { 0..=0 };
         for i in 0..n {
@@ -387,10 +439,15 @@ impl System {
                 }
             }
             near.sort_unstable();
-            pairs.extend(near.iter().map(|&j| Pair {
-                i: i as u32,
-                j,
-                hist: History::default(),
+            pairs.extend(near.iter().map(|&j| {
+                let (ri, rj) = (radius[i], radius[j as usize]);
+                let (mi, mj) = (mass[i], mass[j as usize]);
+                Pair {
+                    i: i as u32,
+                    j,
+                    hist: History::default(),
+                    constants: law.pair_constants(ri * rj / (ri + rj), mi * mj / (mi + mj)),
+                }
             }));
         }
         // Carry over histories: both lists are sorted by (i, j).
@@ -406,9 +463,24 @@ impl System {
         }
         // A pair that leaves the list while touching would lose its history;
         // the skin criterion guarantees it cannot be touching.
-        nl.pairs = pairs;
+        nl.spare = std::mem::replace(&mut nl.pairs, pairs);
+        nl.law = Some(law);
         nl.reference.clone_from(&self.x);
         nl.builds += 1;
+        self.near_walls();
+    }
+
+    /// Recomputes the pair constants after the grain law was changed.
+    fn update_pair_constants(&mut self) {
+        let law = self.grain_law;
+        let (radius, mass) = (&self.radius, &self.mass);
+        for p in self.nlist.pairs.iter_mut() {
+            let (i, j) = (p.i as usize, p.j as usize);
+            let (ri, rj) = (radius[i], radius[j]);
+            let (mi, mj) = (mass[i], mass[j]);
+            p.constants = law.pair_constants(ri * rj / (ri + rj), mi * mj / (mi + mj));
+        }
+        self.nlist.law = Some(law);
     }
 
     /// Evaluates all contact forces at the current positions with the current
@@ -417,12 +489,12 @@ impl System {
     pub fn compute_forces(&mut self, advance: bool) {
         if self.needs_rebuild() {
             self.rebuild();
+        } else if self.nlist.law != Some(self.grain_law) {
+            self.update_pair_constants();
         }
         let dt = if advance { self.dt } else { 0.0 };
-        for k in 0..self.len() {
-            self.f[k] = [0.0; 3];
-            self.t[k] = [0.0; 3];
-        }
+        self.f.fill([0.0; 3]);
+        self.t.fill([0.0; 3]);
         let record = self.record;
         self.records.clear();
         let mut force_sum = 0.0;
@@ -445,7 +517,9 @@ impl System {
             let (ri, rj) = (radius[i], radius[j]);
             let reach = ri + rj;
             if dist2 >= reach * reach {
-                pair.hist = History::default();
+                if pair.hist.id != 0 {
+                    pair.hist = History::default();
+                }
                 continue;
             }
             let dist = dist2.sqrt();
@@ -453,26 +527,29 @@ impl System {
             let delta = reach - dist;
             let arm_i = ri - 0.5 * delta;
             let arm_j = rj - 0.5 * delta;
-            let r_i = [arm_i * n[0], arm_i * n[1], arm_i * n[2]];
-            let r_j = [-arm_j * n[0], -arm_j * n[1], -arm_j * n[2]];
-            let vi = v[i];
-            let vj = v[j];
-            let ci = cross(w[i], r_i);
-            let cj = cross(w[j], r_j);
+            let (vi, vj, wi, wj) = (v[i], v[j], w[i], w[j]);
+            // The contact point is at arm_i n from i and −arm_j n from j:
+            // ω_i × r_i − ω_j × r_j = (arm_i ω_i + arm_j ω_j) × n.
+            let spin = cross(
+                [
+                    arm_i * wi[0] + arm_j * wj[0],
+                    arm_i * wi[1] + arm_j * wj[1],
+                    arm_i * wi[2] + arm_j * wj[2],
+                ],
+                n,
+            );
             let rel = [
-                vi[0] + ci[0] - vj[0] - cj[0],
-                vi[1] + ci[1] - vj[1] - cj[1],
-                vi[2] + ci[2] - vj[2] - cj[2],
+                vi[0] - vj[0] + spin[0],
+                vi[1] - vj[1] + spin[1],
+                vi[2] - vj[2] + spin[2],
             ];
             let vn = dot(rel, n);
             let vt = [rel[0] - vn * n[0], rel[1] - vn * n[1], rel[2] - vn * n[2]];
-            let rstar = ri * rj / reach;
-            let mstar = mass[i] * mass[j] / (mass[i] + mass[j]);
             if pair.hist.id == 0 {
                 pair.hist.id = *next_id;
                 *next_id += 1;
             }
-            let cf = law.force(delta, rstar, mstar, vn, vt, n, &mut pair.hist.xi, dt);
+            let cf = law.force_with(delta, pair.constants, vn, vt, n, &mut pair.hist.xi, dt);
             let fa = [
                 -cf.normal * n[0] + cf.tangential[0],
                 -cf.normal * n[1] + cf.tangential[1],
@@ -480,17 +557,34 @@ impl System {
             ];
             add_to(&mut f[i], fa);
             sub_from(&mut f[j], fa);
-            add_to(&mut t[i], cross(r_i, fa));
-            sub_from(&mut t[j], cross(r_j, fa));
+            // Only the tangential force has a moment about the centres
+            // (r ∥ n): r_i × f = arm_i n × f_t, −r_j × f = arm_j n × f_t.
+            let moment = cross(n, cf.tangential);
+            add_to(
+                &mut t[i],
+                [arm_i * moment[0], arm_i * moment[1], arm_i * moment[2]],
+            );
+            add_to(
+                &mut t[j],
+                [arm_j * moment[0], arm_j * moment[1], arm_j * moment[2]],
+            );
             force_sum += dot(fa, fa).sqrt();
             count += 1;
-            max_overlap = max_overlap.max(delta / ri.min(rj));
+            // Divides only for a candidate maximum.
+            let smaller = ri.min(rj);
+            if delta > max_overlap * smaller {
+                max_overlap = max_overlap.max(delta / smaller);
+            }
             if record {
                 records.push(ContactRecord {
                     a: i as u32,
                     b: j as u32,
                     wall: false,
-                    point: [x[i][0] + r_i[0], x[i][1] + r_i[1], x[i][2] + r_i[2]],
+                    point: [
+                        x[i][0] + arm_i * n[0],
+                        x[i][1] + arm_i * n[1],
+                        x[i][2] + arm_i * n[2],
+                    ],
                     normal: n,
                     force: fa,
                     id: pair.hist.id,
@@ -498,14 +592,16 @@ impl System {
                 });
             }
         }
-        for (wi, wall) in self.walls.iter_mut().enumerate() {
+        for (wi, (wall, near)) in self.walls.iter_mut().zip(&self.nlist.wall_near).enumerate() {
             wall.force = [0.0; 3];
             wall.stiffness = 0.0;
             let wall_mass = match wall.motion {
                 Motion::Free { mass } => Some(mass),
                 _ => None,
             };
-            for i in 0..x.len() {
+            // Grains off this list cannot touch the wall and have no history with it.
+            for &i in near {
+                let i = i as usize;
                 let ri = radius[i];
                 let (delta, n, rstar) = match wall.shape {
                     WallShape::Plane { normal } => {
@@ -517,7 +613,9 @@ impl System {
                         let reach = ri + rb;
                         let dist2 = dot(d, d);
                         if dist2 >= reach * reach {
-                            wall.history[i] = History::default();
+                            if wall.history[i].id != 0 {
+                                wall.history[i] = History::default();
+                            }
                             continue;
                         }
                         let dist = dist2.sqrt();
@@ -530,7 +628,9 @@ impl System {
                 };
                 let hist = &mut wall.history[i];
                 if delta <= 0.0 {
-                    *hist = History::default();
+                    if hist.id != 0 {
+                        *hist = History::default();
+                    }
                     continue;
                 }
                 let r_i = [ri * n[0], ri * n[1], ri * n[2]];
@@ -639,11 +739,17 @@ impl System {
     pub fn step(&mut self) {
         let dt = self.dt;
         let h = 0.5 * dt;
-        for i in 0..self.len() {
+        for (((x, v), w), (a, alpha)) in self
+            .x
+            .iter_mut()
+            .zip(self.v.iter_mut())
+            .zip(self.w.iter_mut())
+            .zip(self.a.iter().zip(&self.alpha))
+        {
             for k in 0..3 {
-                self.v[i][k] += h * self.a[i][k];
-                self.w[i][k] += h * self.alpha[i][k];
-                self.x[i][k] += dt * self.v[i][k];
+                v[k] += h * a[k];
+                w[k] += h * alpha[k];
+                x[k] += dt * v[k];
             }
         }
         self.servo_velocities();
@@ -659,10 +765,15 @@ impl System {
         }
         self.compute_forces(true);
         self.update_accelerations();
-        for i in 0..self.len() {
+        for ((v, w), (a, alpha)) in self
+            .v
+            .iter_mut()
+            .zip(self.w.iter_mut())
+            .zip(self.a.iter().zip(&self.alpha))
+        {
             for k in 0..3 {
-                self.v[i][k] += h * self.a[i][k];
-                self.w[i][k] += h * self.alpha[i][k];
+                v[k] += h * a[k];
+                w[k] += h * alpha[k];
             }
         }
         for wall in &mut self.walls {
