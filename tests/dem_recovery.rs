@@ -49,6 +49,18 @@ fn box_2d_fresh_from_the_dem() {
 }
 
 #[test]
+fn box_3d_at_the_gate() {
+    // `grainforce dem box --dim 3 --grains 60 --seed 1 --gate 1e-10` (2.2·10⁶
+    // steps, 11 s in release since the box servo gain went to 5 %): the DEM's
+    // forces are recovered to the data's precision, many contacts sliding.
+    let (scene, truth) = fixture("regression/box3d_gated");
+    let (e, report) = qs_relerr(&scene, &truth);
+    eprintln!("box3d_gated: relerr {e:.2e}");
+    assert!(e <= 1e-6, "relerr {e}\n{report}");
+    assert_eq!(report.unique, Some(true));
+}
+
+#[test]
 fn box_3d_near_balance() {
     // The 3D box stops at its step limit short of the 1e-10 gate (unbalanced
     // ratio 1e-8, contacts sliding): the hard-equality answer would fit the
