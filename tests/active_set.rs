@@ -282,3 +282,68 @@ fn an_unsettled_active_set_falls_back_to_the_interior_point_and_says_so() {
     .unwrap();
     assert!(relative_error(&ip.forces_or_zero(), &r.forces_or_zero()) < 1e-6);
 }
+
+#[test]
+fn active_set_settings_are_validated() {
+    use grainforce::solver::active_set::{solve, ActiveSetSettings};
+    let a = identity(2);
+    let c = Triplets::new(0, 2);
+    let mut ls = EqualityLeastSquares::new(&a, &c).unwrap();
+    let cones = [grainforce::solver::conic::Cone::NonNegative { normal: 0 }];
+    for settings in [
+        ActiveSetSettings {
+            max_iterations: 0,
+            ..ActiveSetSettings::default()
+        },
+        ActiveSetSettings {
+            tolerance: 0.0,
+            ..ActiveSetSettings::default()
+        },
+    ] {
+        let r = solve(
+            &mut ls,
+            &a,
+            &[1.0, 1.0],
+            &c,
+            &[],
+            0.0,
+            &cones,
+            &[1.0, 1.0],
+            &settings,
+        );
+        assert!(matches!(r, Err(Error::Invalid(_))), "{r:?}");
+    }
+    // A wrong-length start is an error too, not a panic.
+    let r = solve(
+        &mut ls,
+        &a,
+        &[1.0, 1.0],
+        &c,
+        &[],
+        0.0,
+        &cones,
+        &[1.0],
+        &ActiveSetSettings::default(),
+    );
+    assert!(matches!(r, Err(Error::Invalid(_))));
+    // And a valid call projects x = b = (−1, 1) onto x₀ ≥ 0.
+    let r = solve(
+        &mut ls,
+        &a,
+        &[-1.0, 1.0],
+        &c,
+        &[],
+        0.0,
+        &cones,
+        &[-1.0, 1.0],
+        &ActiveSetSettings::default(),
+    )
+    .unwrap();
+    assert!(r.converged);
+    assert!(
+        r.x[0].abs() < 1e-12 && (r.x[1] - 1.0).abs() < 1e-12,
+        "{:?}",
+        r.x
+    );
+    assert_eq!(r.open, 1);
+}

@@ -28,7 +28,7 @@
 use super::conic::Cone;
 use super::sparse_ls::{EqualityLeastSquares, CONVERGED_TOL};
 use super::Triplets;
-use crate::error::Result;
+use crate::error::{Error, Result};
 
 /// Smallest damping of a Newton step before the method gives up.
 const MIN_STEP: f64 = 1.0 / 1024.0;
@@ -240,6 +240,19 @@ pub fn solve(
     start: &[f64],
     settings: &ActiveSetSettings,
 ) -> Result<ActiveSetSolution> {
+    if settings.max_iterations == 0 || !(settings.tolerance > 0.0 && settings.tolerance < 1.0) {
+        return Err(Error::Invalid(format!(
+            "active set: need at least one solve and a tolerance in (0, 1), got {} and {}",
+            settings.max_iterations, settings.tolerance
+        )));
+    }
+    if start.len() != a.ncols {
+        return Err(Error::Invalid(format!(
+            "active set: the start has {} entries for {} unknowns",
+            start.len(),
+            a.ncols
+        )));
+    }
     let n = a.ncols;
     let Some(contacts) = cones.iter().map(Contact::of).collect::<Option<Vec<_>>>() else {
         return Ok(fail(
