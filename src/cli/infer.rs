@@ -54,7 +54,7 @@ pub struct Args {
     pub cone: ConeArg,
     /// Algorithm for friction-constrained problems: active-set (primal–dual
     /// active set on the sparse factorisation, warm-started from the
-    /// unconstrained answer; exact to round-off, falls back to the interior point
+    /// unconstrained answer; stops at the KKT conditions to 1e-10, falls back to the interior point
     /// when it does not settle) or interior-point (clarabel, to --tolerance, then
     /// polished). Pyramids always use the interior point.
     #[arg(long, value_enum, default_value_t = SolverArg::ActiveSet)]
