@@ -9,7 +9,7 @@ use grainforce::assemble::{assemble, AssembleOptions};
 use grainforce::bench::{generate, perturb, Noise, PackingSpec};
 use grainforce::infer::{infer, ConstrainedSolver, InferOptions};
 use grainforce::report::metrics::relative_error;
-use grainforce::solver::{active_set, sparse_ls::EqualityLeastSquares, Triplets};
+use grainforce::solver::{active_set, sparse_ls::EqualityLeastSquares, LeastSquares};
 use std::time::Instant;
 
 fn main() -> grainforce::Result<()> {
@@ -31,15 +31,12 @@ fn main() -> grainforce::Result<()> {
     let assembly = assemble(&scene, &AssembleOptions::default())?;
     if let Some(system) = assembly.systems.iter().max_by_key(|s| s.n) {
         let cones = grainforce::infer::cones(system, grainforce::infer::ConeModel::Exact);
-        let mut coupling = Triplets::new(system.unknowns.len(), system.n);
-        for (k, u) in system.unknowns.iter().enumerate() {
-            for j in u.offset..u.offset + u.count(system.dim) {
-                coupling.push(k, j, 1.0);
-            }
-        }
         let t = Instant::now();
-        let mut ls =
-            EqualityLeastSquares::with_coupling(&system.stress, &system.momentum, &coupling)?;
+        let mut ls = EqualityLeastSquares::with_coupling(
+            &system.stress,
+            &system.momentum,
+            &system.contact_blocks(),
+        )?;
         let start = ls.solve(
             &system.stress,
             &system.momentum,
@@ -48,13 +45,16 @@ fn main() -> grainforce::Result<()> {
             0.0,
         )?;
         let t_ls = t.elapsed().as_secs_f64();
+        let problem = LeastSquares {
+            a: &system.stress,
+            b: &system.stress_rhs,
+            c: &system.momentum,
+            d: &system.momentum_rhs,
+            lambda: 0.0,
+        };
         let sol = active_set::solve(
             &mut ls,
-            &system.stress,
-            &system.stress_rhs,
-            &system.momentum,
-            &system.momentum_rhs,
-            0.0,
+            &problem,
             &cones,
             &start.x,
             &active_set::ActiveSetSettings::default(),

@@ -160,59 +160,14 @@ fn with_solver(method: Method, solver: ConstrainedSolver) -> InferOptions {
     }
 }
 
-/// Where friction binds (stress noise), the active set reaches the optimum the
-/// interior point finds, to the interior point's own accuracy, exactly inside
-/// the cones — for qs and for Tikhonov.
-#[test]
-fn active_set_matches_the_interior_point_where_friction_binds() {
-    let (scene, truth) = noisy_packing(2, 400, 0.5, Noise::Stress);
-    for method in [Method::Qs, Method::Tikhonov] {
-        let fast = infer(&scene, &with_solver(method, ConstrainedSolver::ActiveSet)).unwrap();
-        let ip = infer(
-            &scene,
-            &with_solver(method, ConstrainedSolver::InteriorPoint),
-        )
-        .unwrap();
-        assert_eq!(
-            fast.report.solver_status, "ActiveSet",
-            "{:?}",
-            fast.report.solver_attempts
-        );
-        assert!(fast.report.coulomb_violation <= 1e-12);
-        let (f, g) = (fast.forces_or_zero(), ip.forces_or_zero());
-        let gap = relative_error(&g, &f);
-        assert!(
-            gap < 1e-6,
-            "{method}: active set vs interior point differ by {gap:.2e}"
-        );
-        // Friction bound somewhere: the unconstrained answer differs.
-        let ls = infer(
-            &scene,
-            &with_solver(Method::Ls, ConstrainedSolver::ActiveSet),
-        )
-        .unwrap();
-        assert!(relative_error(&f, &ls.forces_or_zero()) > 1e-3);
-        // Same optimum, so the same distance from the truth.
-        let (e_fast, e_ip) = (relative_error(&truth, &f), relative_error(&truth, &g));
-        assert!((e_fast - e_ip).abs() < 1e-6, "{e_fast} vs {e_ip}");
-        // Not worse than the interior point on the objective.
-        assert!(fast.report.stress_residual <= ip.report.stress_residual * (1.0 + 1e-9));
-    }
-}
-
-/// 3D with the exact Coulomb cone (sliding contacts need the cone's curvature
-/// in the Newton step): the same optimum as the interior point.
-#[test]
-fn active_set_matches_the_interior_point_on_3d_cones() {
-    let (scene, truth) = noisy_packing(3, 216, 0.1, Noise::Geometry);
-    let fast = infer(
-        &scene,
-        &with_solver(Method::Qs, ConstrainedSolver::ActiveSet),
-    )
-    .unwrap();
+/// The active set and the interior point reach the same optimum (to the
+/// interior point's accuracy), the active set's exactly inside the cones, on a
+/// scene where friction binds (the unconstrained answer differs).
+fn assert_same_optimum(scene: &Scene, truth: &[Vec3], method: Method) {
+    let fast = infer(scene, &with_solver(method, ConstrainedSolver::ActiveSet)).unwrap();
     let ip = infer(
-        &scene,
-        &with_solver(Method::Qs, ConstrainedSolver::InteriorPoint),
+        scene,
+        &with_solver(method, ConstrainedSolver::InteriorPoint),
     )
     .unwrap();
     assert_eq!(
@@ -225,10 +180,10 @@ fn active_set_matches_the_interior_point_on_3d_cones() {
     let gap = relative_error(&g, &f);
     assert!(
         gap < 1e-6,
-        "active set vs interior point differ by {gap:.2e}"
+        "{method}: active set vs interior point differ by {gap:.2e}"
     );
     let ls = infer(
-        &scene,
+        scene,
         &with_solver(Method::Ls, ConstrainedSolver::ActiveSet),
     )
     .unwrap();
@@ -236,8 +191,27 @@ fn active_set_matches_the_interior_point_on_3d_cones() {
         relative_error(&f, &ls.forces_or_zero()) > 1e-3,
         "friction must bind here"
     );
-    assert!((relative_error(&truth, &f) - relative_error(&truth, &g)).abs() < 1e-6);
+    // Same optimum, so the same distance from the truth, and no worse a fit.
+    let (e_fast, e_ip) = (relative_error(truth, &f), relative_error(truth, &g));
+    assert!((e_fast - e_ip).abs() < 1e-6, "{e_fast} vs {e_ip}");
     assert!(fast.report.stress_residual <= ip.report.stress_residual * (1.0 + 1e-9));
+}
+
+/// 2D, stress noise: qs and Tikhonov.
+#[test]
+fn active_set_matches_the_interior_point_where_friction_binds() {
+    let (scene, truth) = noisy_packing(2, 400, 0.5, Noise::Stress);
+    for method in [Method::Qs, Method::Tikhonov] {
+        assert_same_optimum(&scene, &truth, method);
+    }
+}
+
+/// 3D with the exact Coulomb cone (sliding contacts need the cone's curvature
+/// in the Newton step).
+#[test]
+fn active_set_matches_the_interior_point_on_3d_cones() {
+    let (scene, truth) = noisy_packing(3, 216, 0.1, Noise::Geometry);
+    assert_same_optimum(&scene, &truth, Method::Qs);
 }
 
 /// Dynamic inference with weighted momentum takes the same route.
@@ -286,10 +260,18 @@ fn an_unsettled_active_set_falls_back_to_the_interior_point_and_says_so() {
 #[test]
 fn active_set_settings_are_validated() {
     use grainforce::solver::active_set::{solve, ActiveSetSettings};
+    use grainforce::solver::LeastSquares;
     let a = identity(2);
     let c = Triplets::new(0, 2);
     let mut ls = EqualityLeastSquares::new(&a, &c).unwrap();
     let cones = [grainforce::solver::conic::Cone::NonNegative { normal: 0 }];
+    let problem = |b: &'static [f64]| LeastSquares {
+        a: &a,
+        b,
+        c: &c,
+        d: &[],
+        lambda: 0.0,
+    };
     for settings in [
         ActiveSetSettings {
             max_iterations: 0,
@@ -302,11 +284,7 @@ fn active_set_settings_are_validated() {
     ] {
         let r = solve(
             &mut ls,
-            &a,
-            &[1.0, 1.0],
-            &c,
-            &[],
-            0.0,
+            &problem(&[1.0, 1.0]),
             &cones,
             &[1.0, 1.0],
             &settings,
@@ -316,11 +294,7 @@ fn active_set_settings_are_validated() {
     // A wrong-length start is an error too, not a panic.
     let r = solve(
         &mut ls,
-        &a,
-        &[1.0, 1.0],
-        &c,
-        &[],
-        0.0,
+        &problem(&[1.0, 1.0]),
         &cones,
         &[1.0],
         &ActiveSetSettings::default(),
@@ -329,11 +303,7 @@ fn active_set_settings_are_validated() {
     // And a valid call projects x = b = (−1, 1) onto x₀ ≥ 0.
     let r = solve(
         &mut ls,
-        &a,
-        &[-1.0, 1.0],
-        &c,
-        &[],
-        0.0,
+        &problem(&[-1.0, 1.0]),
         &cones,
         &[-1.0, 1.0],
         &ActiveSetSettings::default(),

@@ -83,6 +83,18 @@ pub struct System {
 }
 
 impl System {
+    /// One row per contact over its unknowns (values 1): the pattern that
+    /// couples each contact's block, for `EqualityLeastSquares::with_coupling`.
+    pub fn contact_blocks(&self) -> Triplets {
+        let mut blocks = Triplets::new(self.unknowns.len(), self.n);
+        for (k, u) in self.unknowns.iter().enumerate() {
+            for j in u.offset..u.offset + u.count(self.dim) {
+                blocks.push(k, j, 1.0);
+            }
+        }
+        blocks
+    }
+
     /// The physical force (on grain a by b) of each modelled contact.
     pub fn forces(&self, x: &[f64]) -> Vec<(usize, Vec3)> {
         self.unknowns

@@ -99,7 +99,7 @@ fn solve_one(
     if sparse && (1e-6..=1e6).contains(&lambda) {
         let (a, b) = stacked(system, lambda);
         let c = crate::solver::Triplets::new(0, system.n);
-        let problem = super::SparseProblem {
+        let problem = crate::solver::LeastSquares {
             a: &a,
             b: &b,
             c: &c,

@@ -621,22 +621,14 @@ pub fn impulse_check(
         let measured = apply(&|i, k| seg[i].1[k]);
         let inferred = apply(&|i, k| integrated[i][k]);
         let measured_sd = position_sd * weights.iter().map(|w| w * w).sum::<f64>().sqrt();
-        let norm = |v: Vec3| v.iter().map(|x| x * x).sum::<f64>().sqrt();
+        let norm = crate::scene::norm;
+        let ratio = crate::report::metrics::ratio;
         let gap = norm([
             inferred[0] - measured[0],
             inferred[1] - measured[1],
             inferred[2] - measured[2],
         ]);
         let size = norm(measured);
-        let ratio = |num: f64, den: f64| {
-            if den > 0.0 {
-                num / den
-            } else if num == 0.0 {
-                0.0
-            } else {
-                f64::INFINITY
-            }
-        };
         let disagreement = ratio(gap, size);
         rows.push(ImpulseRow {
             grain: id,

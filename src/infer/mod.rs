@@ -26,7 +26,7 @@ use crate::error::{Error, Result};
 use crate::scene::{Body, Scene, Vec3};
 use crate::solver::active_set;
 use crate::solver::conic::{self, Cone, ConicProblem, ConicSettings, Term};
-use crate::solver::{sparse_ls, Triplets};
+use crate::solver::{sparse_ls, LeastSquares, Triplets};
 use std::time::Instant;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
@@ -371,11 +371,12 @@ fn solve_system(
     };
     let mut unconstrained_fit = None;
     let mut fallback_note = None;
+    let mut hard_optimum = None;
     let use_active_set = with_cones && opts.solver == ConstrainedSolver::ActiveSet;
     if !opts.allow_infeasible && (opts.exact_first || !with_cones || use_active_set) {
         let route = sparse_route(
             system,
-            SparseProblem {
+            LeastSquares {
                 a: &system.stress,
                 b: &system.stress_rhs,
                 c: &system.momentum,
@@ -395,10 +396,9 @@ fn solve_system(
             if sol.status == "LeastSquares" || !degenerate(fit(&sol.x), unconstrained_fit) {
                 return Ok((sol.x.clone(), Some(sol)));
             }
-            fallback_note = Some(
-                "active set: the feasible set is (nearly) degenerate; solved by the interior point instead"
-                    .into(),
-            );
+            // The exact hard-equality optimum of a (nearly) degenerate feasible
+            // set: the handling below needs it, not a second solve of it.
+            hard_optimum = Some(sol);
         }
     }
     let mut problem = ConicProblem {
@@ -423,13 +423,16 @@ fn solve_system(
     }
     // Interior-point answers meet the cones only to the solver's tolerance;
     // the output must satisfy friction exactly.
-    let solved = conic::solve(&problem, &opts.conic).map(|mut sol| {
-        for c in &problem.cones {
-            c.project(&mut sol.x);
-        }
-        sol.attempts.extend(fallback_note);
-        sol
-    });
+    let solved = match hard_optimum {
+        Some(sol) => Ok(sol),
+        None => conic::solve(&problem, &opts.conic).map(|mut sol| {
+            for c in &problem.cones {
+                c.project(&mut sol.x);
+            }
+            sol.attempts.extend(fallback_note);
+            sol
+        }),
+    };
     match solved {
         Ok(sol) if !opts.allow_infeasible && degenerate(fit(&sol.x), unconstrained_fit) => {
             // Equilibrium and the cones leave almost no room (data slightly out
@@ -503,15 +506,6 @@ fn solve_system(
     }
 }
 
-/// min ‖A x − b‖² + λ²‖x‖² s.t. C x = d (dimensionless), for the sparse route.
-pub(crate) struct SparseProblem<'a> {
-    pub a: &'a Triplets,
-    pub b: &'a [f64],
-    pub c: &'a Triplets,
-    pub d: &'a [f64],
-    pub lambda: f64,
-}
-
 /// What the sparse route found.
 pub(crate) struct SparseRoute {
     /// The least squares without inequalities.
@@ -529,7 +523,7 @@ pub(crate) struct SparseRoute {
 /// warm-started from it on the same analysis.
 pub(crate) fn sparse_route(
     system: &System,
-    p: SparseProblem,
+    p: LeastSquares,
     cone_list: &[Cone],
     opts: &InferOptions,
 ) -> Result<SparseRoute> {
@@ -537,13 +531,7 @@ pub(crate) fn sparse_route(
     let use_active_set = !cone_list.is_empty() && opts.solver == ConstrainedSolver::ActiveSet;
     let mut factor = if use_active_set {
         // Each contact's unknowns coupled, so its active rows fit the pattern.
-        let mut coupling = Triplets::new(system.unknowns.len(), system.n);
-        for (k, u) in system.unknowns.iter().enumerate() {
-            for j in u.offset..u.offset + u.count(system.dim) {
-                coupling.push(k, j, 1.0);
-            }
-        }
-        sparse_ls::EqualityLeastSquares::with_coupling(p.a, p.c, &coupling)?
+        sparse_ls::EqualityLeastSquares::with_coupling(p.a, p.c, &system.contact_blocks())?
     } else {
         sparse_ls::EqualityLeastSquares::new(p.a, p.c)?
     };
@@ -580,11 +568,7 @@ pub(crate) fn sparse_route(
     if use_active_set {
         let sol = active_set::solve(
             &mut factor,
-            p.a,
-            p.b,
-            p.c,
-            p.d,
-            p.lambda,
+            &p,
             cone_list,
             &route.unconstrained.x,
             &opts.active_set,

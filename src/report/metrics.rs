@@ -36,8 +36,8 @@ fn error_and_norm(truth: &[Vec3], inferred: &[Vec3]) -> (f64, f64) {
     (error2.sqrt(), truth2.sqrt())
 }
 
-/// error / reference with the module's convention for a zero reference.
-fn ratio(error: f64, reference: f64) -> f64 {
+/// error / reference: 0 when both are zero, +∞ when only the reference is.
+pub(crate) fn ratio(error: f64, reference: f64) -> f64 {
     if reference > 0.0 {
         error / reference
     } else if error == 0.0 {

@@ -27,7 +27,7 @@
 
 use super::conic::Cone;
 use super::sparse_ls::{EqualityLeastSquares, CONVERGED_TOL};
-use super::Triplets;
+use super::{LeastSquares, Triplets};
 use crate::error::{Error, Result};
 
 /// Smallest damping of a Newton step before the method gives up.
@@ -228,18 +228,14 @@ impl Contact {
 /// unconstrained answer, or any guess). `ls` is reused: its symbolic analysis is
 /// kept across iterations. Returns `Ok` with `converged: false` (and the reason)
 /// when the method does not settle; errors only on invalid input.
-#[allow(clippy::too_many_arguments)]
 pub fn solve(
     ls: &mut EqualityLeastSquares,
-    a: &Triplets,
-    b: &[f64],
-    c: &Triplets,
-    d: &[f64],
-    lambda: f64,
+    problem: &LeastSquares,
     cones: &[Cone],
     start: &[f64],
     settings: &ActiveSetSettings,
 ) -> Result<ActiveSetSolution> {
+    let LeastSquares { a, lambda, .. } = *problem;
     if settings.max_iterations == 0 || !(settings.tolerance > 0.0 && settings.tolerance < 1.0) {
         return Err(Error::Invalid(format!(
             "active set: need at least one solve and a tolerance in (0, 1), got {} and {}",
@@ -282,9 +278,7 @@ pub fn solve(
 
     // Each solve only needs the accuracy at which convergence is declared.
     ls.set_refinement_target(0.1 * CONVERGED_TOL);
-    let outcome = iterate(
-        ls, a, b, c, d, lambda, cones, &contacts, &rho, start, settings,
-    );
+    let outcome = iterate(ls, problem, cones, &contacts, &rho, start, settings);
     ls.set_refinement_target(0.0);
     outcome
 }
@@ -304,20 +298,16 @@ fn fail(x: Vec<f64>, history: Vec<ActiveSetStep>, reason: String) -> ActiveSetSo
 }
 
 /// The damped semismooth Newton iteration of [`solve`].
-#[allow(clippy::too_many_arguments)]
 fn iterate(
     ls: &mut EqualityLeastSquares,
-    a: &Triplets,
-    b: &[f64],
-    c: &Triplets,
-    d: &[f64],
-    lambda: f64,
+    problem: &LeastSquares,
     cones: &[Cone],
     contacts: &[Contact],
     rho: &[f64],
     start: &[f64],
     settings: &ActiveSetSettings,
 ) -> Result<ActiveSetSolution> {
+    let LeastSquares { a, b, c, d, lambda } = *problem;
     let n = a.ncols;
     // The natural residual of each contact at (x, v): x_c − Π_K(x_c − ρ_c v_c),
     // and the piece that projection lands on.

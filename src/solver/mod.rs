@@ -5,6 +5,17 @@ pub mod active_set;
 pub mod conic;
 pub mod sparse_ls;
 
+/// The least-squares problem of the sparse route:
+/// minimise ‖A x − b‖² + λ²‖x‖² subject to C x = d.
+#[derive(Debug, Clone, Copy)]
+pub struct LeastSquares<'a> {
+    pub a: &'a Triplets,
+    pub b: &'a [f64],
+    pub c: &'a Triplets,
+    pub d: &'a [f64],
+    pub lambda: f64,
+}
+
 /// A sparse matrix in triplet form (duplicates add up), the common currency
 /// between assembly and the back-ends.
 #[derive(Debug, Clone, Default, PartialEq)]

@@ -580,6 +580,37 @@ impl EqualityLeastSquares {
             .map(|k| range.start + k)
     }
 
+    /// Adds (T B S)ᵀ(T B S) of the rows of `rows` (CSR) to the upper KKT values;
+    /// each row may only couple unknowns present in the analysed pattern.
+    fn add_row_products(
+        &self,
+        values: &mut [f64],
+        rows: &Compressed,
+        row_scale: &[f64],
+        col_scale: &[f64],
+        name: &str,
+    ) -> Result<()> {
+        for (i, t) in row_scale.iter().enumerate() {
+            for p in rows.range(i) {
+                let cp = rows.idx[p];
+                let vp = rows.val[p] * col_scale[cp] * t;
+                for q in rows.range(i) {
+                    let cq = rows.idx[q];
+                    if cq < cp {
+                        continue;
+                    }
+                    let Some(pos) = self.kkt_position(cp, cq) else {
+                        return Err(Error::Invalid(format!(
+                            "{name} {i} couples unknowns {cp} and {cq}, which share no row of A"
+                        )));
+                    };
+                    values[pos] += vp * rows.val[q] * col_scale[cq] * t;
+                }
+            }
+        }
+        Ok(())
+    }
+
     /// Equilibration, KKT values and numeric LDLᵀ, unless cached.
     fn factorise(
         &mut self,
@@ -668,46 +699,17 @@ impl EqualityLeastSquares {
             // Rows are sorted with i ≤ j: the diagonal closes the column.
             values[self.kkt_col_ptr[j + 1] - 1] += lambda2_s2[j] + delta;
         }
-        // Penalty ĝᵀĝ/δ of each active row ĝ = T G S.
-        for (i, t) in g_row_scale.iter().enumerate() {
-            for p in g_csr.range(i) {
-                let (cp, vp) = (g_csr.idx[p], g_csr.val[p] * col_scale[g_csr.idx[p]] * t);
-                for q in g_csr.range(i) {
-                    let cq = g_csr.idx[q];
-                    if cq < cp {
-                        continue;
-                    }
-                    let vq = g_csr.val[q] * col_scale[cq] * t;
-                    let Some(pos) = self.kkt_position(cp, cq) else {
-                        return Err(Error::Invalid(format!(
-                            "active row {i} couples unknowns {cp} and {cq}, which share no row of A"
-                        )));
-                    };
-                    values[pos] += vp * vq / delta;
-                }
-            }
-        }
-        // Springs: (R S)ᵀ(R S), on the same contact blocks.
+        // Penalty ĝᵀĝ/δ of each active row ĝ = T G S, and the springs (R S)ᵀ(R S),
+        // both on the contact blocks of the analysed pattern.
         let mut springs_csr =
             Compressed::from_entries(springs.nrows, n, &springs.rows, &springs.cols);
         springs_csr.refill(&springs.vals);
-        for i in 0..springs_csr.nmajor {
-            for p in springs_csr.range(i) {
-                let cp = springs_csr.idx[p];
-                let vp = springs_csr.val[p] * col_scale[cp];
-                for q in springs_csr.range(i) {
-                    let cq = springs_csr.idx[q];
-                    if cq < cp {
-                        continue;
-                    }
-                    let Some(pos) = self.kkt_position(cp, cq) else {
-                        return Err(Error::Invalid(format!(
-                            "spring row {i} couples unknowns {cp} and {cq}, which share no row of A"
-                        )));
-                    };
-                    values[pos] += vp * springs_csr.val[q] * col_scale[cq];
-                }
-            }
+        let penalty_scale: Vec<f64> = g_row_scale.iter().map(|t| t / delta.sqrt()).collect();
+        for (rows, row_scale, name) in [
+            (&g_csr, penalty_scale.as_slice(), "active row"),
+            (&springs_csr, &vec![1.0; springs.nrows][..], "spring row"),
+        ] {
+            self.add_row_products(&mut values, rows, row_scale, &col_scale, name)?;
         }
         for (i, t) in c_row_scale.iter().enumerate() {
             let mut p = self.kkt_col_ptr[n + i];
