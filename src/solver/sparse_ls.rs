@@ -23,6 +23,7 @@
 
 mod compressed;
 mod identifiability;
+mod ordering;
 
 pub use identifiability::{identifiability, Identifiability};
 
@@ -32,6 +33,7 @@ use compressed::{
 };
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::cholesky::ldlt::factor::LdltRegularization;
+use faer::perm::PermRef;
 use faer::sparse::linalg::cholesky::{
     factorize_symbolic_cholesky, LdltRef, SymbolicCholesky, SymmetricOrdering,
 };
@@ -58,6 +60,17 @@ const STALL_STEPS: usize = 3;
 const ADD_FACTOR: f64 = 1000.0;
 /// Below this many KKT unknowns faer runs sequentially by default.
 const PARALLEL_MIN_SIZE: usize = 200_000;
+
+/// Fill-reducing ordering of the KKT matrix used by the symbolic analysis.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Ordering {
+    /// faer's approximate minimum degree.
+    #[default]
+    Amd,
+    /// Recursive graph bisection by BFS level structures, separators last,
+    /// small pieces by AMD (suits the 2D/3D spatial graphs of packings).
+    NestedDissection,
+}
 
 /// Result of [`EqualityLeastSquares::solve`].
 #[derive(Debug, Clone)]
@@ -103,6 +116,7 @@ pub struct EqualityLeastSquares {
     c_csr: Compressed,
     kkt_col_ptr: Vec<usize>,
     kkt_row_idx: Vec<usize>,
+    ordering: Ordering,
     symbolic: Option<SymbolicCholesky<usize>>,
     par: Par,
     /// Refinement stops once the relative KKT residual is below this.
@@ -188,7 +202,7 @@ impl EqualityLeastSquares {
     /// As [`new`](Self::new) with an explicit faer parallelism for the numeric
     /// factorisation and solves.
     pub fn with_parallelism(a: &Triplets, c: &Triplets, par: Par) -> Result<Self> {
-        Self::analyse(a, c, &Triplets::new(0, a.ncols), par)
+        Self::analyse(a, c, &Triplets::new(0, a.ncols), par, Ordering::default())
     }
 
     /// As [`new`](Self::new), with the KKT pattern widened so that the unknowns
@@ -197,10 +211,22 @@ impl EqualityLeastSquares {
     /// where A does not (e.g. a contact whose normal and tangential unknowns
     /// meet no common stress component).
     pub fn with_coupling(a: &Triplets, c: &Triplets, coupling: &Triplets) -> Result<Self> {
-        Self::analyse(a, c, coupling, default_parallelism(a.ncols + c.nrows))
+        Self::analyse(
+            a,
+            c,
+            coupling,
+            default_parallelism(a.ncols + c.nrows),
+            Ordering::default(),
+        )
     }
 
-    fn analyse(a: &Triplets, c: &Triplets, coupling: &Triplets, par: Par) -> Result<Self> {
+    fn analyse(
+        a: &Triplets,
+        c: &Triplets,
+        coupling: &Triplets,
+        par: Par,
+        ordering: Ordering,
+    ) -> Result<Self> {
         check_pair(a, c)?;
         check_triplets(coupling, "coupling")?;
         if coupling.ncols != a.ncols {
@@ -235,22 +261,7 @@ impl EqualityLeastSquares {
             row_idx.push(n + i);
             col_ptr.push(row_idx.len());
         }
-        let size = n + c.nrows;
-        let symbolic = if size == 0 {
-            None
-        } else {
-            let pattern =
-                SymbolicSparseColMatRef::new_checked(size, size, &col_ptr, None, &row_idx);
-            Some(
-                factorize_symbolic_cholesky(pattern, Side::Upper, SymmetricOrdering::Amd, Default::default())
-                    .map_err(|e| {
-                        Error::Solver(format!(
-                            "symbolic analysis of the {size}×{size} KKT matrix ({} stored entries) failed: {e:?}",
-                            row_idx.len()
-                        ))
-                    })?,
-            )
-        };
+        let symbolic = symbolic_analysis(n + c.nrows, &col_ptr, &row_idx, ordering)?;
         Ok(EqualityLeastSquares {
             n,
             a_pattern: (a.nrows, a.rows.clone(), a.cols.clone()),
@@ -261,11 +272,31 @@ impl EqualityLeastSquares {
             c_csr,
             kkt_col_ptr: col_ptr,
             kkt_row_idx: row_idx,
+            ordering,
             symbolic,
             par,
             refine_to: ROUNDOFF_FLOOR,
             numeric: None,
         })
+    }
+
+    /// Redoes the symbolic analysis with this fill-reducing ordering (and keeps
+    /// it when a new pattern is analysed); drops the cached factorisation.
+    pub fn set_ordering(&mut self, ordering: Ordering) -> Result<()> {
+        self.symbolic = symbolic_analysis(
+            self.n + self.c_pattern.0,
+            &self.kkt_col_ptr,
+            &self.kkt_row_idx,
+            ordering,
+        )?;
+        self.ordering = ordering;
+        self.numeric = None;
+        Ok(())
+    }
+
+    /// The fill-reducing ordering of the symbolic analysis.
+    pub fn ordering(&self) -> Ordering {
+        self.ordering
     }
 
     /// Parallelism used by the numeric factorisation and triangular solves.
@@ -359,7 +390,7 @@ impl EqualityLeastSquares {
         if !self.same_pattern(a, c) {
             let coupling = std::mem::take(&mut self.coupling);
             let refine_to = self.refine_to;
-            *self = Self::analyse(a, c, &coupling, self.par)?;
+            *self = Self::analyse(a, c, &coupling, self.par, self.ordering)?;
             self.refine_to = refine_to;
         }
         let n = self.n;
@@ -889,6 +920,42 @@ impl EqualityLeastSquares {
         }
         (r, ratio(dual_num, dual_den), primal)
     }
+}
+
+/// Ordering and symbolic Cholesky of the upper KKT pattern (None when empty).
+fn symbolic_analysis(
+    size: usize,
+    col_ptr: &[usize],
+    row_idx: &[usize],
+    ordering: Ordering,
+) -> Result<Option<SymbolicCholesky<usize>>> {
+    if size == 0 {
+        return Ok(None);
+    }
+    let pattern = SymbolicSparseColMatRef::new_checked(size, size, col_ptr, None, row_idx);
+    let perm = match ordering {
+        Ordering::Amd => None,
+        Ordering::NestedDissection => {
+            let fwd = ordering::nested_dissection(size, col_ptr, row_idx);
+            let mut inv = vec![0usize; size];
+            for (new, &old) in fwd.iter().enumerate() {
+                inv[old] = new;
+            }
+            Some((fwd, inv))
+        }
+    };
+    let method = match &perm {
+        None => SymmetricOrdering::Amd,
+        Some((fwd, inv)) => SymmetricOrdering::Custom(PermRef::new_checked(fwd, inv, size)),
+    };
+    factorize_symbolic_cholesky(pattern, Side::Upper, method, Default::default())
+        .map(Some)
+        .map_err(|e| {
+            Error::Solver(format!(
+                "symbolic analysis of the {size}×{size} KKT matrix ({} stored entries, {ordering:?} ordering) failed: {e:?}",
+                row_idx.len()
+            ))
+        })
 }
 
 /// Sequential below [`PARALLEL_MIN_SIZE`] KKT unknowns, all threads above.
