@@ -1,38 +1,67 @@
 //! Nested-dissection fill-reducing ordering of a symmetric sparsity pattern.
 //!
-//! Packings are spatial graphs (2D/3D), which have small vertex separators; AMD
-//! is a local greedy method and fills more, most of all in 3D. The graph is
-//! bisected recursively: a BFS level structure from a pseudo-peripheral vertex,
-//! cut at the level that minimises |S| · n / (|A| · |B|), the cut level thinned
-//! to the vertices that really touch the other side. Separators are ordered
-//! after both halves; disconnected pieces are ordered one after the other; small
-//! pieces are ordered by faer's AMD on their induced subgraph.
+//! Packings are spatial graphs (2D/3D) with small vertex separators; AMD is a
+//! local greedy method and fills more on them, most of all in 3D. Each piece of
+//! the graph is bisected by a multilevel scheme (as METIS): coarsen by
+//! heavy-edge matching, cut the coarsest graph at a BFS level of a
+//! pseudo-peripheral vertex, then project back refining the vertex separator by
+//! Fiduccia–Mattheyses at every level. Separators are ordered after both halves,
+//! disconnected pieces one after the other, small pieces by faer's AMD.
 //!
 //! Purely graph based (no coordinates), deterministic, O(nnz · log n).
+
+use std::cmp::Reverse;
+use std::collections::BinaryHeap;
 
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::sparse::linalg::amd;
 use faer::sparse::SymbolicSparseColMatRef;
 
 /// Pieces with at most this many vertices are ordered by AMD.
-const LEAF_SIZE: usize = 256;
+const LEAF_SIZE: usize = 200;
+/// Coarsening stops at this many vertices, or when a level shrinks too little.
+const COARSEST_SIZE: usize = 120;
+const MIN_SHRINK: f64 = 0.9;
 /// Pseudo-peripheral search: at most this many BFS sweeps.
 const PERIPHERAL_SWEEPS: usize = 4;
-/// Each side of a cut must hold at least this fraction of the piece.
-const MIN_SIDE_FRACTION: f64 = 0.2;
-/// Refinement passes per bisection, and uphill moves tried before a pass stops.
-const REFINE_PASSES: usize = 8;
-const UPHILL_MOVES: usize = 100;
-/// Label of a vertex already placed in the output (separator or leaf).
-const PLACED: usize = usize::MAX;
+/// Each side of a cut must hold at least this fraction of the piece's weight.
+const MIN_SIDE_FRACTION: f64 = 0.25;
+/// Refinement passes per level, and uphill moves tried before a pass stops.
+const REFINE_PASSES: usize = 6;
+const UPHILL_MOVES: usize = 64;
 
-/// Undirected graph without self loops, adjacency in CSR form.
+/// Leaf halos up to this size are linked as a clique for AMD.
+const HALO_CLIQUE_MAX: usize = 1000;
+
+const LOWER: u8 = 0;
+const UPPER: u8 = 1;
+const SEPARATOR: u8 = 2;
+
+/// Undirected graph without self loops, vertex and edge weights, CSR.
 struct Graph {
     ptr: Vec<usize>,
     adj: Vec<usize>,
+    edge_weight: Vec<usize>,
+    weight: Vec<usize>,
 }
 
 impl Graph {
+    fn len(&self) -> usize {
+        self.weight.len()
+    }
+
+    fn neighbours(&self, v: usize) -> &[usize] {
+        &self.adj[self.ptr[v]..self.ptr[v + 1]]
+    }
+
+    fn edges(&self, v: usize) -> impl Iterator<Item = (usize, usize)> + '_ {
+        let r = self.ptr[v]..self.ptr[v + 1];
+        self.adj[r.clone()]
+            .iter()
+            .copied()
+            .zip(self.edge_weight[r].iter().copied())
+    }
+
     /// From the upper (i ≤ j) or full pattern of a symmetric matrix in CSC form.
     fn from_pattern(n: usize, col_ptr: &[usize], row_idx: &[usize]) -> Self {
         let mut degree = vec![0usize; n];
@@ -74,31 +103,144 @@ impl Graph {
             }
             out_ptr[v + 1] = out.len();
         }
+        let edges = out.len();
         Graph {
             ptr: out_ptr,
             adj: out,
+            edge_weight: vec![1; edges],
+            weight: vec![1; n],
         }
     }
 
-    fn neighbours(&self, v: usize) -> &[usize] {
-        &self.adj[self.ptr[v]..self.ptr[v + 1]]
+    /// Subgraph induced by `vertices` (unit weights); `local` must be usize::MAX
+    /// on entry and is left so.
+    fn induced(&self, vertices: &[usize], local: &mut [usize]) -> Graph {
+        for (k, &v) in vertices.iter().enumerate() {
+            local[v] = k;
+        }
+        let mut ptr = Vec::with_capacity(vertices.len() + 1);
+        ptr.push(0);
+        let mut adj = Vec::new();
+        for &v in vertices {
+            adj.extend(
+                self.neighbours(v)
+                    .iter()
+                    .map(|&u| local[u])
+                    .filter(|&u| u != usize::MAX),
+            );
+            ptr.push(adj.len());
+        }
+        for &v in vertices {
+            local[v] = usize::MAX;
+        }
+        let edges = adj.len();
+        Graph {
+            ptr,
+            adj,
+            edge_weight: vec![1; edges],
+            weight: vec![1; vertices.len()],
+        }
     }
-}
 
-/// Scratch shared by all pieces; `level` is reset after each use.
-struct Work {
-    /// Piece each unplaced vertex belongs to.
-    label: Vec<usize>,
-    /// BFS level within the current piece (usize::MAX = not reached).
-    level: Vec<usize>,
-    /// Local index of a leaf vertex when building its induced subgraph.
-    local: Vec<usize>,
-    next_label: usize,
-    /// Side of each vertex of the piece being bisected (LOWER, UPPER, SEPARATOR).
-    side: Vec<u8>,
-    /// Refinement gains of separator vertices towards each side.
-    gain: Vec<[i64; 2]>,
-    locked: Vec<bool>,
+    /// Heavy-edge matching and contraction: the coarse graph and the coarse
+    /// vertex of each vertex.
+    fn coarsen(&self) -> (Graph, Vec<usize>) {
+        let n = self.len();
+        let mut map = vec![usize::MAX; n];
+        // Low-degree vertices first: they have the fewest chances to match.
+        let mut order: Vec<usize> = (0..n).collect();
+        order.sort_by_key(|&v| (self.ptr[v + 1] - self.ptr[v], v));
+        let mut coarse_n = 0;
+        let mut mate = vec![usize::MAX; n];
+        for &v in &order {
+            if map[v] != usize::MAX {
+                continue;
+            }
+            let partner = self
+                .edges(v)
+                .filter(|&(u, _)| map[u] == usize::MAX)
+                .max_by_key(|&(u, w)| (w, Reverse(self.weight[u]), Reverse(u)))
+                .map(|(u, _)| u);
+            map[v] = coarse_n;
+            if let Some(u) = partner {
+                map[u] = coarse_n;
+                mate[v] = u;
+                mate[u] = v;
+            }
+            coarse_n += 1;
+        }
+        // Representatives in coarse order, then merged adjacency.
+        let mut members = vec![usize::MAX; coarse_n];
+        for v in 0..n {
+            if members[map[v]] == usize::MAX {
+                members[map[v]] = v;
+            }
+        }
+        let mut ptr = Vec::with_capacity(coarse_n + 1);
+        ptr.push(0);
+        let mut adj = Vec::new();
+        let mut edge_weight = Vec::new();
+        let mut weight = Vec::with_capacity(coarse_n);
+        let mut slot = vec![usize::MAX; coarse_n];
+        for (c, &v) in members.iter().enumerate() {
+            let begin = adj.len();
+            let pair = [v, mate[v]];
+            let mut w = 0;
+            for &x in pair.iter().filter(|&&x| x != usize::MAX) {
+                w += self.weight[x];
+                for (u, ew) in self.edges(x) {
+                    let cu = map[u];
+                    if cu == c {
+                        continue;
+                    }
+                    if slot[cu] == usize::MAX {
+                        slot[cu] = adj.len();
+                        adj.push(cu);
+                        edge_weight.push(ew);
+                    } else {
+                        edge_weight[slot[cu]] += ew;
+                    }
+                }
+            }
+            for &cu in &adj[begin..] {
+                slot[cu] = usize::MAX;
+            }
+            weight.push(w);
+            ptr.push(adj.len());
+        }
+        (
+            Graph {
+                ptr,
+                adj,
+                edge_weight,
+                weight,
+            },
+            map,
+        )
+    }
+
+    /// BFS from `root`; the levels, and each reached vertex's level in `level`
+    /// (usize::MAX elsewhere; `level` must be all usize::MAX on entry).
+    fn bfs(&self, root: usize, level: &mut [usize]) -> Vec<Vec<usize>> {
+        level[root] = 0;
+        let mut levels = vec![vec![root]];
+        loop {
+            let depth = levels.len();
+            let mut next = Vec::new();
+            for &v in &levels[depth - 1] {
+                for &u in self.neighbours(v) {
+                    if level[u] == usize::MAX {
+                        level[u] = depth;
+                        next.push(u);
+                    }
+                }
+            }
+            if next.is_empty() {
+                return levels;
+            }
+            levels.push(next);
+        }
+    }
 }
 
 /// A piece of the graph to order into `out[start..start + vertices.len()]`.
@@ -111,15 +253,7 @@ struct Piece {
 /// diagonal is ignored). Returns `perm` with `perm[new] = old`.
 pub(crate) fn nested_dissection(n: usize, col_ptr: &[usize], row_idx: &[usize]) -> Vec<usize> {
     let graph = Graph::from_pattern(n, col_ptr, row_idx);
-    let mut work = Work {
-        label: vec![0; n],
-        level: vec![usize::MAX; n],
-        local: vec![usize::MAX; n],
-        next_label: 1,
-        side: vec![0; n],
-        gain: vec![[0; 2]; n],
-        locked: vec![false; n],
-    };
+    let mut local = vec![usize::MAX; n];
     let mut out = vec![usize::MAX; n];
     let mut stack = vec![Piece {
         vertices: (0..n).collect(),
@@ -129,332 +263,283 @@ pub(crate) fn nested_dissection(n: usize, col_ptr: &[usize], row_idx: &[usize]) 
         if piece.vertices.is_empty() {
             continue;
         }
+        let sub = graph.induced(&piece.vertices, &mut local);
         if piece.vertices.len() <= LEAF_SIZE {
-            order_leaf(&graph, &mut work, &piece, &mut out);
+            order_by_amd(&graph, &piece, &mut local, &mut out);
             continue;
         }
-        let label = work.label[piece.vertices[0]];
-        let levels = bfs_levels(&graph, &mut work, label, piece.vertices[0]);
-        let reached: usize = levels.iter().map(Vec::len).sum();
-        if reached < piece.vertices.len() {
+        let mut level = vec![usize::MAX; sub.len()];
+        let component = sub.bfs(0, &mut level);
+        let reached: usize = component.iter().map(Vec::len).sum();
+        if reached < sub.len() {
             // Disconnected: this component first, the rest after it.
-            let component: Vec<usize> = levels.into_iter().flatten().collect();
-            let rest: Vec<usize> = piece
-                .vertices
-                .iter()
-                .copied()
-                .filter(|&v| work.level[v] == usize::MAX)
-                .collect();
-            reset_levels(&mut work, &component);
-            let split = piece.start + component.len();
-            relabel(&mut work, &rest);
+            let (first, rest): (Vec<usize>, Vec<usize>) =
+                (0..sub.len()).partition(|&k| level[k] != usize::MAX);
+            let to_global = |ks: Vec<usize>| ks.into_iter().map(|k| piece.vertices[k]).collect();
             stack.push(Piece {
-                vertices: rest,
-                start: split,
+                vertices: to_global(rest),
+                start: piece.start + first.len(),
             });
             stack.push(Piece {
-                vertices: component,
+                vertices: to_global(first),
                 start: piece.start,
             });
             continue;
         }
-        reset_levels(&mut work, &piece.vertices);
-        match bisect(&graph, &mut work, label, &piece.vertices) {
-            Some((lower, upper, separator)) => {
-                if std::env::var_os("ND_DEBUG").is_some() && piece.vertices.len() > 2000 {
-                    eprintln!(
-                        "piece {} -> {} / {} / sep {}",
-                        piece.vertices.len(),
-                        lower.len(),
-                        upper.len(),
-                        separator.len()
-                    );
-                }
-                let upper_start = piece.start + lower.len();
-                let separator_start = upper_start + upper.len();
-                for (k, &v) in separator.iter().enumerate() {
-                    out[separator_start + k] = v;
-                    work.label[v] = PLACED;
-                }
-                relabel(&mut work, &lower);
-                relabel(&mut work, &upper);
-                stack.push(Piece {
-                    vertices: upper,
-                    start: upper_start,
-                });
-                stack.push(Piece {
-                    vertices: lower,
-                    start: piece.start,
-                });
-            }
-            // Too dense to cut (diameter ≤ 2): AMD does as well as anything.
-            None => order_leaf(&graph, &mut work, &piece, &mut out),
+        let Some(side) = bisect(&sub) else {
+            // Too dense to cut: AMD does as well as anything.
+            order_by_amd(&graph, &piece, &mut local, &mut out);
+            continue;
+        };
+        let mut parts: [Vec<usize>; 3] = Default::default();
+        for (k, &v) in piece.vertices.iter().enumerate() {
+            parts[side[k] as usize].push(v);
         }
+        let [lower, upper, separator] = parts;
+        debug_assert!((0..sub.len()).all(|v| side[v] != LOWER
+            || sub.neighbours(v).iter().all(|&u| side[u] != UPPER)));
+        if std::env::var_os("ND_DEBUG").is_some() && piece.vertices.len() > 0 {
+            eprintln!(
+                "piece {} -> {} / {} / sep {}",
+                piece.vertices.len(),
+                lower.len(),
+                upper.len(),
+                separator.len()
+            );
+        }
+        let upper_start = piece.start + lower.len();
+        let separator_start = upper_start + upper.len();
+        out[separator_start..separator_start + separator.len()].copy_from_slice(&separator);
+        stack.push(Piece {
+            vertices: upper,
+            start: upper_start,
+        });
+        stack.push(Piece {
+            vertices: lower,
+            start: piece.start,
+        });
     }
     debug_assert!(out.iter().all(|&v| v < n));
     out
 }
 
-fn relabel(work: &mut Work, vertices: &[usize]) {
-    let label = work.next_label;
-    work.next_label += 1;
-    for &v in vertices {
-        work.label[v] = label;
-    }
-}
-
-fn reset_levels(work: &mut Work, vertices: &[usize]) {
-    for &v in vertices {
-        work.level[v] = usize::MAX;
-    }
-}
-
-/// BFS within the piece `label` from `root`; leaves `work.level` set for the
-/// reached vertices (the caller resets it).
-fn bfs_levels(graph: &Graph, work: &mut Work, label: usize, root: usize) -> Vec<Vec<usize>> {
-    let mut levels = vec![vec![root]];
-    work.level[root] = 0;
+/// Side (LOWER, UPPER, SEPARATOR) of each vertex of a connected graph, with no
+/// edge between LOWER and UPPER and both non-empty; None if no cut was found.
+fn bisect(graph: &Graph) -> Option<Vec<u8>> {
+    let mut hierarchy: Vec<(Graph, Vec<usize>)> = Vec::new();
     loop {
-        let depth = levels.len();
-        let mut next = Vec::new();
-        for &v in &levels[depth - 1] {
-            for &u in graph.neighbours(v) {
-                if work.label[u] == label && work.level[u] == usize::MAX {
-                    work.level[u] = depth;
-                    next.push(u);
-                }
-            }
-        }
-        if next.is_empty() {
-            return levels;
-        }
-        levels.push(next);
-    }
-}
-
-/// Degree of `v` within the piece `label`.
-fn piece_degree(graph: &Graph, work: &Work, label: usize, v: usize) -> usize {
-    graph
-        .neighbours(v)
-        .iter()
-        .filter(|&&u| work.label[u] == label)
-        .count()
-}
-
-/// Splits a connected piece into (lower, upper, separator) with no edge between
-/// lower and upper, or None when no level cut leaves both sides non-empty.
-fn bisect(
-    graph: &Graph,
-    work: &mut Work,
-    label: usize,
-    vertices: &[usize],
-) -> Option<(Vec<usize>, Vec<usize>, Vec<usize>)> {
-    // Pseudo-peripheral root: restart from a minimum-degree vertex of the last
-    // level while the eccentricity grows.
-    let mut root = vertices[0];
-    let mut levels = bfs_levels(graph, work, label, root);
-    for _ in 1..PERIPHERAL_SWEEPS {
-        let last = levels.last().expect("BFS has a root level");
-        let candidate = *last
-            .iter()
-            .min_by_key(|&&v| (piece_degree(graph, work, label, v), v))
-            .expect("levels are non-empty");
-        reset_levels(work, vertices);
-        let trial = bfs_levels(graph, work, label, candidate);
-        if trial.len() <= levels.len() {
-            reset_levels(work, vertices);
-            levels = bfs_levels(graph, work, label, root);
+        let current = hierarchy.last().map_or(graph, |(g, _)| g);
+        if current.len() <= COARSEST_SIZE {
             break;
         }
-        root = candidate;
+        let (coarse, map) = current.coarsen();
+        if coarse.len() as f64 > MIN_SHRINK * current.len() as f64 {
+            break;
+        }
+        hierarchy.push((coarse, map));
+    }
+    let coarsest = hierarchy.last().map_or(graph, |(g, _)| g);
+    let mut side = initial_cut(coarsest)?;
+    refine(coarsest, &mut side);
+    for k in (0..hierarchy.len()).rev() {
+        let fine = if k == 0 { graph } else { &hierarchy[k - 1].0 };
+        let map = &hierarchy[k].1;
+        side = map.iter().map(|&c| side[c]).collect();
+        refine(fine, &mut side);
+    }
+    let has = |s: u8| side.contains(&s);
+    (has(LOWER) && has(UPPER)).then_some(side)
+}
+
+/// Weights of the three parts.
+fn part_weights(graph: &Graph, side: &[u8]) -> [usize; 3] {
+    let mut w = [0; 3];
+    for (v, &s) in side.iter().enumerate() {
+        w[s as usize] += graph.weight[v];
+    }
+    w
+}
+
+/// |S| · W / (|A| · |B|): small separators, balanced sides.
+fn cut_score(w: &[usize; 3]) -> f64 {
+    if w[0] == 0 || w[1] == 0 {
+        return f64::INFINITY;
+    }
+    let total = (w[0] + w[1] + w[2]) as f64;
+    w[2] as f64 * total / (w[0] as f64 * w[1] as f64)
+}
+
+/// Best BFS-level cut from a pseudo-peripheral vertex and from the far end of
+/// its level structure, each refined; None when every level structure has
+/// fewer than three levels.
+fn initial_cut(graph: &Graph) -> Option<Vec<u8>> {
+    let n = graph.len();
+    let mut level = vec![usize::MAX; n];
+    let degree = |v: usize| graph.ptr[v + 1] - graph.ptr[v];
+    let mut root = 0;
+    let mut levels = graph.bfs(root, &mut level);
+    for _ in 1..PERIPHERAL_SWEEPS {
+        let far = *levels
+            .last()
+            .expect("BFS has a root level")
+            .iter()
+            .min_by_key(|&&v| (degree(v), v))
+            .expect("levels are non-empty");
+        level.fill(usize::MAX);
+        let trial = graph.bfs(far, &mut level);
+        if trial.len() <= levels.len() {
+            break;
+        }
+        root = far;
         levels = trial;
     }
-    let depth = levels.len();
-    if depth < 3 {
-        reset_levels(work, vertices);
-        return None;
-    }
-    // For the cut between levels l and l + 1: vertices of l touching l + 1, and
-    // vertices of l + 1 touching l. Either set separates.
-    let mut touch_up = vec![0usize; depth];
-    let mut touch_down = vec![0usize; depth];
-    for (l, level) in levels.iter().enumerate() {
-        for &v in level {
-            let (mut up, mut down) = (false, false);
-            for &u in graph.neighbours(v) {
-                if work.label[u] != label {
-                    continue;
-                }
-                let lu = work.level[u];
-                up |= lu == l + 1;
-                down |= l > 0 && lu == l - 1;
+    let far = *levels
+        .last()
+        .expect("BFS has a root level")
+        .iter()
+        .min_by_key(|&&v| (degree(v), v))
+        .expect("levels are non-empty");
+    let mut best: Option<(f64, Vec<u8>)> = None;
+    for start in [root, far] {
+        level.fill(usize::MAX);
+        let levels = graph.bfs(start, &mut level);
+        if let Some(mut side) = level_cut(graph, &levels, &level) {
+            refine(graph, &mut side);
+            let score = cut_score(&part_weights(graph, &side));
+            if best.as_ref().is_none_or(|(s, _)| score < *s) {
+                best = Some((score, side));
             }
-            touch_up[l] += usize::from(up);
-            touch_down[l] += usize::from(down);
         }
     }
-    let total = vertices.len();
+    best.map(|(_, side)| side)
+}
+
+/// The cut between two consecutive BFS levels with the best score; the
+/// separator is the vertices of one of them that touch the other.
+fn level_cut(graph: &Graph, levels: &[Vec<usize>], level: &[usize]) -> Option<Vec<u8>> {
+    let depth = levels.len();
+    if depth < 3 {
+        return None;
+    }
+    let mut level_weight = vec![0usize; depth];
+    let mut touch_up = vec![0usize; depth];
+    let mut touch_down = vec![0usize; depth];
+    for (l, vs) in levels.iter().enumerate() {
+        for &v in vs {
+            let w = graph.weight[v];
+            level_weight[l] += w;
+            let nb = graph.neighbours(v);
+            if nb.iter().any(|&u| level[u] == l + 1) {
+                touch_up[l] += w;
+            }
+            if l > 0 && nb.iter().any(|&u| level[u] == l - 1) {
+                touch_down[l] += w;
+            }
+        }
+    }
+    let total: usize = level_weight.iter().sum();
     let mut below = 0usize;
-    // (score, level l, separator taken from level l (true) or l + 1 (false))
+    // (score, cut level l, separator drawn from level l (true) or l + 1)
     let mut best: Option<(f64, usize, bool)> = None;
     let mut fallback: Option<(f64, usize, bool)> = None;
     for l in 0..depth - 1 {
-        let here = levels[l].len();
         for from_lower in [true, false] {
             let sep = if from_lower {
                 touch_up[l]
             } else {
                 touch_down[l + 1]
             };
-            // Vertices of the separator's level not in it join their own side.
-            let lower = if from_lower {
-                below + here - sep
-            } else {
-                below + here
-            };
-            let upper = total - lower - sep;
-            if lower == 0 || upper == 0 {
+            let lower = below + level_weight[l] - if from_lower { sep } else { 0 };
+            let w = [lower, total - lower - sep, sep];
+            let score = cut_score(&w);
+            if !score.is_finite() {
                 continue;
             }
-            let score = sep as f64 * total as f64 / (lower as f64 * upper as f64);
-            let candidate = Some((score, l, from_lower));
-            let small_side = lower.min(upper) as f64;
-            let slot = if small_side >= MIN_SIDE_FRACTION * total as f64 {
-                &mut best
-            } else {
-                &mut fallback
-            };
+            let balanced = w[0].min(w[1]) as f64 >= MIN_SIDE_FRACTION * total as f64;
+            let slot = if balanced { &mut best } else { &mut fallback };
             if slot.is_none_or(|(s, _, _)| score < s) {
-                *slot = candidate;
+                *slot = Some((score, l, from_lower));
             }
         }
-        below += here;
+        below += level_weight[l];
     }
-    let Some((_, cut, from_lower)) = best.or(fallback) else {
-        reset_levels(work, vertices);
-        return None;
-    };
-    let (mut lower, mut upper, mut separator) = (Vec::new(), Vec::new(), Vec::new());
-    for (l, level) in levels.iter().enumerate() {
-        for &v in level {
-            let side = if l < cut || (l == cut && !from_lower) {
-                0
-            } else if l > cut + 1 || (l == cut + 1 && from_lower) {
-                2
+    let (_, cut, from_lower) = best.or(fallback)?;
+    let side = (0..graph.len())
+        .map(|v| {
+            let l = level[v];
+            let (sep_level, other, rest) = if from_lower {
+                (cut, cut + 1, LOWER)
             } else {
-                // On the separator's level: in it only if touching the other side.
-                let other = if from_lower { cut + 1 } else { cut };
-                let touches = graph
-                    .neighbours(v)
-                    .iter()
-                    .any(|&u| work.label[u] == label && work.level[u] == other);
-                if touches {
-                    1
-                } else if from_lower {
-                    0
-                } else {
-                    2
-                }
+                (cut + 1, cut, UPPER)
             };
-            match side {
-                0 => lower.push(v),
-                1 => separator.push(v),
-                _ => upper.push(v),
+            if l < cut || (l == cut && !from_lower) {
+                LOWER
+            } else if l > cut + 1 || (l == cut + 1 && from_lower) {
+                UPPER
+            } else if l == sep_level && graph.neighbours(v).iter().any(|&u| level[u] == other) {
+                SEPARATOR
+            } else {
+                rest
             }
-        }
-    }
-    reset_levels(work, vertices);
-    for (list, side) in [(&lower, LOWER), (&upper, UPPER), (&separator, SEPARATOR)] {
-        for &v in list {
-            work.side[v] = side;
-        }
-    }
-    refine_separator(graph, work, label, &separator, [lower.len(), upper.len()]);
-    let (mut lower, mut upper, mut separator) = (Vec::new(), Vec::new(), Vec::new());
-    for &v in vertices {
-        match work.side[v] {
-            LOWER => lower.push(v),
-            UPPER => upper.push(v),
-            _ => separator.push(v),
-        }
-    }
-    (!lower.is_empty() && !upper.is_empty()).then_some((lower, upper, separator))
+        })
+        .collect();
+    Some(side)
 }
 
-const LOWER: u8 = 0;
-const UPPER: u8 = 1;
-const SEPARATOR: u8 = 2;
-
-/// Fiduccia–Mattheyses refinement of a vertex separator (as in METIS's node
-/// refinement): a separator vertex moves to one side and pulls its neighbours
-/// on the other side into the separator. Moves are taken best gain first, each
-/// vertex at most once per pass, uphill moves allowed for a while, and each pass
-/// rolls back to its best state (smallest |S| · n / (|A| · |B|)). Level cuts are
-/// wavefronts, longer than straight cuts; this straightens them.
-fn refine_separator(
-    graph: &Graph,
-    work: &mut Work,
-    label: usize,
-    separator: &[usize],
-    sides: [usize; 2],
-) {
-    use std::cmp::Reverse;
-    use std::collections::BinaryHeap;
-    let mut weight = [sides[0], sides[1], separator.len()];
+/// Fiduccia–Mattheyses refinement of a vertex separator (as METIS's node
+/// refinement): a separator vertex moves to one side and pulls its neighbours on
+/// the other side into the separator. Moves go best gain first, each vertex at
+/// most once per pass, uphill for a while, and each pass rolls back to its best
+/// state by [`cut_score`].
+fn refine(graph: &Graph, side: &mut [u8]) {
+    if std::env::var_os("ND_NOREFINE").is_some() {
+        return;
+    }
+    let n = graph.len();
+    let mut weight = part_weights(graph, side);
     let total = weight[0] + weight[1] + weight[2];
-    let score = |w: &[usize; 3]| {
-        if w[0] == 0 || w[1] == 0 {
-            f64::INFINITY
-        } else {
-            w[2] as f64 * total as f64 / (w[0] as f64 * w[1] as f64)
-        }
-    };
     let max_side = ((1.0 - MIN_SIDE_FRACTION) * total as f64) as usize;
-    let mut in_separator: Vec<usize> = separator.to_vec();
+    let mut gain = vec![[0i64; 2]; n];
+    let mut locked = vec![false; n];
+    // gain of moving v to side k: w(v) − weight of its neighbours on side 1 − k.
+    let gain_of = |side: &[u8], v: usize, k: usize| -> i64 {
+        let pulled: usize = graph
+            .neighbours(v)
+            .iter()
+            .filter(|&&u| side[u] as usize == 1 - k)
+            .map(|&u| graph.weight[u])
+            .sum();
+        graph.weight[v] as i64 - pulled as i64
+    };
     for _ in 0..REFINE_PASSES {
-        let start_score = score(&weight);
-        // gain[k] of moving v to side k = 1 − (neighbours of v on side 1 − k).
-        let gain_of = |work: &Work, v: usize, k: u8| -> i64 {
-            let other = 1 - k;
-            let pulled = graph
-                .neighbours(v)
-                .iter()
-                .filter(|&&u| work.label[u] == label && work.side[u] == other)
-                .count();
-            1 - pulled as i64
-        };
+        let start_score = cut_score(&weight);
         let mut heaps = [BinaryHeap::new(), BinaryHeap::new()];
-        for &v in &in_separator {
-            for k in [LOWER, UPPER] {
-                let g = gain_of(work, v, k);
-                work.gain[v][k as usize] = g;
-                heaps[k as usize].push((g, Reverse(v)));
+        for v in (0..n).filter(|&v| side[v] == SEPARATOR) {
+            for (k, heap) in heaps.iter_mut().enumerate() {
+                gain[v][k] = gain_of(side, v, k);
+                heap.push((gain[v][k], Reverse(v)));
             }
         }
         let mut log: Vec<(usize, u8)> = Vec::new();
         let mut moved: Vec<usize> = Vec::new();
-        let (mut best_score, mut best_len) = (start_score, 0usize);
-        let mut since_best = 0usize;
+        let (mut best_score, mut best_len, mut since_best) = (start_score, 0usize, 0usize);
         loop {
-            // Top valid entry of each heap (lazy deletion of stale gains).
+            // Top valid entry of each heap (stale gains are skipped lazily).
             let mut top = [None, None];
-            for k in 0..2 {
-                while let Some(&(g, Reverse(v))) = heaps[k].peek() {
-                    if work.side[v] == SEPARATOR && !work.locked[v] && work.gain[v][k] == g {
+            for (k, heap) in heaps.iter_mut().enumerate() {
+                while let Some(&(g, Reverse(v))) = heap.peek() {
+                    if side[v] == SEPARATOR && !locked[v] && gain[v][k] == g {
                         top[k] = Some((g, v));
                         break;
                     }
-                    heaps[k].pop();
+                    heap.pop();
                 }
             }
-            let fits = |k: usize, g: i64| {
-                weight[k] + 1 <= max_side && {
-                    // The side losing vertices must not become empty.
-                    let pulled = (1 - g) as usize;
-                    weight[1 - k] > pulled
-                }
+            let fits = |k: usize, v: usize| {
+                let pulled = (graph.weight[v] as i64 - gain[v][k]) as usize;
+                weight[k] + graph.weight[v] <= max_side && weight[1 - k] > pulled
             };
-            let lighter = if weight[0] <= weight[1] { 0 } else { 1 };
+            let lighter = usize::from(weight[0] > weight[1]);
             let mut order = [lighter, 1 - lighter];
             if let (Some((g0, _)), Some((g1, _))) = (top[order[0]], top[order[1]]) {
                 if g1 > g0 {
@@ -463,55 +548,49 @@ fn refine_separator(
             }
             let Some((k, v)) = order
                 .iter()
-                .find_map(|&k| top[k].filter(|&(g, _)| fits(k, g)).map(|(_, v)| (k, v)))
+                .find_map(|&k| top[k].filter(|&(_, v)| fits(k, v)).map(|(_, v)| (k, v)))
             else {
                 break;
             };
-            let side = k as u8;
-            let other = 1 - side;
-            heaps[k].pop();
-            work.locked[v] = true;
+            locked[v] = true;
             moved.push(v);
             log.push((v, SEPARATOR));
-            work.side[v] = side;
-            weight[2] -= 1;
-            weight[k] += 1;
-            // Separator neighbours of v now see one more vertex on `side`.
+            side[v] = k as u8;
+            weight[2] -= graph.weight[v];
+            weight[k] += graph.weight[v];
+            let wv = graph.weight[v] as i64;
             for &w in graph.neighbours(v) {
-                if work.label[w] == label && work.side[w] == SEPARATOR && !work.locked[w] {
-                    work.gain[w][1 - k] -= 1;
-                    heaps[1 - k].push((work.gain[w][1 - k], Reverse(w)));
+                if side[w] == SEPARATOR && !locked[w] {
+                    // One more neighbour of w on side k.
+                    gain[w][1 - k] -= wv;
+                    heaps[1 - k].push((gain[w][1 - k], Reverse(w)));
                 }
             }
+            let other = (1 - k) as u8;
             for &u in graph.neighbours(v) {
-                if work.label[u] != label || work.side[u] != other {
+                if side[u] != other {
                     continue;
                 }
                 log.push((u, other));
-                work.side[u] = SEPARATOR;
-                weight[1 - k] -= 1;
-                weight[2] += 1;
-                in_separator.push(u);
-                // Separator neighbours of u see one vertex fewer on `other`.
+                side[u] = SEPARATOR;
+                let wu = graph.weight[u];
+                weight[1 - k] -= wu;
+                weight[2] += wu;
                 for &w in graph.neighbours(u) {
-                    if work.label[w] == label
-                        && work.side[w] == SEPARATOR
-                        && !work.locked[w]
-                        && w != u
-                    {
-                        work.gain[w][k] += 1;
-                        heaps[k].push((work.gain[w][k], Reverse(w)));
+                    if side[w] == SEPARATOR && !locked[w] && w != u {
+                        // One neighbour fewer of w on the other side.
+                        gain[w][k] += wu as i64;
+                        heaps[k].push((gain[w][k], Reverse(w)));
                     }
                 }
-                if !work.locked[u] {
-                    for j in [LOWER, UPPER] {
-                        let g = gain_of(work, u, j);
-                        work.gain[u][j as usize] = g;
-                        heaps[j as usize].push((g, Reverse(u)));
+                if !locked[u] {
+                    for (j, heap) in heaps.iter_mut().enumerate() {
+                        gain[u][j] = gain_of(side, u, j);
+                        heap.push((gain[u][j], Reverse(u)));
                     }
                 }
             }
-            let now = score(&weight);
+            let now = cut_score(&weight);
             if now < best_score {
                 best_score = now;
                 best_len = log.len();
@@ -524,62 +603,84 @@ fn refine_separator(
             }
         }
         for &(v, previous) in log[best_len..].iter().rev() {
-            let current = work.side[v];
-            weight[current as usize] -= 1;
-            weight[previous as usize] += 1;
-            work.side[v] = previous;
+            weight[side[v] as usize] -= graph.weight[v];
+            weight[previous as usize] += graph.weight[v];
+            side[v] = previous;
         }
         for &v in &moved {
-            work.locked[v] = false;
+            locked[v] = false;
         }
-        in_separator.retain(|&v| work.side[v] == SEPARATOR);
-        in_separator.sort_unstable();
-        in_separator.dedup();
         if best_score >= start_score {
             break;
         }
     }
 }
 
-/// AMD on the subgraph induced by the piece, written to its output slots.
-fn order_leaf(graph: &Graph, work: &mut Work, piece: &Piece, out: &mut [usize]) {
-    let vertices = &piece.vertices;
-    let m = vertices.len();
-    let label = work.label[vertices[0]];
-    for (k, &v) in vertices.iter().enumerate() {
-        work.local[v] = k;
+/// AMD on the piece together with its halo (the neighbouring vertices of the
+/// ancestors' separators, eliminated later), written to the piece's output
+/// slots. Without the halo, AMD sees the piece's border as a boundary of low
+/// degree and eliminates it first, which drags the separators into every
+/// front; the halo, linked as a clique (its vertices are coupled through the
+/// pieces already eliminated), keeps them last (an approximate halo AMD).
+fn order_by_amd(graph: &Graph, piece: &Piece, local: &mut [usize], out: &mut [usize]) {
+    let m = piece.vertices.len();
+    for (k, &v) in piece.vertices.iter().enumerate() {
+        local[v] = k;
     }
-    let mut col_ptr = Vec::with_capacity(m + 1);
+    let mut halo: Vec<usize> = Vec::new();
+    for &v in &piece.vertices {
+        for &u in graph.neighbours(v) {
+            if local[u] == usize::MAX {
+                local[u] = m + halo.len();
+                halo.push(u);
+            }
+        }
+    }
+    // A huge halo only arises for pieces too dense to cut; keep AMD cheap there.
+    let clique = halo.len() <= HALO_CLIQUE_MAX;
+    let size = m + halo.len();
+    let mut col_ptr = Vec::with_capacity(size + 1);
     col_ptr.push(0usize);
     let mut row_idx = Vec::new();
-    for &v in vertices {
+    for &v in piece.vertices.iter().chain(&halo) {
         let begin = row_idx.len();
-        for &u in graph.neighbours(v) {
-            if work.label[u] == label {
-                row_idx.push(work.local[u]);
-            }
+        let inside = local[v] < m;
+        row_idx.extend(
+            graph
+                .neighbours(v)
+                .iter()
+                .map(|&u| local[u])
+                .filter(|&k| k < m || (inside && k != usize::MAX)),
+        );
+        if !inside && clique {
+            row_idx.extend((m..size).filter(|&k| k != local[v]));
         }
         row_idx[begin..].sort_unstable();
         col_ptr.push(row_idx.len());
     }
-    let mut perm = vec![0usize; m];
-    let mut perm_inv = vec![0usize; m];
-    let pattern = SymbolicSparseColMatRef::new_checked(m, m, &col_ptr, None, &row_idx);
-    let mut buffer = MemBuffer::new(amd::order_scratch::<usize>(m, row_idx.len()));
+    for &v in piece.vertices.iter().chain(&halo) {
+        local[v] = usize::MAX;
+    }
+    let mut perm = vec![0usize; size];
+    let mut perm_inv = vec![0usize; size];
+    let pattern = SymbolicSparseColMatRef::new_checked(size, size, &col_ptr, None, &row_idx);
+    let mut buffer = MemBuffer::new(amd::order_scratch::<usize>(size, row_idx.len()));
     let ordered = amd::order(
         &mut perm,
         &mut perm_inv,
         pattern,
         amd::Control::default(),
         MemStack::new(&mut buffer),
-    );
-    for (k, &v) in vertices.iter().enumerate() {
-        work.local[v] = usize::MAX;
-        work.label[v] = PLACED;
-        // AMD only fails on index overflow, impossible at leaf size; keep the
-        // given order then.
-        let local = if ordered.is_ok() { perm[k] } else { k };
-        out[piece.start + k] = vertices[local];
+    )
+    .is_ok();
+    // AMD fails only on index overflow; keep the given order then.
+    let order: Vec<usize> = if ordered {
+        perm.into_iter().filter(|&k| k < m).collect()
+    } else {
+        (0..m).collect()
+    };
+    for (k, &local_index) in order.iter().enumerate() {
+        out[piece.start + k] = piece.vertices[local_index];
     }
 }
 
@@ -635,9 +736,22 @@ mod tests {
             (Some(p), Some(inv)) => SymmetricOrdering::Custom(PermRef::new_checked(p, inv, n)),
             _ => SymmetricOrdering::Amd,
         };
-        factorize_symbolic_cholesky(pattern, Side::Upper, ordering, Default::default())
+        let params = faer::sparse::linalg::cholesky::CholeskySymbolicParams {
+            supernodal_flop_ratio_threshold: faer::sparse::linalg::SupernodalThreshold::FORCE_SIMPLICIAL,
+            ..Default::default()
+        };
+        let simp = factorize_symbolic_cholesky(pattern, Side::Upper, ordering, params)
             .expect("symbolic analysis")
-            .len_val()
+            .len_val();
+        let ordering = match (perm, &inverse) {
+            (Some(p), Some(inv)) => SymmetricOrdering::Custom(PermRef::new_checked(p, inv, n)),
+            _ => SymmetricOrdering::Amd,
+        };
+        let sup = factorize_symbolic_cholesky(pattern, Side::Upper, ordering, Default::default())
+            .expect("symbolic analysis")
+            .len_val();
+        eprintln!("simplicial {simp} supernodal {sup}");
+        sup
     }
 
     #[test]
