@@ -5,8 +5,9 @@
 //! ```
 //!
 //! Solved through the quasi-definite KKT system
-//! `[[AᵀA + λ²I + δI, Cᵀ], [C, −δI]]` (AᵀA formed sparsely; it is local) with an
-//! AMD ordering and faer's sparse LDLᵀ, followed by iterative refinement against
+//! `[[AᵀA + λ²I + δI, Cᵀ], [C, −δI]]` (AᵀA formed sparsely; it is local) with a
+//! fill-reducing [`Ordering`] (AMD by default, nested dissection on request) and
+//! faer's sparse LDLᵀ, followed by iterative refinement against
 //! the *unregularised* system until the residual stops decreasing.
 //!
 //! Before factorising, columns of x are equilibrated (unit norm of `[A; C]`
