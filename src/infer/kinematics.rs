@@ -64,7 +64,7 @@ impl Smoother {
 /// ([`KinematicsReport::acceleration_sd`]): the rest covers the filter's
 /// smoothing of impacts. Measured on `impact` (0.1 % of a diameter position
 /// noise, twelve draws; relerr, moving grain-draws within 10 % of the
-/// measured Δv, worst): 1 → 0.037–0.043, 57/60, 0.12; 1.5 → 0.033–0.038,
+/// measured Δv, worst, with 21-frame end windows): 1 → 0.037–0.043, 57/60, 0.12; 1.5 → 0.033–0.038,
 /// 59/60, 0.13; 2 → 0.030–0.035, 59/60, 0.14 (all within 9.1 % of the
 /// noise-free Δv); 3 → 0.027–0.031, 58/60, 0.16.
 pub const DERIVED_ACCEL_NOISE_FACTOR: f64 = 2.0;
