@@ -399,3 +399,53 @@ fn stated_acceleration_noise_matches_noisy_tracks() {
         }
     }
 }
+
+#[test]
+fn impulse_windows_widen_over_free_flight() {
+    // The pulse with the wall touching only while it pushes (frames 40–60):
+    // each end window widens over the contact-free stretch (40 and 39 frames,
+    // taken odd), which the same slopes on both sides keep exact and which
+    // quiets the measured side by (21/39)^1.5.
+    let fps = 5000.0;
+    let (mut frames, mut forces) = pushed_grain(100, fps, pulse);
+    for (k, (frame, f)) in frames.iter_mut().zip(&mut forces).enumerate() {
+        if !(40..=60).contains(&k) {
+            frame.contacts.clear();
+            f.clear();
+        }
+    }
+    let options = ImpulseOptions {
+        position_sd: Some(2e-5),
+        ..Default::default()
+    };
+    let check = impulse_check(&frames, &forces, fps, [0.0; 3], &options).unwrap();
+    let r = &check.rows[0];
+    assert_eq!((r.start_window, r.end_window), (39, 39), "{r:?}");
+    assert!(r.disagreement < 1e-9, "{r:?}");
+    // The whole pulse lies between the windows: Δv is its full impulse / m
+    // (trapezoidal, the track's own rule), 0.36 m/s.
+    let impulse: f64 = (40..=60)
+        .map(|k| pulse(k)[0].hypot(pulse(k)[1]))
+        .sum::<f64>()
+        / fps;
+    let size = r.measured[0].hypot(r.measured[1]);
+    assert!(
+        (size - impulse / 0.1).abs() < 1e-9,
+        "{size} vs {}",
+        impulse / 0.1
+    );
+    let (touching, _) = pushed_grain(100, fps, pulse);
+    let fixed = impulse_check(&touching, &forces_all(&touching), fps, [0.0; 3], &options).unwrap();
+    let f = &fixed.rows[0];
+    assert_eq!((f.start_window, f.end_window), (21, 21));
+    let ratio = r.measured_sd / f.measured_sd;
+    assert!((ratio - (21.0f64 / 39.0).powf(1.5)).abs() < 0.02, "{ratio}");
+}
+
+/// No force at any contact.
+fn forces_all(frames: &[Scene]) -> FrameForces {
+    frames
+        .iter()
+        .map(|f| vec![Some([0.0; 3]); f.contacts.len()])
+        .collect()
+}

@@ -125,9 +125,11 @@ pub struct Args {
     pub savgol_degree: usize,
     /// Sequences: write the impulse check (table 3.1) to this CSV, one row per
     /// grain tracked over at least --impulse-window + 1 consecutive frames.
-    /// Columns: grain, first_frame, last_frame; dv_x_measured, dv_x_inferred
-    /// (and y, z): the change of velocity between the first and the last
-    /// --impulse-window frames, measured = least-squares slopes of the track,
+    /// Columns: grain, first_frame, last_frame; start_window, end_window: the
+    /// frames of the two end windows (--impulse-window, or the whole
+    /// contact-free stretch at an end where the grain flies freely);
+    /// dv_x_measured, dv_x_inferred (and y, z): the change of velocity
+    /// between the two windows, measured = least-squares slopes of the track,
     /// inferred = the same slopes of the track integrated twice from
     /// (Σ inferred contact forces)/m + g; dv_sd: standard deviation of each
     /// measured component due to the position noise; disagreement:
@@ -135,8 +137,9 @@ pub struct Args {
     /// dv_sd (a few units is noise); moves: 1 when |Δv measured| ≥ 20 dv_sd.
     #[arg(long, value_name = "IMPULSE.csv")]
     pub impulse: Option<PathBuf>,
-    /// Frames in each end window of the impulse check (odd); longer windows
-    /// give quieter velocities.
+    /// Frames in each end window of the impulse check (odd), at least; an end
+    /// where the grain touches nothing widens over that contact-free stretch
+    /// (up to half the track). Longer windows give quieter velocities.
     #[arg(long, default_value_t = 21)]
     pub impulse_window: usize,
     /// Standard deviation of each tracked coordinate (metres) for the impulse
@@ -498,13 +501,16 @@ pub fn run(args: Args) -> Result<()> {
         let check = kinematics::impulse_check(&frames, &forces, fps, gravity, &options)?;
         let dim = frames[0].dim;
         let axes = &["x", "y", "z"][..dim];
-        let mut text = String::from("grain,first_frame,last_frame");
+        let mut text = String::from("grain,first_frame,last_frame,start_window,end_window");
         for a in axes {
             text.push_str(&format!(",dv_{a}_measured,dv_{a}_inferred"));
         }
         text.push_str(",dv_sd,disagreement,gap_in_sd,moves\n");
         for r in &check.rows {
-            text.push_str(&format!("{},{},{}", r.grain, r.first_frame, r.last_frame));
+            text.push_str(&format!(
+                "{},{},{},{},{}",
+                r.grain, r.first_frame, r.last_frame, r.start_window, r.end_window
+            ));
             for k in 0..dim {
                 text.push_str(&format!(",{},{}", r.measured[k], r.inferred[k]));
             }

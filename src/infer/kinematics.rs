@@ -64,7 +64,7 @@ impl Smoother {
 /// ([`KinematicsReport::acceleration_sd`]): the rest covers the filter's
 /// smoothing of impacts. Measured on `impact` (0.1 % of a diameter position
 /// noise, twelve draws; relerr, moving grain-draws within 10 % of the
-/// measured Δv, worst): 1 → 0.037–0.043, 57/60, 0.12; 1.5 → 0.033–0.038,
+/// measured Δv, worst, with 21-frame end windows): 1 → 0.037–0.043, 57/60, 0.12; 1.5 → 0.033–0.038,
 /// 59/60, 0.13; 2 → 0.030–0.035, 59/60, 0.14 (all within 9.1 % of the
 /// noise-free Δv); 3 → 0.027–0.031, 58/60, 0.16.
 pub const DERIVED_ACCEL_NOISE_FACTOR: f64 = 2.0;
@@ -395,10 +395,12 @@ const MIN_DERIVED_MOMENTUM_SD: f64 = 0.01;
 /// How the impulse check compares velocities.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct ImpulseOptions {
-    /// Frames in each end window (odd, ≥ 3). The velocity at either end of a
-    /// track is the least-squares slope over its first / last `window` frames:
-    /// its noise falls as window^(-3/2), whereas a velocity from two or three
-    /// frames carries the position noise almost undamped.
+    /// Frames in each end window (odd, ≥ 3), at least. The velocity at either
+    /// end of a track is the least-squares slope over its first / last
+    /// `window` frames — or over the whole contact-free stretch at an end
+    /// where the grain flies freely (up to half the track): its noise falls
+    /// as window^(-3/2), whereas a velocity from two or three frames carries
+    /// the position noise almost undamped.
     pub window: usize,
     /// Standard deviation of each tracked coordinate [m]; `None` estimates it
     /// from the tracks ([`estimate_position_sd`]).
@@ -427,6 +429,10 @@ pub struct ImpulseRow {
     /// Frame numbers of the first and last frame of the grain's track used.
     pub first_frame: i64,
     pub last_frame: i64,
+    /// Frames in the start and end windows: `window`, or more where the grain
+    /// touches nothing at that end of its track (free flight).
+    pub start_window: usize,
+    pub end_window: usize,
     /// Δv from the tracked positions: end-window slope minus start-window slope.
     pub measured: Vec3,
     /// The same two slopes of the trajectory integrated twice from
@@ -493,6 +499,14 @@ pub fn estimate_position_sd(frames: &[Scene]) -> f64 {
     median / 0.674_489_75 / 70f64.sqrt()
 }
 
+fn largest_odd_at_most(m: usize) -> usize {
+    if m % 2 == 1 {
+        m
+    } else {
+        m.saturating_sub(1)
+    }
+}
+
 /// Weights of the least-squares slope over `window` samples starting at
 /// `start` of a series of length `n` (zero elsewhere), per unit time.
 fn slope_weights(n: usize, start: usize, window: usize, dt: f64) -> Vec<f64> {
@@ -506,8 +520,9 @@ fn slope_weights(n: usize, start: usize, window: usize, dt: f64) -> Vec<f64> {
 }
 
 /// Table 3.1 of the method. For each grain, over its longest contiguous
-/// track: the velocity change between the first and the last `window` frames
-/// measured from the positions (least-squares slopes), against the same
+/// track: the velocity change between its start and end windows (`window`
+/// frames, widened over a contact-free stretch at that end) measured from the
+/// positions (least-squares slopes), against the same
 /// slopes of the trajectory obtained by integrating (Σ inferred contact
 /// forces)/m + g twice. Applying one linear operator to both sides makes them
 /// estimate the same quantity whatever the window, so only the errors of the
@@ -603,8 +618,26 @@ pub fn impulse_check(
                 v[k] += 0.5 * dt * (a0[k] + a1[k]);
             }
         }
-        let begin = slope_weights(n, 0, window, dt);
-        let end = slope_weights(n, n - window, window, dt);
+        // Where the grain touches nothing at an end of its track, it flies
+        // freely: the track there is a parabola under gravity, whose
+        // least-squares slope is the velocity at the window's centre, so that
+        // end's window covers the whole contact-free stretch (quieter, and
+        // the inferred side is exactly g there). Capped at half the track.
+        let touches: Vec<bool> =
+            seg.iter()
+                .map(|&(k, _)| {
+                    let f = &frames[k];
+                    f.grains.iter().position(|g| g.id == id).is_some_and(|p| {
+                        f.contacts.iter().any(|c| c.a == p || c.b == Body::Grain(p))
+                    })
+                })
+                .collect();
+        let free_start = touches.iter().take_while(|&&t| !t).count();
+        let free_end = touches.iter().rev().take_while(|&&t| !t).count();
+        let widen = |free: usize| window.max(largest_odd_at_most(free.min(n / 2)));
+        let (start_window, end_window) = (widen(free_start), widen(free_end));
+        let begin = slope_weights(n, 0, start_window, dt);
+        let end = slope_weights(n, n - end_window, end_window, dt);
         let weights: Vec<f64> = end.iter().zip(&begin).map(|(e, b)| e - b).collect();
         let apply = |x: &dyn Fn(usize, usize) -> f64| -> Vec3 {
             let mut out = [0.0; 3];
@@ -634,6 +667,8 @@ pub fn impulse_check(
             grain: id,
             first_frame: frames[seg[0].0].frame.unwrap_or(seg[0].0 as i64),
             last_frame: frames[seg[n - 1].0].frame.unwrap_or(seg[n - 1].0 as i64),
+            start_window,
+            end_window,
             measured,
             inferred,
             measured_sd,
