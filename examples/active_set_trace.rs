@@ -9,7 +9,8 @@ use grainforce::assemble::{assemble, AssembleOptions};
 use grainforce::bench::{generate, perturb, Noise, PackingSpec};
 use grainforce::infer::{infer, ConstrainedSolver, InferOptions};
 use grainforce::report::metrics::relative_error;
-use grainforce::solver::{active_set, sparse_ls::EqualityLeastSquares, LeastSquares};
+use grainforce::solver::sparse_ls::{EqualityLeastSquares, Ordering};
+use grainforce::solver::{active_set, LeastSquares};
 use std::time::Instant;
 
 fn main() -> grainforce::Result<()> {
@@ -32,10 +33,15 @@ fn main() -> grainforce::Result<()> {
     if let Some(system) = assembly.systems.iter().max_by_key(|s| s.n) {
         let cones = grainforce::infer::cones(system, grainforce::infer::ConeModel::Exact);
         let t = Instant::now();
-        let mut ls = EqualityLeastSquares::with_coupling(
+        let mut ls = EqualityLeastSquares::with_ordering(
             &system.stress,
             &system.momentum,
             &system.contact_blocks(),
+            if dim == 3 {
+                Ordering::NestedDissection
+            } else {
+                Ordering::Amd
+            },
         )?;
         let start = ls.solve(
             &system.stress,

@@ -7,6 +7,7 @@ use grainforce::infer::uncertainty::{
 };
 use grainforce::infer::{self, ConeModel, ConstrainedSolver, InferOptions, LambdaRule, Method};
 use grainforce::scene::{self, Forces, Selection};
+use grainforce::solver::sparse_ls::Ordering;
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
@@ -59,6 +60,11 @@ pub struct Args {
     /// polished). Pyramids always use the interior point.
     #[arg(long, value_enum, default_value_t = SolverArg::ActiveSet)]
     pub solver: SolverArg,
+    /// Fill-reducing ordering of the sparse factorisation: auto (nested
+    /// dissection in 3D, AMD in 2D), amd or nested-dissection. Speed and memory
+    /// only; the forces are the same.
+    #[arg(long, value_enum, default_value_t = OrderingArg::Auto)]
+    pub ordering: OrderingArg,
     /// Interior-point tolerance (gap and feasibility) of the first attempt.
     #[arg(long, default_value_t = 1e-8)]
     pub tolerance: f64,
@@ -198,6 +204,13 @@ pub enum SolverArg {
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
+pub enum OrderingArg {
+    Auto,
+    Amd,
+    NestedDissection,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
 pub enum ConeArg {
     Exact,
     Pyramid4,
@@ -269,6 +282,11 @@ pub fn options(args: &Args) -> Result<(InferOptions, Selection)> {
     opts.solver = match args.solver {
         SolverArg::ActiveSet => ConstrainedSolver::ActiveSet,
         SolverArg::InteriorPoint => ConstrainedSolver::InteriorPoint,
+    };
+    opts.ordering = match args.ordering {
+        OrderingArg::Auto => None,
+        OrderingArg::Amd => Some(Ordering::Amd),
+        OrderingArg::NestedDissection => Some(Ordering::NestedDissection),
     };
     opts.assemble.mu = args.mu;
     if let Some(g) = &args.gravity {

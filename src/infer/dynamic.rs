@@ -8,7 +8,7 @@
 //! - `hard`: momentum as an exact constraint (accelerations trusted fully);
 //! - `fixed`: a given λ.
 
-use super::{cones, InferOptions, InferenceReport};
+use super::{cones, FactorCache, FactorSlot, InferOptions, InferenceReport};
 use crate::assemble::{Assembly, System};
 use crate::error::{Error, Result};
 use crate::report::pareto::ParetoPoint;
@@ -63,13 +63,15 @@ pub(crate) fn solve_weighted(
     assembly: &Assembly,
     opts: &InferOptions,
     lambda: f64,
+    factors: &FactorCache,
     report: &mut InferenceReport,
 ) -> Result<(Vec<Vec<f64>>, f64, f64)> {
     use rayon::prelude::*;
     let results: Vec<Result<(Vec<f64>, conic::ConicSolution)>> = assembly
         .systems
         .par_iter()
-        .map(|s| solve_one(s, opts, lambda))
+        .zip(factors.slots(assembly).par_iter())
+        .map(|(s, slot)| solve_one(s, opts, lambda, slot))
         .collect();
     let (mut xs, mut rs, mut rm) = (Vec::new(), 0.0, 0.0);
     for (r, system) in results.into_iter().zip(&assembly.systems) {
@@ -90,6 +92,7 @@ fn solve_one(
     system: &System,
     opts: &InferOptions,
     lambda: f64,
+    factor: &FactorSlot,
 ) -> Result<(Vec<f64>, conic::ConicSolution)> {
     let cone_list = cones(system, opts.cone);
     // Stacking squares the weight: beyond ~1e6 the normal equations lose the
@@ -106,7 +109,7 @@ fn solve_one(
             d: &[],
             lambda: 0.0,
         };
-        let route = super::sparse_route(system, problem, &cone_list, opts)?;
+        let route = super::sparse_route(system, problem, &cone_list, opts, factor)?;
         if let Some(sol) = route.constrained {
             return Ok((sol.x.clone(), sol));
         }
@@ -159,6 +162,7 @@ fn solve_one(
 pub(crate) fn sweep(
     assembly: &Assembly,
     opts: &InferOptions,
+    factors: &FactorCache,
     report: &mut InferenceReport,
 ) -> Result<Front> {
     let d = &opts.dynamic;
@@ -176,7 +180,7 @@ pub(crate) fn sweep(
     let mut points = Vec::with_capacity(d.sweep_points);
     for i in 0..d.sweep_points {
         let lambda = 10f64.powf(lo + (hi - lo) * i as f64 / (d.sweep_points - 1) as f64);
-        let (_, s, m) = solve_weighted(assembly, opts, lambda, report)?;
+        let (_, s, m) = solve_weighted(assembly, opts, lambda, factors, report)?;
         points.push(ParetoPoint {
             lambda,
             stress_residual: s,

@@ -3,7 +3,7 @@
 //! several local minima, so the search scans a log-spaced grid first and then
 //! refines the best bracket by golden-section search in log λ.
 
-use super::{collect_forces, solve_all, wall_totals, InferOptions, InferenceReport};
+use super::{collect_forces, solve_all, wall_totals, FactorCache, InferOptions, InferenceReport};
 use crate::assemble::Assembly;
 use crate::error::{Error, Result};
 use crate::scene::Scene;
@@ -45,6 +45,7 @@ pub(crate) fn search(
     scene: &Scene,
     assembly: &Assembly,
     opts: &InferOptions,
+    factors: &FactorCache,
     report: &mut InferenceReport,
 ) -> Result<(f64, LambdaTrace)> {
     let s = &opts.lambda_search;
@@ -86,7 +87,7 @@ pub(crate) fn search(
     let mut trace = Vec::new();
     let mut mismatch = |log_lambda: f64, report: &mut InferenceReport| -> Result<f64> {
         let lambda = 10f64.powf(log_lambda);
-        let xs = solve_all(assembly, opts, lambda, report)?;
+        let xs = solve_all(assembly, opts, lambda, factors, report)?;
         let forces = collect_forces(scene, assembly, &xs);
         let totals = wall_totals(scene, &forces);
         let j = measured

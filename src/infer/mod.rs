@@ -26,7 +26,9 @@ use crate::error::{Error, Result};
 use crate::scene::{Body, Scene, Vec3};
 use crate::solver::active_set;
 use crate::solver::conic::{self, Cone, ConicProblem, ConicSettings, Term};
+use crate::solver::sparse_ls::Ordering;
 use crate::solver::{sparse_ls, LeastSquares, Triplets};
+use std::sync::Mutex;
 use std::time::Instant;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
@@ -97,6 +99,11 @@ pub struct InferOptions {
     /// Algorithm for the friction-constrained problems.
     pub solver: ConstrainedSolver,
     pub active_set: ActiveSetSettings,
+    /// Fill-reducing ordering of the sparse factorisation; `None` picks by
+    /// dimension: nested dissection in 3D (0.6× AMD's fill and refactorisation
+    /// time at 10⁴ spheres), AMD in 2D (where computing the dissection costs
+    /// more than it saves). The answer is the same either way.
+    pub ordering: Option<Ordering>,
 }
 
 impl Default for InferOptions {
@@ -117,6 +124,7 @@ impl Default for InferOptions {
             polish: true,
             solver: ConstrainedSolver::ActiveSet,
             active_set: ActiveSetSettings::default(),
+            ordering: None,
         }
     }
 }
@@ -151,22 +159,41 @@ pub fn infer(scene: &Scene, opts: &InferOptions) -> Result<Inference> {
     let assembly = assemble::assemble(scene, &assemble_opts)?;
     let mut report = InferenceReport::new(scene, opts, &assembly);
     report.unique = check_identifiability(&assembly, opts.identifiability_limit)?;
+    let factors = FactorCache::new(&assembly);
 
     let (solutions, lambda_trace) = match opts.method {
-        Method::Qs => (solve_all(&assembly, opts, 0.0, &mut report)?, None),
+        Method::Qs => (
+            solve_all(&assembly, opts, 0.0, &factors, &mut report)?,
+            None,
+        ),
         Method::Ls => (
-            solve_all(&assembly, opts, scaled_lambda(opts, &assembly), &mut report)?,
+            solve_all(
+                &assembly,
+                opts,
+                scaled_lambda(opts, &assembly),
+                &factors,
+                &mut report,
+            )?,
             None,
         ),
         Method::Tikhonov => match opts.lambda {
             Some(_) => (
-                solve_all(&assembly, opts, scaled_lambda(opts, &assembly), &mut report)?,
+                solve_all(
+                    &assembly,
+                    opts,
+                    scaled_lambda(opts, &assembly),
+                    &factors,
+                    &mut report,
+                )?,
                 None,
             ),
             None => {
-                let (lam, trace) = lambda::search(scene, &assembly, opts, &mut report)?;
+                let (lam, trace) = lambda::search(scene, &assembly, opts, &factors, &mut report)?;
                 report.lambda = Some(lam * assembly.scales.length);
-                (solve_all(&assembly, opts, lam, &mut report)?, Some(trace))
+                (
+                    solve_all(&assembly, opts, lam, &factors, &mut report)?,
+                    Some(trace),
+                )
             }
         },
         Method::Scaled => {
@@ -176,11 +203,11 @@ pub fn infer(scene: &Scene, opts: &InferOptions) -> Result<Inference> {
         }
         Method::Dynamic => {
             if opts.dynamic_front && opts.dynamic.rule != LambdaRule::Knee {
-                report.pareto = Some(dynamic::sweep(&assembly, opts, &mut report)?);
+                report.pareto = Some(dynamic::sweep(&assembly, opts, &factors, &mut report)?);
             }
             let lambda = match opts.dynamic.rule {
                 LambdaRule::Knee => {
-                    let front = dynamic::sweep(&assembly, opts, &mut report)?;
+                    let front = dynamic::sweep(&assembly, opts, &factors, &mut report)?;
                     let lambda = front.knee.map(|k| front.points[k].lambda);
                     report.pareto = Some(front);
                     lambda
@@ -194,10 +221,13 @@ pub fn infer(scene: &Scene, opts: &InferOptions) -> Result<Inference> {
             report.momentum_weight = lambda;
             match lambda {
                 Some(l) => (
-                    dynamic::solve_weighted(&assembly, opts, l, &mut report)?.0,
+                    dynamic::solve_weighted(&assembly, opts, l, &factors, &mut report)?.0,
                     None,
                 ),
-                None => (solve_all(&assembly, opts, 0.0, &mut report)?, None),
+                None => (
+                    solve_all(&assembly, opts, 0.0, &factors, &mut report)?,
+                    None,
+                ),
             }
         }
     };
@@ -323,13 +353,15 @@ pub(crate) fn solve_all(
     assembly: &Assembly,
     opts: &InferOptions,
     lambda: f64,
+    factors: &FactorCache,
     report: &mut InferenceReport,
 ) -> Result<Vec<Vec<f64>>> {
     use rayon::prelude::*;
     let results: Vec<Result<(Vec<f64>, Option<conic::ConicSolution>)>> = assembly
         .systems
         .par_iter()
-        .map(|s| solve_system(s, opts, lambda))
+        .zip(factors.slots(assembly).par_iter())
+        .map(|(s, slot)| solve_system(s, opts, lambda, slot))
         .collect();
     let mut xs = Vec::with_capacity(results.len());
     for r in results {
@@ -346,6 +378,7 @@ fn solve_system(
     system: &System,
     opts: &InferOptions,
     lambda: f64,
+    factor: &FactorSlot,
 ) -> Result<(Vec<f64>, Option<conic::ConicSolution>)> {
     let with_cones = opts.method != Method::Ls;
     let cone_list = if with_cones {
@@ -385,6 +418,7 @@ fn solve_system(
             },
             &cone_list,
             opts,
+            factor,
         )?;
         if !with_cones {
             return Ok((route.unconstrained.x.clone(), Some(route.unconstrained)));
@@ -517,6 +551,41 @@ pub(crate) struct SparseRoute {
     pub note: Option<String>,
 }
 
+/// One cluster's sparse factorisation, kept between its solves.
+pub(crate) type FactorSlot = Mutex<Option<sparse_ls::EqualityLeastSquares>>;
+
+/// Sparse factorisations kept across the solves of one inference (λ search,
+/// Pareto sweep, final solve): each cluster's symbolic analysis (ordering,
+/// elimination tree) is done once, not once per λ.
+#[derive(Default)]
+pub(crate) struct FactorCache {
+    slots: Vec<FactorSlot>,
+}
+
+impl FactorCache {
+    pub(crate) fn new(assembly: &Assembly) -> Self {
+        FactorCache {
+            slots: assembly.systems.iter().map(|_| Mutex::new(None)).collect(),
+        }
+    }
+
+    /// One slot per cluster of `assembly` (the one this cache was made for).
+    pub(crate) fn slots(&self, assembly: &Assembly) -> &[FactorSlot] {
+        debug_assert_eq!(self.slots.len(), assembly.systems.len());
+        &self.slots
+    }
+}
+
+/// The user's ordering, else nested dissection in 3D and AMD in 2D (measured:
+/// docs/bench.md).
+pub(crate) fn ordering(system: &System, choice: Option<Ordering>) -> Ordering {
+    choice.unwrap_or(if system.dim == 3 {
+        Ordering::NestedDissection
+    } else {
+        Ordering::Amd
+    })
+}
+
 /// The sparse route of a friction-constrained least squares: one symbolic
 /// analysis; the unconstrained answer (returned when it satisfies every cone and
 /// `exact_first` is on); then, with the active-set solver, the active set
@@ -526,14 +595,28 @@ pub(crate) fn sparse_route(
     p: LeastSquares,
     cone_list: &[Cone],
     opts: &InferOptions,
+    slot: &FactorSlot,
 ) -> Result<SparseRoute> {
     let start = Instant::now();
     let use_active_set = !cone_list.is_empty() && opts.solver == ConstrainedSolver::ActiveSet;
-    let mut factor = if use_active_set {
-        // Each contact's unknowns coupled, so its active rows fit the pattern.
-        sparse_ls::EqualityLeastSquares::with_coupling(p.a, p.c, &system.contact_blocks())?
+    // Each contact's unknowns coupled for the active set, so its active rows
+    // fit the pattern.
+    let coupling = if use_active_set {
+        system.contact_blocks()
     } else {
-        sparse_ls::EqualityLeastSquares::new(p.a, p.c)?
+        Triplets::new(0, p.a.ncols)
+    };
+    // A poisoned slot only means another cluster's solve panicked; its factor
+    // is still a valid analysis (or is rebuilt when the pattern differs).
+    let mut cached = slot.lock().unwrap_or_else(|e| e.into_inner());
+    let factor = match &mut *cached {
+        Some(factor) => factor,
+        empty => empty.insert(sparse_ls::EqualityLeastSquares::with_ordering(
+            p.a,
+            p.c,
+            &coupling,
+            ordering(system, opts.ordering),
+        )?),
     };
     let sol = factor.solve(p.a, p.c, p.b, p.d, p.lambda)?;
     let mut warnings = Vec::new();
@@ -567,7 +650,7 @@ pub(crate) fn sparse_route(
     }
     if use_active_set {
         let sol = active_set::solve(
-            &mut factor,
+            factor,
             &p,
             cone_list,
             &route.unconstrained.x,

@@ -150,7 +150,13 @@ pub(crate) fn polish(
         }
         d.extend_from_slice(rhs);
     }
-    let mut ls = sparse_ls::EqualityLeastSquares::new(&a, &c)?;
+    let none = crate::solver::Triplets::new(0, a.ncols);
+    let mut ls = sparse_ls::EqualityLeastSquares::with_ordering(
+        &a,
+        &c,
+        &none,
+        super::ordering(system, None),
+    )?;
     let sol = ls.solve(&a, &c, &b, &d, objective.tikhonov.sqrt())?;
     if !sol.converged || sol.x.iter().any(|v| !v.is_finite()) {
         return Ok(None);

@@ -221,6 +221,23 @@ impl EqualityLeastSquares {
         )
     }
 
+    /// As [`with_coupling`](Self::with_coupling) with an explicit fill-reducing
+    /// ordering.
+    pub fn with_ordering(
+        a: &Triplets,
+        c: &Triplets,
+        coupling: &Triplets,
+        ordering: Ordering,
+    ) -> Result<Self> {
+        Self::analyse(
+            a,
+            c,
+            coupling,
+            default_parallelism(a.ncols + c.nrows),
+            ordering,
+        )
+    }
+
     fn analyse(
         a: &Triplets,
         c: &Triplets,
