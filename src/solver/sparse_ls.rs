@@ -36,7 +36,7 @@ use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::cholesky::ldlt::factor::LdltRegularization;
 use faer::perm::PermRef;
 use faer::sparse::linalg::cholesky::{
-    factorize_symbolic_cholesky, LdltRef, SymbolicCholesky, SymmetricOrdering,
+    factorize_symbolic_cholesky, LdltRef, LltRef, SymbolicCholesky, SymmetricOrdering,
 };
 use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
 use faer::{Conj, MatMut, Par, Side};
@@ -974,6 +974,83 @@ fn symbolic_analysis(
                 row_idx.len()
             ))
         })
+}
+
+/// Sparse Cholesky LLᵀ of a symmetric positive definite matrix (its upper
+/// triangle, CSC, sorted rows, diagonal present), with the same orderings as
+/// the KKT factorisation — for callers outside the least squares (e.g. the
+/// benchmark's projection onto momentum balance).
+pub struct SpdFactor {
+    symbolic: Option<SymbolicCholesky<usize>>,
+    l_values: Vec<f64>,
+    par: Par,
+}
+
+impl SpdFactor {
+    pub fn new(
+        size: usize,
+        col_ptr: &[usize],
+        row_idx: &[usize],
+        values: &[f64],
+        ordering: Ordering,
+    ) -> Result<Self> {
+        let par = default_parallelism(size);
+        let symbolic = symbolic_analysis(size, col_ptr, row_idx, ordering)?;
+        let Some(sym) = &symbolic else {
+            return Ok(SpdFactor {
+                symbolic,
+                l_values: Vec::new(),
+                par,
+            });
+        };
+        let mut l_values = vec![0.0; sym.len_val()];
+        let mut stack_buf =
+            MemBuffer::try_new(sym.factorize_numeric_llt_scratch::<f64>(par, Default::default()))
+                .map_err(|_| {
+                Error::Solver(format!(
+                    "out of memory for the LLᵀ workspace ({} factor entries)",
+                    sym.len_val()
+                ))
+            })?;
+        let matrix = SparseColMatRef::new(
+            SymbolicSparseColMatRef::new_checked(size, size, col_ptr, None, row_idx),
+            values,
+        );
+        sym.factorize_numeric_llt(
+            &mut l_values,
+            matrix,
+            Side::Upper,
+            Default::default(),
+            par,
+            MemStack::new(&mut stack_buf),
+            Default::default(),
+        )
+        .map_err(|e| {
+            Error::Solver(format!(
+                "the {size}×{size} matrix is not positive definite ({e:?})"
+            ))
+        })?;
+        Ok(SpdFactor {
+            symbolic,
+            l_values,
+            par,
+        })
+    }
+
+    /// x ← M⁻¹ x.
+    pub fn solve_in_place(&self, x: &mut [f64]) {
+        let Some(sym) = &self.symbolic else {
+            return;
+        };
+        let mut stack_buf = MemBuffer::new(sym.solve_in_place_scratch::<f64>(1, self.par));
+        let n = x.len();
+        LltRef::<usize, f64>::new(sym, &self.l_values).solve_in_place_with_conj(
+            Conj::No,
+            MatMut::from_column_major_slice_mut(x, n, 1),
+            self.par,
+            MemStack::new(&mut stack_buf),
+        );
+    }
 }
 
 /// Sequential below [`PARALLEL_MIN_SIZE`] KKT unknowns, all threads above.
