@@ -72,15 +72,17 @@ fn main() -> grainforce::Result<()> {
             t.elapsed().as_secs_f64() - t_ls,
             sol.converged
         );
-        println!("solve  rows  step  changed  residual");
+        println!("solve  rows  step  changed  residual  seconds  route");
         for (k, h) in sol.history.iter().enumerate() {
             println!(
-                "{:>5} {:>5} {:>5} {:>8} {:>9.1e}",
+                "{:>5} {:>5} {:>5} {:>8} {:>9.1e} {:>8.3} {}",
                 k + 1,
                 h.active_rows,
                 h.step,
                 h.changed,
-                h.residual
+                h.residual,
+                h.seconds,
+                if h.bordered { "bordered" } else { "factorised" }
             );
         }
         if let Some(r) = sol.reason {

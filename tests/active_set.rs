@@ -75,6 +75,94 @@ fn active_rows_give_the_constrained_least_squares_and_its_multipliers() {
     assert!((soft.solution.x[0] - 1.5).abs() < 1e-12);
 }
 
+/// Few active rows taken on the factor of the unconstrained problem (bordered,
+/// k extra solves) or by a new factorisation (penalties): the same answer and
+/// multipliers, matching a dense KKT solve, with a spring row too.
+#[test]
+fn bordered_and_refactorised_active_rows_agree_with_a_dense_solve() {
+    use grainforce::solver::sparse_ls::Bordering;
+    use nalgebra::{DMatrix, DVector};
+    // A: 6×6 bidiagonal, C: Σx = 1, G: x₁ = 2x₂ and x₃ = 0, R: 3x₄ (a spring).
+    let n = 6;
+    let mut a = Triplets::new(n, n);
+    for i in 0..n {
+        a.push(i, i, 1.5 + i as f64);
+        if i + 1 < n {
+            a.push(i, i + 1, -1.0);
+        }
+    }
+    let mut c = Triplets::new(1, n);
+    for j in 0..n {
+        c.push(0, j, 1.0);
+    }
+    let mut g = Triplets::new(2, n);
+    g.push(0, 1, 1.0);
+    g.push(0, 2, -2.0);
+    g.push(1, 3, 1.0);
+    let mut r = Triplets::new(1, n);
+    r.push(0, 4, 3.0);
+    let b = [1.0, -1.0, 0.5, 2.0, -0.5, 0.25];
+    let lambda = 0.2;
+
+    let dense = |t: &Triplets| {
+        let mut m = DMatrix::zeros(t.nrows, t.ncols);
+        for k in 0..t.nnz() {
+            m[(t.rows[k], t.cols[k])] += t.vals[k];
+        }
+        m
+    };
+    let (am, cm, gm, rm) = (dense(&a), dense(&c), dense(&g), dense(&r));
+    let size = n + 1 + 2;
+    let mut k = DMatrix::zeros(size, size);
+    let h = am.transpose() * &am + rm.transpose() * &rm + DMatrix::identity(n, n) * lambda * lambda;
+    k.view_mut((0, 0), (n, n)).copy_from(&h);
+    k.view_mut((n, 0), (1, n)).copy_from(&cm);
+    k.view_mut((0, n), (n, 1)).copy_from(&cm.transpose());
+    k.view_mut((n + 1, 0), (2, n)).copy_from(&gm);
+    k.view_mut((0, n + 1), (n, 2)).copy_from(&gm.transpose());
+    let mut rhs = DVector::zeros(size);
+    rhs.rows_mut(0, n)
+        .copy_from(&(am.transpose() * DVector::from_column_slice(&b)));
+    rhs[n] = 1.0;
+    let z = k.lu().solve(&rhs).unwrap();
+
+    for bordering in [Bordering::Never, Bordering::Always] {
+        let mut ls = EqualityLeastSquares::new(&a, &c).unwrap();
+        ls.set_bordering(bordering);
+        // The unconstrained solve leaves the base factor behind.
+        ls.solve(&a, &c, &b, &[1.0], lambda).unwrap();
+        let sol = ls
+            .solve_with_active(&a, &c, &b, &[1.0], lambda, &g, &r)
+            .unwrap();
+        assert!(sol.solution.converged, "{bordering:?}");
+        assert_eq!(sol.bordered, bordering == Bordering::Always);
+        assert!(sol.solution.refinement_steps <= 2, "{bordering:?}: {sol:?}");
+        for i in 0..n {
+            assert!(
+                (sol.solution.x[i] - z[i]).abs() < 1e-12,
+                "{bordering:?}: x{i} = {} vs {}",
+                sol.solution.x[i],
+                z[i]
+            );
+        }
+        for j in 0..2 {
+            assert!(
+                (sol.multipliers[j] + z[n + 1 + j]).abs() < 1e-10,
+                "{bordering:?}: multiplier {j}"
+            );
+        }
+        // Back to no active rows on the same object: the unconstrained answer.
+        let free = ls.solve(&a, &c, &b, &[1.0], lambda).unwrap();
+        let again = EqualityLeastSquares::new(&a, &c)
+            .unwrap()
+            .solve(&a, &c, &b, &[1.0], lambda)
+            .unwrap();
+        for (x, y) in free.x.iter().zip(&again.x) {
+            assert!((x - y).abs() < 1e-12, "{bordering:?}");
+        }
+    }
+}
+
 /// Rows and equalities together, against a dense KKT solve.
 #[test]
 fn active_rows_with_equalities_match_a_dense_solve() {

@@ -99,6 +99,9 @@ pub struct ActiveSetStep {
     pub residual: f64,
     /// Wall-clock time of the linear solve (factorisation and refinement) [s].
     pub seconds: f64,
+    /// The rows were bordered around the unconstrained factor (no new
+    /// factorisation).
+    pub bordered: bool,
 }
 
 /// Which piece of its cone a contact's force lies on.
@@ -361,6 +364,7 @@ fn iterate(
             changed: 0,
             residual: f64::NAN,
             seconds: clock.elapsed().as_secs_f64(),
+            bordered: sol.bordered,
         });
         let x_full = sol.solution.x;
         // v_c = Σ y_i a_i over the contact's rows.

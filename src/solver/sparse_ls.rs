@@ -73,6 +73,21 @@ pub enum Ordering {
     NestedDissection,
 }
 
+/// How [`EqualityLeastSquares::solve_with_active`] takes few active rows on a
+/// factor of the base KKT (the same answer either way, to the refinement
+/// tolerance).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Bordering {
+    /// Border them (k extra triangular solves) when k solves took less than
+    /// the numeric factorisation did, else factorise anew.
+    #[default]
+    Auto,
+    /// Always a new numeric factorisation with the rows as penalties.
+    Never,
+    /// Border whenever the base factor is at hand (at most 64 rows).
+    Always,
+}
+
 /// Result of [`EqualityLeastSquares::solve`].
 #[derive(Debug, Clone)]
 pub struct LsSolution {
@@ -104,6 +119,9 @@ pub struct ActiveLsSolution {
     /// G_i x ≥ 0: at a constrained optimum ∇(½‖Ax − b‖² + ½λ²‖x‖²) = Cᵀν + Gᵀy,
     /// and y_i > 0 means the row really holds the solution back.
     pub multipliers: Vec<f64>,
+    /// The active rows were bordered around the kept factor of the problem
+    /// without them (no new numeric factorisation), see [`Bordering`].
+    pub bordered: bool,
 }
 
 /// Symbolic analysis of the KKT pattern plus the cached numeric factorisation.
@@ -122,6 +140,7 @@ pub struct EqualityLeastSquares {
     par: Par,
     /// Refinement stops once the relative KKT residual is below this.
     refine_to: f64,
+    bordering: Bordering,
     numeric: Option<Numeric>,
 }
 
@@ -132,6 +151,7 @@ struct Attempt {
     dual: f64,
     primal: f64,
     steps: usize,
+    bordered: bool,
 }
 
 impl Attempt {
@@ -155,7 +175,24 @@ struct Numeric {
     /// ‖row i of T C S‖∞, for the round-off-level rows of the primal residual.
     c_row_max: Vec<f64>,
     active: ActiveRows,
+    /// The active rows and springs are inside the factor (as penalties); when
+    /// false the factor is the base KKT and they are bordered around it.
+    factor_has_active: bool,
     l_values: Vec<f64>,
+    /// Time of the numeric factorisation and of one triangular solve [s]:
+    /// a bordered solve of k extra rows costs ~k solves, a new factor one
+    /// factorisation.
+    factor_seconds: f64,
+    solve_seconds: f64,
+}
+
+impl Numeric {
+    fn same_values(&self, a: &Triplets, c: &Triplets, lambda: f64, delta: f64) -> bool {
+        self.delta == delta
+            && self.lambda == lambda
+            && self.a_vals == a.vals
+            && self.c_vals == c.vals
+    }
 }
 
 /// Homogeneous equalities G x = 0 eliminated by a penalty inside the KKT
@@ -177,6 +214,33 @@ struct ActiveRows {
 }
 
 impl ActiveRows {
+    /// G and R in CSR with the row scales of the equilibrated system.
+    fn new(n: usize, g: &Triplets, springs: &Triplets, col_scale: &[f64]) -> Self {
+        let mut csr = Compressed::from_entries(g.nrows, n, &g.rows, &g.cols);
+        csr.refill(&g.vals);
+        let row_scale = row_inverse_norms(&csr, col_scale);
+        let row_max = (0..csr.nmajor)
+            .map(|i| {
+                csr.range(i)
+                    .map(|q| (csr.val[q] * col_scale[csr.idx[q]] * row_scale[i]).abs())
+                    .fold(0.0, f64::max)
+            })
+            .collect();
+        let mut springs_csr =
+            Compressed::from_entries(springs.nrows, n, &springs.rows, &springs.cols);
+        springs_csr.refill(&springs.vals);
+        ActiveRows {
+            pattern: (g.nrows, g.rows.clone(), g.cols.clone()),
+            vals: g.vals.clone(),
+            csr,
+            row_scale,
+            row_max,
+            springs_pattern: (springs.nrows, springs.rows.clone(), springs.cols.clone()),
+            springs_vals: springs.vals.clone(),
+            springs: springs_csr,
+        }
+    }
+
     fn same(&self, g: &Triplets, springs: &Triplets) -> bool {
         self.pattern.0 == g.nrows
             && self.pattern.1 == g.rows
@@ -294,6 +358,7 @@ impl EqualityLeastSquares {
             symbolic,
             par,
             refine_to: ROUNDOFF_FLOOR,
+            bordering: Bordering::Auto,
             numeric: None,
         })
     }
@@ -315,6 +380,11 @@ impl EqualityLeastSquares {
     /// The fill-reducing ordering of the symbolic analysis.
     pub fn ordering(&self) -> Ordering {
         self.ordering
+    }
+
+    /// How few active rows are taken on the base factor (see [`Bordering`]).
+    pub fn set_bordering(&mut self, bordering: Bordering) {
+        self.bordering = bordering;
     }
 
     /// Parallelism used by the numeric factorisation and triangular solves.
@@ -407,9 +477,9 @@ impl EqualityLeastSquares {
         check_finite(d, "d")?;
         if !self.same_pattern(a, c) {
             let coupling = std::mem::take(&mut self.coupling);
-            let refine_to = self.refine_to;
+            let (refine_to, bordering) = (self.refine_to, self.bordering);
             *self = Self::analyse(a, c, &coupling, self.par, self.ordering)?;
-            self.refine_to = refine_to;
+            (self.refine_to, self.bordering) = (refine_to, bordering);
         }
         let n = self.n;
         if n == 0 {
@@ -425,6 +495,7 @@ impl EqualityLeastSquares {
                     kkt_residual: if equality_residual == 0.0 { 0.0 } else { 1.0 },
                 },
                 multipliers: vec![0.0; g.nrows],
+                bordered: false,
             });
         }
         // δ ladder: the first δ suits almost everything; a larger one trades
@@ -487,6 +558,7 @@ impl EqualityLeastSquares {
                 kkt_residual,
             },
             multipliers: best.multipliers,
+            bordered: best.bordered,
         })
     }
 
@@ -504,7 +576,37 @@ impl EqualityLeastSquares {
         springs: &Triplets,
     ) -> Result<Attempt> {
         let n = self.n;
-        self.factorise(a, c, lambda, delta, g, springs)?;
+        // Few active rows on a factor of the base KKT (the unconstrained
+        // least squares just solved): border them around it — k triangular
+        // solves — instead of a new numeric factorisation, when k solves cost
+        // less than the factorisation did.
+        let k = g.nrows + springs.nrows;
+        let size_all = n + c.nrows;
+        let border = k > 0
+            && k <= BORDER_MAX_ROWS
+            && k * size_all <= BORDER_MAX_ENTRIES
+            && self.numeric.as_ref().is_some_and(|num| {
+                num.same_values(a, c, lambda, delta)
+                    && !num.factor_has_active
+                    && match self.bordering {
+                        Bordering::Auto => k as f64 * num.solve_seconds < num.factor_seconds,
+                        Bordering::Never => false,
+                        Bordering::Always => true,
+                    }
+            });
+        let base_kept = k == 0
+            && self
+                .numeric
+                .as_ref()
+                .is_some_and(|num| num.same_values(a, c, lambda, delta) && !num.factor_has_active);
+        if border || base_kept {
+            let num = self.numeric.as_mut().expect("checked above");
+            if !num.active.same(g, springs) {
+                num.active = ActiveRows::new(n, g, springs, &num.col_scale);
+            }
+        } else {
+            self.factorise(a, c, lambda, delta, g, springs)?;
+        }
         let num = self.numeric.as_ref().expect("factorised above");
         let symbolic = self
             .symbolic
@@ -520,10 +622,26 @@ impl EqualityLeastSquares {
                 ))
             })?;
         let ones_g = vec![1.0; mg];
+        let bordered = if border {
+            Some(Bordered::new(num, &ldlt, size, delta, self.par)?)
+        } else {
+            None
+        };
         // Solves the regularised augmented system in place: the G block is
-        // eliminated through the penalty the factor already holds.
+        // eliminated through the penalty the factor already holds, or
+        // bordered around a factor of the base KKT.
         let mut kkt_solve = |rhs: &mut [f64]| {
             let (head, r3) = rhs.split_at_mut(size);
+            if let Some(bordered) = &bordered {
+                ldlt.solve_in_place_with_conj(
+                    Conj::No,
+                    MatMut::from_column_major_slice_mut(head, size, 1),
+                    self.par,
+                    MemStack::new(&mut stack_buf),
+                );
+                bordered.correct(head, r3);
+                return;
+            }
             if mg > 0 {
                 let shifted: Vec<f64> = r3
                     .iter()
@@ -559,7 +677,9 @@ impl EqualityLeastSquares {
         let zeros = vec![0.0; size + mg];
         // The residual at z = 0 is the right-hand side.
         let (mut z, _, _) = self.kkt_residual(num, &ones_a, b, &d_hat, &zeros);
+        let clock = std::time::Instant::now();
         kkt_solve(&mut z);
+        let first_solve_seconds = clock.elapsed().as_secs_f64();
         let (mut r, mut dual, mut primal) = self.kkt_residual(num, &ones_a, b, &d_hat, &z);
         if !(dual.is_finite() && primal.is_finite()) {
             return Err(Error::Solver(
@@ -604,12 +724,19 @@ impl EqualityLeastSquares {
             .zip(&num.active.row_scale)
             .map(|(w, t)| -w * t)
             .collect();
+        if !border && mg + num.active.springs.nmajor == 0 {
+            // A plain solve on the base factor: what each bordered row costs.
+            if let Some(num) = self.numeric.as_mut() {
+                num.solve_seconds = first_solve_seconds;
+            }
+        }
         Ok(Attempt {
             x,
             multipliers,
             dual: best.1,
             primal: best.2,
             steps,
+            bordered: border,
         })
     }
 
@@ -671,16 +798,15 @@ impl EqualityLeastSquares {
         springs: &Triplets,
     ) -> Result<()> {
         if let Some(num) = &self.numeric {
-            if num.delta == delta
-                && num.lambda == lambda
-                && num.a_vals == a.vals
-                && num.c_vals == c.vals
+            if num.same_values(a, c, lambda, delta)
                 && num.active.same(g, springs)
+                && num.factor_has_active == (g.nrows + springs.nrows > 0)
             {
                 return Ok(());
             }
         }
         self.numeric = None;
+        let clock = std::time::Instant::now();
         let n = self.n;
         let (ma, mc) = (a.nrows, c.nrows);
         self.a_csr.refill(&a.vals);
@@ -726,10 +852,7 @@ impl EqualityLeastSquares {
                 .collect()
         };
         let c_row_max = row_max(&self.c_csr, &c_row_scale);
-        let mut g_csr = Compressed::from_entries(g.nrows, n, &g.rows, &g.cols);
-        g_csr.refill(&g.vals);
-        let g_row_scale = row_inverse_norms(&g_csr, &col_scale);
-        let g_row_max = row_max(&g_csr, &g_row_scale);
+        let active = ActiveRows::new(n, g, springs, &col_scale);
 
         let size = n + mc;
         let mut values = vec![0.0; self.kkt_row_idx.len()];
@@ -750,13 +873,10 @@ impl EqualityLeastSquares {
         }
         // Penalty ĝᵀĝ/δ of each active row ĝ = T G S, and the springs (R S)ᵀ(R S),
         // both on the contact blocks of the analysed pattern.
-        let mut springs_csr =
-            Compressed::from_entries(springs.nrows, n, &springs.rows, &springs.cols);
-        springs_csr.refill(&springs.vals);
-        let penalty_scale: Vec<f64> = g_row_scale.iter().map(|t| t / delta.sqrt()).collect();
+        let penalty_scale: Vec<f64> = active.row_scale.iter().map(|t| t / delta.sqrt()).collect();
         for (rows, row_scale, name) in [
-            (&g_csr, penalty_scale.as_slice(), "active row"),
-            (&springs_csr, &vec![1.0; springs.nrows][..], "spring row"),
+            (&active.csr, penalty_scale.as_slice(), "active row"),
+            (&active.springs, &vec![1.0; springs.nrows][..], "spring row"),
         ] {
             self.add_row_products(&mut values, rows, row_scale, &col_scale, name)?;
         }
@@ -828,17 +948,11 @@ impl EqualityLeastSquares {
             c_row_scale,
             lambda2_s2,
             c_row_max,
-            active: ActiveRows {
-                pattern: (g.nrows, g.rows.clone(), g.cols.clone()),
-                vals: g.vals.clone(),
-                csr: g_csr,
-                row_scale: g_row_scale,
-                row_max: g_row_max,
-                springs_pattern: (springs.nrows, springs.rows.clone(), springs.cols.clone()),
-                springs_vals: springs.vals.clone(),
-                springs: springs_csr,
-            },
+            factor_has_active: active.len() + active.springs.nmajor > 0,
+            active,
             l_values,
+            factor_seconds: clock.elapsed().as_secs_f64(),
+            solve_seconds: f64::INFINITY,
         });
         Ok(())
     }
@@ -937,6 +1051,118 @@ impl EqualityLeastSquares {
             r.push(-gy[i]);
         }
         (r, ratio(dual_num, dual_den), primal)
+    }
+}
+
+/// At most this many active rows + springs are bordered around the base
+/// factor (beyond, a new factorisation is cheaper on any measured size).
+const BORDER_MAX_ROWS: usize = 64;
+/// … and the dense block F⁻¹B they need stays under 64 M entries (512 MB).
+const BORDER_MAX_ENTRIES: usize = 64 << 20;
+
+/// The bordered system `[[F, B], [Bᵀ, −D]]` around a factor F of the base KKT:
+/// B's columns are the scaled active rows (D = δ, the regularisation the
+/// penalty route uses) and the springs (D = 1, so that they add BᵀB to the
+/// Hessian block). Holds Y = F⁻¹B and the LU of the Schur complement BᵀY + D.
+struct Bordered<'a> {
+    num: &'a Numeric,
+    /// Y = F⁻¹ B, column-major, size × k.
+    y: Vec<f64>,
+    size: usize,
+    schur: nalgebra::LU<f64, nalgebra::Dyn, nalgebra::Dyn>,
+}
+
+impl<'a> Bordered<'a> {
+    fn new(
+        num: &'a Numeric,
+        ldlt: &LdltRef<'_, usize, f64>,
+        size: usize,
+        delta: f64,
+        par: Par,
+    ) -> Result<Self> {
+        let mg = num.active.len();
+        let k = mg + num.active.springs.nmajor;
+        let mut y = vec![0.0; size * k];
+        for col in 0..k {
+            for (j, v) in Self::column(num, col) {
+                y[col * size + j] = v;
+            }
+        }
+        let mut stack_buf =
+            MemBuffer::try_new(ldlt.symbolic().solve_in_place_scratch::<f64>(k, par))
+                .map_err(|_| Error::Solver(format!("out of memory for {k} bordered solves")))?;
+        ldlt.solve_in_place_with_conj(
+            Conj::No,
+            MatMut::from_column_major_slice_mut(&mut y, size, k),
+            par,
+            MemStack::new(&mut stack_buf),
+        );
+        let mut m = nalgebra::DMatrix::<f64>::zeros(k, k);
+        for i in 0..k {
+            for (q, b) in Self::column(num, i) {
+                for j in 0..k {
+                    m[(i, j)] += b * y[j * size + q];
+                }
+            }
+            m[(i, i)] += if i < mg { delta } else { 1.0 };
+        }
+        if m.iter().any(|v| !v.is_finite()) {
+            return Err(Error::Solver(
+                "the bordered Schur complement is not finite".into(),
+            ));
+        }
+        Ok(Bordered {
+            num,
+            y,
+            size,
+            schur: m.lu(),
+        })
+    }
+
+    /// Entries of column `col` of B: an active row (scaled like the penalty
+    /// route) or a spring row.
+    fn column(num: &Numeric, col: usize) -> Vec<(usize, f64)> {
+        let mg = num.active.len();
+        let s = &num.col_scale;
+        if col < mg {
+            let t = num.active.row_scale[col];
+            let g = &num.active.csr;
+            g.range(col)
+                .map(|q| (g.idx[q], g.val[q] * s[g.idx[q]] * t))
+                .collect()
+        } else {
+            let r = &num.active.springs;
+            r.range(col - mg)
+                .map(|q| (r.idx[q], r.val[q] * s[r.idx[q]]))
+                .collect()
+        }
+    }
+
+    /// Given head = F⁻¹(rhs head) and the active rows' right-hand side r3,
+    /// completes the bordered solve in place: t = (BᵀY + D)⁻¹(Bᵀ head − r),
+    /// head −= Y t, r3 = t of the active rows.
+    fn correct(&self, head: &mut [f64], r3: &mut [f64]) {
+        let mg = r3.len();
+        let k = self.y.len() / self.size.max(1);
+        let mut u = nalgebra::DVector::<f64>::zeros(k);
+        for i in 0..k {
+            let bz: f64 = Self::column(self.num, i)
+                .iter()
+                .map(|&(q, b)| b * head[q])
+                .sum();
+            u[i] = bz - if i < mg { r3[i] } else { 0.0 };
+        }
+        let t = self
+            .schur
+            .solve(&u)
+            .unwrap_or_else(|| nalgebra::DVector::from_element(k, f64::NAN));
+        for (j, tj) in t.iter().enumerate() {
+            let yj = &self.y[j * self.size..(j + 1) * self.size];
+            for (h, yv) in head.iter_mut().zip(yj) {
+                *h -= yv * tj;
+            }
+        }
+        r3.copy_from_slice(&t.as_slice()[..mg]);
     }
 }
 
