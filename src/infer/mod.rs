@@ -166,7 +166,16 @@ pub fn infer(scene: &Scene, opts: &InferOptions) -> Result<Inference> {
             solve_all(&assembly, opts, 0.0, &factors, &mut report)?,
             None,
         ),
-        Method::Ls => (
+        Method::Tikhonov if opts.lambda.is_none() => {
+            let (lam, trace) = lambda::search(scene, &assembly, opts, &factors, &mut report)?;
+            report.lambda = Some(lam * assembly.scales.length);
+            (
+                solve_all(&assembly, opts, lam, &factors, &mut report)?,
+                Some(trace),
+            )
+        }
+        // `ls` (λ given or 0) and Tikhonov at a given λ.
+        Method::Ls | Method::Tikhonov => (
             solve_all(
                 &assembly,
                 opts,
@@ -176,26 +185,6 @@ pub fn infer(scene: &Scene, opts: &InferOptions) -> Result<Inference> {
             )?,
             None,
         ),
-        Method::Tikhonov => match opts.lambda {
-            Some(_) => (
-                solve_all(
-                    &assembly,
-                    opts,
-                    scaled_lambda(opts, &assembly),
-                    &factors,
-                    &mut report,
-                )?,
-                None,
-            ),
-            None => {
-                let (lam, trace) = lambda::search(scene, &assembly, opts, &factors, &mut report)?;
-                report.lambda = Some(lam * assembly.scales.length);
-                (
-                    solve_all(&assembly, opts, lam, &factors, &mut report)?,
-                    Some(trace),
-                )
-            }
-        },
         Method::Scaled => {
             let (x, s) = solve_scaled(scene, &assembly, opts, &mut report)?;
             report.stress_scale = Some(s);

@@ -367,15 +367,19 @@ fn initial_cut(graph: &Graph) -> Option<Vec<u8>> {
     let n = graph.len();
     let mut level = vec![usize::MAX; n];
     let degree = |v: usize| graph.ptr[v + 1] - graph.ptr[v];
-    let mut root = 0;
-    let mut levels = graph.bfs(root, &mut level);
-    for _ in 1..PERIPHERAL_SWEEPS {
-        let far = *levels
+    // The lowest-degree vertex of the last BFS level.
+    let farthest = |levels: &[Vec<usize>]| -> usize {
+        *levels
             .last()
             .expect("BFS has a root level")
             .iter()
             .min_by_key(|&&v| (degree(v), v))
-            .expect("levels are non-empty");
+            .expect("levels are non-empty")
+    };
+    let mut root = 0;
+    let mut levels = graph.bfs(root, &mut level);
+    for _ in 1..PERIPHERAL_SWEEPS {
+        let far = farthest(&levels);
         level.fill(usize::MAX);
         let trial = graph.bfs(far, &mut level);
         if trial.len() <= levels.len() {
@@ -384,12 +388,7 @@ fn initial_cut(graph: &Graph) -> Option<Vec<u8>> {
         root = far;
         levels = trial;
     }
-    let far = *levels
-        .last()
-        .expect("BFS has a root level")
-        .iter()
-        .min_by_key(|&&v| (degree(v), v))
-        .expect("levels are non-empty");
+    let far = farthest(&levels);
     let mut best: Option<(f64, Vec<u8>)> = None;
     for start in [root, far] {
         level.fill(usize::MAX);
