@@ -324,6 +324,71 @@ fn the_ordering_does_not_change_the_answer() {
     }
 }
 
+/// Warm start across λ (as in the λ search): started from the pieces of the
+/// answer at a nearby λ, the active set reaches the same optimum as a cold
+/// start, in fewer solves.
+#[test]
+fn warm_pieces_from_a_nearby_lambda_give_the_same_optimum_sooner() {
+    use grainforce::assemble::{assemble, AssembleOptions};
+    use grainforce::solver::{active_set, LeastSquares};
+    let (scene, _) = noisy_packing(2, 900, 0.5, Noise::Stress);
+    let assembly = assemble(&scene, &AssembleOptions::default()).unwrap();
+    let system = assembly.systems.iter().max_by_key(|s| s.n).unwrap();
+    let cones = grainforce::infer::cones(system, grainforce::infer::ConeModel::Exact);
+    let mut ls = EqualityLeastSquares::with_coupling(
+        &system.stress,
+        &system.momentum,
+        &system.contact_blocks(),
+    )
+    .unwrap();
+    let settings = active_set::ActiveSetSettings::default();
+    let mut run = |lambda: f64, warm: Option<&active_set::ActivePieces>| {
+        let problem = LeastSquares {
+            a: &system.stress,
+            b: &system.stress_rhs,
+            c: &system.momentum,
+            d: &system.momentum_rhs,
+            lambda,
+        };
+        let start = ls
+            .solve(problem.a, problem.c, problem.b, problem.d, lambda)
+            .unwrap();
+        active_set::solve_from(&mut ls, &problem, &cones, &start.x, warm, &settings).unwrap()
+    };
+    let previous = run(1e-3, None);
+    assert!(
+        previous.converged && previous.sliding > 0,
+        "{:?}",
+        previous.reason
+    );
+    let cold = run(2e-3, None);
+    let warm = run(2e-3, Some(&previous.pieces));
+    assert!(
+        cold.converged && warm.converged,
+        "{:?} {:?}",
+        cold.reason,
+        warm.reason
+    );
+    let gap = relative_error(&to_vec3(&cold.x), &to_vec3(&warm.x));
+    eprintln!(
+        "λ 1e-3 → 2e-3: cold {} solves, warm {} solves, gap {gap:.1e}, {} sliding",
+        cold.iterations, warm.iterations, warm.sliding
+    );
+    assert!(gap < 1e-9, "warm and cold optima differ by {gap:.2e}");
+    assert!(
+        warm.iterations < cold.iterations,
+        "warm {} solves, cold {}",
+        warm.iterations,
+        cold.iterations
+    );
+}
+
+fn to_vec3(x: &[f64]) -> Vec<Vec3> {
+    x.chunks(2)
+        .map(|c| [c[0], c.get(1).copied().unwrap_or(0.0), 0.0])
+        .collect()
+}
+
 /// Dynamic inference with weighted momentum takes the same route.
 #[test]
 fn dynamic_weighted_momentum_uses_the_active_set() {

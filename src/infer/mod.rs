@@ -540,12 +540,20 @@ pub(crate) struct SparseRoute {
     pub note: Option<String>,
 }
 
-/// One cluster's sparse factorisation, kept between its solves.
-pub(crate) type FactorSlot = Mutex<Option<sparse_ls::EqualityLeastSquares>>;
+/// What one cluster keeps between its solves: the sparse factorisation and the
+/// active set of its last constrained answer.
+#[derive(Default)]
+pub(crate) struct ClusterState {
+    factor: Option<sparse_ls::EqualityLeastSquares>,
+    pieces: Option<active_set::ActivePieces>,
+}
 
-/// Sparse factorisations kept across the solves of one inference (λ search,
-/// Pareto sweep, final solve): each cluster's symbolic analysis (ordering,
-/// elimination tree) is done once, not once per λ.
+pub(crate) type FactorSlot = Mutex<ClusterState>;
+
+/// State kept across the solves of one inference (λ search, Pareto sweep,
+/// final solve): each cluster's symbolic analysis (ordering, elimination tree)
+/// is done once, not once per λ, and each active set starts from the pieces
+/// of the previous λ's answer.
 #[derive(Default)]
 pub(crate) struct FactorCache {
     slots: Vec<FactorSlot>,
@@ -554,7 +562,11 @@ pub(crate) struct FactorCache {
 impl FactorCache {
     pub(crate) fn new(assembly: &Assembly) -> Self {
         FactorCache {
-            slots: assembly.systems.iter().map(|_| Mutex::new(None)).collect(),
+            slots: assembly
+                .systems
+                .iter()
+                .map(|_| Mutex::new(ClusterState::default()))
+                .collect(),
         }
     }
 
@@ -597,8 +609,9 @@ pub(crate) fn sparse_route(
     };
     // A poisoned slot only means another cluster's solve panicked; its factor
     // is still a valid analysis (or is rebuilt when the pattern differs).
-    let mut cached = slot.lock().unwrap_or_else(|e| e.into_inner());
-    let factor = match &mut *cached {
+    let mut state = slot.lock().unwrap_or_else(|e| e.into_inner());
+    let ClusterState { factor, pieces } = &mut *state;
+    let factor = match factor {
         Some(factor) => factor,
         empty => empty.insert(sparse_ls::EqualityLeastSquares::with_ordering(
             p.a,
@@ -638,14 +651,26 @@ pub(crate) fn sparse_route(
         }
     }
     if use_active_set {
-        let sol = active_set::solve(
+        let mut sol = active_set::solve_from(
             factor,
             &p,
             cone_list,
             &route.unconstrained.x,
+            pieces.as_ref(),
             &opts.active_set,
         )?;
+        if !sol.converged && pieces.is_some() {
+            // The previous answer's pieces misled it: start cold.
+            sol = active_set::solve(
+                factor,
+                &p,
+                cone_list,
+                &route.unconstrained.x,
+                &opts.active_set,
+            )?;
+        }
         if sol.converged {
+            *pieces = Some(sol.pieces);
             route.constrained = Some(conic::ConicSolution {
                 x: sol.x,
                 status: "ActiveSet".into(),

@@ -84,7 +84,14 @@ pub struct ActiveSetSolution {
     pub reason: Option<String>,
     /// One entry per linear solve.
     pub history: Vec<ActiveSetStep>,
+    /// The pieces (interior, sliding, open) of the last solve: a warm start
+    /// for a nearby problem (the next λ of a search), see [`solve_from`].
+    pub pieces: ActivePieces,
 }
+
+/// Which piece of its cone each contact was on — an opaque warm start.
+#[derive(Debug, Clone, Default)]
+pub struct ActivePieces(Vec<Piece>);
 
 /// One iteration of [`solve`].
 #[derive(Debug, Clone, Copy)]
@@ -238,6 +245,20 @@ pub fn solve(
     start: &[f64],
     settings: &ActiveSetSettings,
 ) -> Result<ActiveSetSolution> {
+    solve_from(ls, problem, cones, start, None, settings)
+}
+
+/// As [`solve`], with the first solve on `warm`'s pieces (those of a nearby
+/// problem's answer, e.g. the previous λ of a search) instead of the pieces
+/// `start` suggests. Ignored when it has another number of contacts.
+pub fn solve_from(
+    ls: &mut EqualityLeastSquares,
+    problem: &LeastSquares,
+    cones: &[Cone],
+    start: &[f64],
+    warm: Option<&ActivePieces>,
+    settings: &ActiveSetSettings,
+) -> Result<ActiveSetSolution> {
     let LeastSquares { a, lambda, .. } = *problem;
     if settings.max_iterations == 0 || !(settings.tolerance > 0.0 && settings.tolerance < 1.0) {
         return Err(Error::Invalid(format!(
@@ -281,7 +302,8 @@ pub fn solve(
 
     // Each solve only needs the accuracy at which convergence is declared.
     ls.set_refinement_target(0.1 * CONVERGED_TOL);
-    let outcome = iterate(ls, problem, cones, &contacts, &rho, start, settings);
+    let warm = warm.filter(|w| w.0.len() == contacts.len());
+    let outcome = iterate(ls, problem, cones, &contacts, &rho, start, warm, settings);
     ls.set_refinement_target(0.0);
     outcome
 }
@@ -289,6 +311,7 @@ pub fn solve(
 /// An unconverged outcome.
 fn fail(x: Vec<f64>, history: Vec<ActiveSetStep>, reason: String) -> ActiveSetSolution {
     ActiveSetSolution {
+        pieces: ActivePieces::default(),
         x,
         converged: false,
         iterations: history.len(),
@@ -301,6 +324,7 @@ fn fail(x: Vec<f64>, history: Vec<ActiveSetStep>, reason: String) -> ActiveSetSo
 }
 
 /// The damped semismooth Newton iteration of [`solve`].
+#[allow(clippy::too_many_arguments)]
 fn iterate(
     ls: &mut EqualityLeastSquares,
     problem: &LeastSquares,
@@ -308,6 +332,7 @@ fn iterate(
     contacts: &[Contact],
     rho: &[f64],
     start: &[f64],
+    warm: Option<&ActivePieces>,
     settings: &ActiveSetSettings,
 ) -> Result<ActiveSetSolution> {
     let LeastSquares { a, b, c, d, lambda } = *problem;
@@ -334,7 +359,10 @@ fn iterate(
     let mut history = Vec::new();
     let (mut best_merit, mut stalled) = (f64::INFINITY, 0);
     let mut v = vec![(0.0, [0.0; 2]); contacts.len()];
-    let mut pieces: Vec<Piece> = (0..contacts.len()).map(|k| natural(&x, &v, k).1).collect();
+    let mut pieces: Vec<Piece> = match warm {
+        Some(w) => w.0.clone(),
+        None => (0..contacts.len()).map(|k| natural(&x, &v, k).1).collect(),
+    };
     for iteration in 1..=settings.max_iterations {
         let mut g = Triplets::new(0, n);
         let mut springs = Triplets::new(0, n);
@@ -481,6 +509,7 @@ fn iterate(
                 .count();
             let open = pieces.iter().filter(|p| **p == Piece::Apex).count();
             return Ok(ActiveSetSolution {
+                pieces: ActivePieces(pieces),
                 x,
                 converged: true,
                 iterations: iteration,
