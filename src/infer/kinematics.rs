@@ -507,6 +507,50 @@ fn largest_odd_at_most(m: usize) -> usize {
     }
 }
 
+/// One frame's grains by id, with their net inferred contact force (on the
+/// grain) and whether any contact touches them.
+struct FrameLoads<'a> {
+    index: std::collections::HashMap<&'a str, usize>,
+    net: Vec<Vec3>,
+    touched: Vec<bool>,
+}
+
+impl<'a> FrameLoads<'a> {
+    fn new(frame: &'a Scene, forces: &[Option<Vec3>]) -> Self {
+        let count = frame.grains.len();
+        let index = frame
+            .grains
+            .iter()
+            .enumerate()
+            .map(|(p, g)| (g.id.as_str(), p))
+            .collect();
+        let (mut net, mut touched) = (vec![[0.0; 3]; count], vec![false; count]);
+        for (c, fc) in frame.contacts.iter().zip(forces) {
+            let b = match c.b {
+                Body::Grain(b) if b < count => Some(b),
+                _ => None,
+            };
+            for p in std::iter::once(c.a).filter(|&a| a < count).chain(b) {
+                touched[p] = true;
+            }
+            let Some(f) = fc else { continue };
+            for k in 0..3 {
+                if c.a < count {
+                    net[c.a][k] += f[k];
+                }
+                if let Some(b) = b {
+                    net[b][k] -= f[k];
+                }
+            }
+        }
+        FrameLoads {
+            index,
+            net,
+            touched,
+        }
+    }
+}
+
 /// Weights of the least-squares slope over `window` samples starting at
 /// `start` of a series of length `n` (zero elsewhere), per unit time.
 fn slope_weights(n: usize, start: usize, window: usize, dt: f64) -> Vec<f64> {
@@ -564,6 +608,12 @@ pub fn impulse_check(
     };
     let dt = 1.0 / fps;
     let dim = frames[0].dim;
+    // Each frame's contacts are visited once, not once per grain.
+    let loads: Vec<FrameLoads> = frames
+        .iter()
+        .zip(forces)
+        .map(|(f, fk)| FrameLoads::new(f, fk))
+        .collect();
     let mut rows = Vec::new();
     let mut skipped = Vec::new();
     for (id, track) in tracks(frames) {
@@ -577,25 +627,13 @@ pub fn impulse_check(
         }
         let mut accel = Vec::with_capacity(n);
         let mut mass = None;
+        let mut touches = Vec::with_capacity(n);
         for &(k, _) in seg {
-            let f = &frames[k];
-            let p = f.grains.iter().position(|g| g.id == id).unwrap_or(0);
-            mass = f.grains[p].mass.or(mass);
-            let mut sum = [0.0; 3];
-            for (c, fc) in f.contacts.iter().zip(&forces[k]) {
-                let Some(fc) = fc else { continue };
-                let sign = if c.a == p {
-                    1.0
-                } else if c.b == Body::Grain(p) {
-                    -1.0
-                } else {
-                    continue;
-                };
-                for k in 0..3 {
-                    sum[k] += sign * fc[k];
-                }
-            }
-            accel.push(sum);
+            let load = &loads[k];
+            let p = load.index[id.as_str()];
+            mass = frames[k].grains[p].mass.or(mass);
+            accel.push(load.net[p]);
+            touches.push(load.touched[p]);
         }
         let Some(m) = mass else {
             skipped.push(id);
@@ -623,15 +661,6 @@ pub fn impulse_check(
         // least-squares slope is the velocity at the window's centre, so that
         // end's window covers the whole contact-free stretch (quieter, and
         // the inferred side is exactly g there). Capped at half the track.
-        let touches: Vec<bool> =
-            seg.iter()
-                .map(|&(k, _)| {
-                    let f = &frames[k];
-                    f.grains.iter().position(|g| g.id == id).is_some_and(|p| {
-                        f.contacts.iter().any(|c| c.a == p || c.b == Body::Grain(p))
-                    })
-                })
-                .collect();
         let free_start = touches.iter().take_while(|&&t| !t).count();
         let free_end = touches.iter().rev().take_while(|&&t| !t).count();
         let widen = |free: usize| window.max(largest_odd_at_most(free.min(n / 2)));
