@@ -37,11 +37,7 @@ fn main() -> grainforce::Result<()> {
             &system.stress,
             &system.momentum,
             &system.contact_blocks(),
-            if dim == 3 {
-                Ordering::NestedDissection
-            } else {
-                Ordering::Amd
-            },
+            Ordering::for_dim(dim),
         )?;
         let start = ls.solve(
             &system.stress,

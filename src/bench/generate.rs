@@ -419,18 +419,13 @@ fn exact_forces(
             }
         }
     }
-    // Nested dissection in 3D: with AMD's fill this was the largest memory
-    // user of the 10⁵-sphere benchmark (18.5 GB, 290 s).
-    let ordering = if system.dim == 3 {
-        Ordering::NestedDissection
-    } else {
-        Ordering::Amd
-    };
-    let projector = Projector::new(&system.momentum, ordering)?;
+    // With AMD's fill in 3D this was the largest memory user of the
+    // 10⁵-sphere benchmark (18.5 GB, 290 s).
+    let projector = Projector::new(&system.momentum, Ordering::for_dim(system.dim))?;
     let floor = 0.2;
     let mut done = false;
     for _ in 0..60 {
-        projector.project(&mut x);
+        projector.project(&mut x)?;
         let mut raised = false;
         for u in &system.unknowns {
             if x[u.offset] < floor {
@@ -446,7 +441,7 @@ fn exact_forces(
     if !done {
         // One last projection so the truth is in exact equilibrium; normals may
         // then dip slightly below the floor but must stay compressive.
-        projector.project(&mut x);
+        projector.project(&mut x)?;
     }
     if let Some(u) = system.unknowns.iter().find(|u| x[u.offset] <= 0.0) {
         return Err(Error::Solver(format!(
@@ -514,6 +509,7 @@ impl<'a> Projector<'a> {
             kkt.symbolic().row_idx(),
             kkt.val(),
             ordering,
+            0.0,
         )
         .map_err(|e| {
             Error::Solver(format!(
@@ -523,15 +519,16 @@ impl<'a> Projector<'a> {
         Ok(Projector { k, llt })
     }
 
-    fn project(&self, x: &mut [f64]) {
+    fn project(&self, x: &mut [f64]) -> Result<()> {
         for _ in 0..3 {
             let mut y = self.k.mul(x);
-            self.llt.solve_in_place(&mut y);
+            self.llt.solve_in_place(&mut y, 1)?;
             let correction = self.k.mul_transpose(&y);
             for (xi, ci) in x.iter_mut().zip(correction) {
                 *xi -= ci;
             }
         }
+        Ok(())
     }
 }
 

@@ -100,9 +100,7 @@ pub struct InferOptions {
     pub solver: ConstrainedSolver,
     pub active_set: ActiveSetSettings,
     /// Fill-reducing ordering of the sparse factorisation; `None` picks by
-    /// dimension: nested dissection in 3D (0.6× AMD's fill and refactorisation
-    /// time at 10⁴ spheres), AMD in 2D (where computing the dissection costs
-    /// more than it saves). The answer is the same either way.
+    /// dimension ([`Ordering::for_dim`]). The answer is the same either way.
     pub ordering: Option<Ordering>,
 }
 
@@ -577,14 +575,9 @@ impl FactorCache {
     }
 }
 
-/// The user's ordering, else nested dissection in 3D and AMD in 2D (measured:
-/// docs/bench.md).
+/// The user's ordering, else [`Ordering::for_dim`].
 pub(crate) fn ordering(system: &System, choice: Option<Ordering>) -> Ordering {
-    choice.unwrap_or(if system.dim == 3 {
-        Ordering::NestedDissection
-    } else {
-        Ordering::Amd
-    })
+    choice.unwrap_or(Ordering::for_dim(system.dim))
 }
 
 /// The sparse route of a friction-constrained least squares: one symbolic

@@ -14,18 +14,13 @@
 //! meaningful force inference; below it the "solution" is set by round-off and by
 //! the regularisation, not by the data.
 
-use faer::dyn_stack::{MemBuffer, MemStack};
-use faer::linalg::cholesky::llt::factor::LltRegularization;
-use faer::sparse::linalg::cholesky::{factorize_symbolic_cholesky, LltRef, SymmetricOrdering};
-use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
-use faer::{Conj, MatMut, Par, Side};
 use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
 
 use super::compressed::{
     gram_upper_pattern, gram_upper_values, mul_scaled, mul_t_scaled, Compressed,
 };
-use super::{check_finite, check_pair, norm2};
+use super::{check_finite, check_pair, norm2, Ordering, SpdFactor};
 use crate::solver::Triplets;
 use crate::{Error, Result};
 
@@ -179,69 +174,16 @@ pub fn identifiability(a: &Triplets, c: &Triplets) -> Result<Identifiability> {
     for j in 0..n {
         values[col_ptr[j + 1] - 1] += eps;
     }
-    let pattern = SymbolicSparseColMatRef::new_checked(n, n, &col_ptr, None, &row_idx);
-    let symbolic = factorize_symbolic_cholesky(
-        pattern,
-        Side::Upper,
-        SymmetricOrdering::Amd,
-        Default::default(),
-    )
-    .map_err(|e| {
-        Error::Solver(format!(
-            "symbolic Cholesky of the {n}×{n} Gram matrix failed: {e:?}"
-        ))
-    })?;
-    let par = if n >= 200_000 {
-        Par::rayon(0)
-    } else {
-        Par::Seq
-    };
     let k = BLOCK_SIZE.min(n);
-    let scratch = symbolic
-        .factorize_numeric_llt_scratch::<f64>(par, Default::default())
-        .or(symbolic.solve_in_place_scratch::<f64>(k, par));
-    let mut stack_buf = MemBuffer::try_new(scratch).map_err(|_| {
-        Error::Solver(format!(
-            "out of memory for the Cholesky workspace ({n} unknowns)"
-        ))
-    })?;
-    let mut l_values = vec![0.0; symbolic.len_val()];
-    let matrix = SparseColMatRef::new(
-        SymbolicSparseColMatRef::new_checked(n, n, &col_ptr, None, &row_idx),
-        &values,
-    );
-    let regularization = LltRegularization {
-        dynamic_regularization_delta: eps,
-        dynamic_regularization_epsilon: 0.5 * eps,
-    };
-    symbolic
-        .factorize_numeric_llt(
-            &mut l_values,
-            matrix,
-            Side::Upper,
-            regularization,
-            par,
-            MemStack::new(&mut stack_buf),
-            Default::default(),
-        )
-        .map_err(|e| {
-            Error::Solver(format!(
-                "Cholesky of the {n}×{n} shifted Gram matrix failed: {e:?}"
-            ))
-        })?;
-    let llt = LltRef::<usize, f64>::new(&symbolic, &l_values);
+    let llt = SpdFactor::new(n, &col_ptr, &row_idx, &values, Ordering::Amd, eps)
+        .map_err(|e| Error::Solver(format!("shifted Gram matrix: {e}")))?;
 
     // Block inverse iteration with Rayleigh–Ritz (V is n×k, column-major).
     let mut block: Vec<f64> = random_vector(n * k);
     orthonormalise(&mut block, n, k, &mut random_vector);
     let mut ritz = vec![f64::INFINITY; k];
     for _ in 0..MAX_INVERSE_STEPS {
-        llt.solve_in_place_with_conj(
-            Conj::No,
-            MatMut::from_column_major_slice_mut(&mut block, n, k),
-            par,
-            MemStack::new(&mut stack_buf),
-        );
+        llt.solve_in_place(&mut block, k)?;
         if block.iter().any(|x| !x.is_finite()) {
             return Err(Error::Solver(
                 "inverse iteration produced non-finite values".into(),
