@@ -75,13 +75,51 @@ fn active_rows_give_the_constrained_least_squares_and_its_multipliers() {
     assert!((soft.solution.x[0] - 1.5).abs() < 1e-12);
 }
 
+/// The dense KKT solution (x, ν, w) of min ½‖Ax − b‖² + ½‖Rx‖² + ½λ²‖x‖²
+/// s.t. Cx = d, Gx = 0, from
+/// `[[AᵀA + RᵀR + λ²I, Cᵀ, Gᵀ], [C, 0, 0], [G, 0, 0]] z = [Aᵀb, d, 0]`.
+#[allow(clippy::too_many_arguments)]
+fn dense_kkt(
+    a: &Triplets,
+    c: &Triplets,
+    g: &Triplets,
+    r: &Triplets,
+    b: &[f64],
+    d: &[f64],
+    lambda: f64,
+) -> nalgebra::DVector<f64> {
+    use nalgebra::{DMatrix, DVector};
+    let dense = |t: &Triplets| {
+        let mut m = DMatrix::zeros(t.nrows, t.ncols);
+        for k in 0..t.nnz() {
+            m[(t.rows[k], t.cols[k])] += t.vals[k];
+        }
+        m
+    };
+    let (am, cm, gm, rm) = (dense(a), dense(c), dense(g), dense(r));
+    let (n, mc, mg) = (a.ncols, c.nrows, g.nrows);
+    let size = n + mc + mg;
+    let mut k = DMatrix::zeros(size, size);
+    let h = am.transpose() * &am + rm.transpose() * &rm + DMatrix::identity(n, n) * lambda * lambda;
+    k.view_mut((0, 0), (n, n)).copy_from(&h);
+    k.view_mut((n, 0), (mc, n)).copy_from(&cm);
+    k.view_mut((0, n), (n, mc)).copy_from(&cm.transpose());
+    k.view_mut((n + mc, 0), (mg, n)).copy_from(&gm);
+    k.view_mut((0, n + mc), (n, mg)).copy_from(&gm.transpose());
+    let mut rhs = DVector::zeros(size);
+    rhs.rows_mut(0, n)
+        .copy_from(&(am.transpose() * DVector::from_column_slice(b)));
+    rhs.rows_mut(n, mc)
+        .copy_from(&DVector::from_column_slice(d));
+    k.lu().solve(&rhs).expect("a regular test KKT")
+}
+
 /// Few active rows taken on the factor of the unconstrained problem (bordered,
 /// k extra solves) or by a new factorisation (penalties): the same answer and
 /// multipliers, matching a dense KKT solve, with a spring row too.
 #[test]
 fn bordered_and_refactorised_active_rows_agree_with_a_dense_solve() {
     use grainforce::solver::sparse_ls::Bordering;
-    use nalgebra::{DMatrix, DVector};
     // A: 6×6 bidiagonal, C: Σx = 1, G: x₁ = 2x₂ and x₃ = 0, R: 3x₄ (a spring).
     let n = 6;
     let mut a = Triplets::new(n, n);
@@ -104,27 +142,7 @@ fn bordered_and_refactorised_active_rows_agree_with_a_dense_solve() {
     let b = [1.0, -1.0, 0.5, 2.0, -0.5, 0.25];
     let lambda = 0.2;
 
-    let dense = |t: &Triplets| {
-        let mut m = DMatrix::zeros(t.nrows, t.ncols);
-        for k in 0..t.nnz() {
-            m[(t.rows[k], t.cols[k])] += t.vals[k];
-        }
-        m
-    };
-    let (am, cm, gm, rm) = (dense(&a), dense(&c), dense(&g), dense(&r));
-    let size = n + 1 + 2;
-    let mut k = DMatrix::zeros(size, size);
-    let h = am.transpose() * &am + rm.transpose() * &rm + DMatrix::identity(n, n) * lambda * lambda;
-    k.view_mut((0, 0), (n, n)).copy_from(&h);
-    k.view_mut((n, 0), (1, n)).copy_from(&cm);
-    k.view_mut((0, n), (n, 1)).copy_from(&cm.transpose());
-    k.view_mut((n + 1, 0), (2, n)).copy_from(&gm);
-    k.view_mut((0, n + 1), (n, 2)).copy_from(&gm.transpose());
-    let mut rhs = DVector::zeros(size);
-    rhs.rows_mut(0, n)
-        .copy_from(&(am.transpose() * DVector::from_column_slice(&b)));
-    rhs[n] = 1.0;
-    let z = k.lu().solve(&rhs).unwrap();
+    let z = dense_kkt(&a, &c, &g, &r, &b, &[1.0], lambda);
 
     for bordering in [Bordering::Never, Bordering::Always] {
         let mut ls = EqualityLeastSquares::new(&a, &c).unwrap();
@@ -166,7 +184,6 @@ fn bordered_and_refactorised_active_rows_agree_with_a_dense_solve() {
 /// Rows and equalities together, against a dense KKT solve.
 #[test]
 fn active_rows_with_equalities_match_a_dense_solve() {
-    use nalgebra::{DMatrix, DVector};
     // A: 4×4 upper bidiagonal (couples neighbours), C: x₀ + x₁ + x₂ + x₃ = 1, G: x₁ = 2 x₂.
     let mut a = Triplets::new(4, 4);
     for i in 0..4 {
@@ -190,26 +207,7 @@ fn active_rows_with_equalities_match_a_dense_solve() {
         .unwrap();
     assert!(sol.solution.converged);
 
-    let dense = |t: &Triplets| {
-        let mut m = DMatrix::zeros(t.nrows, t.ncols);
-        for k in 0..t.nnz() {
-            m[(t.rows[k], t.cols[k])] += t.vals[k];
-        }
-        m
-    };
-    let (am, cm, gm) = (dense(&a), dense(&c), dense(&g));
-    let mut k = DMatrix::zeros(6, 6);
-    let h = am.transpose() * &am + DMatrix::identity(4, 4) * lambda * lambda;
-    k.view_mut((0, 0), (4, 4)).copy_from(&h);
-    k.view_mut((4, 0), (1, 4)).copy_from(&cm);
-    k.view_mut((0, 4), (4, 1)).copy_from(&cm.transpose());
-    k.view_mut((5, 0), (1, 4)).copy_from(&gm);
-    k.view_mut((0, 5), (4, 1)).copy_from(&gm.transpose());
-    let mut rhs = DVector::zeros(6);
-    rhs.rows_mut(0, 4)
-        .copy_from(&(am.transpose() * DVector::from_column_slice(&b)));
-    rhs[4] = 1.0;
-    let z = k.lu().solve(&rhs).unwrap();
+    let z = dense_kkt(&a, &c, &g, &Triplets::new(0, 4), &b, &[1.0], lambda);
     for i in 0..4 {
         assert!((sol.solution.x[i] - z[i]).abs() < 1e-12, "x{i}");
     }

@@ -1078,17 +1078,18 @@ const BORDER_MAX_ENTRIES: usize = 64 << 20;
 /// B's columns are the scaled active rows (D = δ, the regularisation the
 /// penalty route uses) and the springs (D = 1, so that they add BᵀB to the
 /// Hessian block). Holds Y = F⁻¹B and the LU of the Schur complement BᵀY + D.
-struct Bordered<'a> {
-    num: &'a Numeric,
+struct Bordered {
+    /// B's columns (sparse): the active rows, then the springs.
+    columns: Vec<Vec<(usize, f64)>>,
     /// Y = F⁻¹ B, column-major, size × k.
     y: Vec<f64>,
     size: usize,
     schur: nalgebra::LU<f64, nalgebra::Dyn, nalgebra::Dyn>,
 }
 
-impl<'a> Bordered<'a> {
+impl Bordered {
     fn new(
-        num: &'a Numeric,
+        num: &Numeric,
         ldlt: &LdltRef<'_, usize, f64>,
         size: usize,
         delta: f64,
@@ -1096,9 +1097,10 @@ impl<'a> Bordered<'a> {
     ) -> Result<Self> {
         let mg = num.active.len();
         let k = mg + num.active.springs.nmajor;
+        let columns: Vec<Vec<(usize, f64)>> = (0..k).map(|col| Self::column(num, col)).collect();
         let mut y = vec![0.0; size * k];
-        for col in 0..k {
-            for (j, v) in Self::column(num, col) {
+        for (col, entries) in columns.iter().enumerate() {
+            for &(j, v) in entries {
                 y[col * size + j] = v;
             }
         }
@@ -1112,8 +1114,8 @@ impl<'a> Bordered<'a> {
             MemStack::new(&mut stack_buf),
         );
         let mut m = nalgebra::DMatrix::<f64>::zeros(k, k);
-        for i in 0..k {
-            for (q, b) in Self::column(num, i) {
+        for (i, entries) in columns.iter().enumerate() {
+            for &(q, b) in entries {
                 for j in 0..k {
                     m[(i, j)] += b * y[j * size + q];
                 }
@@ -1126,7 +1128,7 @@ impl<'a> Bordered<'a> {
             ));
         }
         Ok(Bordered {
-            num,
+            columns,
             y,
             size,
             schur: m.lu(),
@@ -1157,13 +1159,10 @@ impl<'a> Bordered<'a> {
     /// head −= Y t, r3 = t of the active rows.
     fn correct(&self, head: &mut [f64], r3: &mut [f64]) {
         let mg = r3.len();
-        let k = self.y.len() / self.size.max(1);
+        let k = self.columns.len();
         let mut u = nalgebra::DVector::<f64>::zeros(k);
-        for i in 0..k {
-            let bz: f64 = Self::column(self.num, i)
-                .iter()
-                .map(|&(q, b)| b * head[q])
-                .sum();
+        for (i, entries) in self.columns.iter().enumerate() {
+            let bz: f64 = entries.iter().map(|&(q, b)| b * head[q]).sum();
             u[i] = bz - if i < mg { r3[i] } else { 0.0 };
         }
         let t = self
