@@ -797,3 +797,27 @@ fn constraint_pinning_an_unknown_to_zero_converges() {
         assert!(sol.x[5].abs() <= 1e-14 * norm(&sol.x));
     }
 }
+
+/// The SPD factor solves [[4, 1], [1, 3]] X = B for two columns, with both
+/// orderings, and refuses a pattern that is not a sorted upper triangle.
+#[test]
+fn spd_factor_solves_columns_and_rejects_a_bad_pattern() {
+    use grainforce::solver::sparse_ls::{Ordering, SpdFactor};
+    let (col_ptr, row_idx, values) = ([0usize, 1, 3], [0usize, 0, 1], [4.0, 1.0, 3.0]);
+    for ordering in [Ordering::Amd, Ordering::NestedDissection] {
+        let f = SpdFactor::new(2, &col_ptr, &row_idx, &values, ordering, 0.0).unwrap();
+        // Columns (1, 2) and (5, 4): solutions (1/11, 7/11) and (1, 1).
+        let mut x = vec![1.0, 2.0, 5.0, 4.0];
+        f.solve_in_place(&mut x, 2).unwrap();
+        for (got, want) in x.iter().zip([1.0 / 11.0, 7.0 / 11.0, 1.0, 1.0]) {
+            assert!((got - want).abs() < 1e-14, "{ordering:?}: {x:?}");
+        }
+        assert!(f.solve_in_place(&mut [0.0; 3], 2).is_err());
+    }
+    // Lower triangle (row 1 in column 0): refused, not a panic.
+    let err = SpdFactor::new(2, &[0, 2, 3], &[0, 1, 1], &values, Ordering::Amd, 0.0);
+    assert!(matches!(err, Err(grainforce::Error::Invalid(_))));
+    // Not positive definite: a solver error.
+    let err = SpdFactor::new(2, &col_ptr, &row_idx, &[1.0, 2.0, 1.0], Ordering::Amd, 0.0);
+    assert!(matches!(err, Err(grainforce::Error::Solver(_))));
+}

@@ -1236,6 +1236,20 @@ impl SpdFactor {
         ordering: Ordering,
         shift: f64,
     ) -> Result<Self> {
+        let sorted_upper = col_ptr.len() == size + 1
+            && col_ptr.first() == Some(&0)
+            && col_ptr.windows(2).all(|w| w[0] < w[1])
+            && col_ptr[size] == row_idx.len()
+            && values.len() == row_idx.len()
+            && (0..size).all(|j| {
+                let rows = &row_idx[col_ptr[j]..col_ptr[j + 1]];
+                rows.windows(2).all(|w| w[0] < w[1]) && rows.last() == Some(&j)
+            });
+        if !sorted_upper {
+            return Err(Error::Invalid(format!(
+                "SpdFactor needs the upper triangle of a {size}×{size} matrix in CSC with sorted rows,                  each column ending on its diagonal, and one value per entry"
+            )));
+        }
         let par = default_parallelism(size);
         let symbolic = symbolic_analysis(size, col_ptr, row_idx, ordering)?;
         let Some(sym) = &symbolic else {
