@@ -2,7 +2,7 @@
 //! of a diameter): relerr of the forces and the impulse check of the moving
 //! grains, against the measured Δv and against the noise-free one.
 //!
-//!     cargo run --example impulse_draws [fir ORDER CUTOFF | savgol WINDOW DEGREE] [REL_ACCEL_SD | knee]
+//!     cargo run --example impulse_draws [fir ORDER CUTOFF | savgol WINDOW DEGREE | whittaker CUTOFF _] [REL_ACCEL_SD | knee]
 //!
 //! Without REL_ACCEL_SD the momentum weights are the library's per-frame ones
 //! for derived accelerations; with it, one relative m·a noise for all frames.
@@ -23,6 +23,9 @@ fn main() -> grainforce::Result<()> {
         Some("savgol") => Smoother::SavitzkyGolay {
             window: num(1, 11.0) as usize,
             degree: num(2, 3.0) as usize,
+        },
+        Some("whittaker") => Smoother::Whittaker {
+            cutoff: num(1, 0.15),
         },
         Some("fir") => Smoother::Fir {
             order: num(1, 20.0) as usize,

@@ -30,6 +30,7 @@ fn constant_acceleration_is_exact_inside_the_track() {
             window: 11,
             degree: 3,
         },
+        Smoother::Whittaker { cutoff: 0.15 },
     ] {
         let mut frames = track_frames(60, fps, |t| {
             [1e6 + 0.5 * a[0] * t * t, 0.2 * t + 0.5 * a[1] * t * t, 0.0]
@@ -362,10 +363,11 @@ fn stated_acceleration_noise_matches_noisy_tracks() {
             window: 11,
             degree: 3,
         },
+        Smoother::Whittaker { cutoff: 0.15 },
     ] {
-        let gain = acceleration_noise_gain(n, 1.0 / fps, smoother);
+        let gain = acceleration_noise_gain(n, 1.0 / fps, smoother).unwrap();
         // The shortcut for long tracks gives what the full computation gives.
-        let long = acceleration_noise_gain(300, 1.0 / fps, smoother);
+        let long = acceleration_noise_gain(300, 1.0 / fps, smoother).unwrap();
         assert!((long[150] - gain[40]).abs() <= 1e-9 * gain[40]);
         assert!((long[299] - gain[79]).abs() <= 1e-9 * gain[79]);
         let edge = gain[..6].iter().copied().fold(0.0, f64::max);
@@ -448,4 +450,54 @@ fn forces_all(frames: &[Scene]) -> FrameForces {
         .iter()
         .map(|f| vec![Some([0.0; 3]); f.contacts.len()])
         .collect()
+}
+
+#[test]
+fn whittaker_holds_free_flight_at_gravity() {
+    // A noisy ballistic track, gravity stated, no contact: the Whittaker fit
+    // returns gravity at every frame; the FIR passes the noise on.
+    let (fps, n, g) = (5000.0, 90, [0.0, -9.81, 0.0]);
+    let mut frames = track_frames(n, fps, |t| {
+        [2e3 + 0.4 * t, 1.5 + 0.3 * t + 0.5 * g[1] * t * t, 0.0]
+    });
+    for f in &mut frames {
+        f.settings.gravity = Some(vec![g[0], g[1]]);
+    }
+    let config = PerturbConfig {
+        position_noise: 2e-5,
+        seed: 3,
+        ..Default::default()
+    };
+    let noisy = perturb(&frames, &config).unwrap();
+    let worst = |smoother: Smoother| {
+        let mut f = noisy.clone();
+        derive_accelerations(&mut f, fps, smoother).unwrap();
+        f.iter()
+            .map(|s| {
+                let a = s.grains[0].acceleration.unwrap();
+                (a[0] - g[0]).hypot(a[1] - g[1])
+            })
+            .fold(0.0, f64::max)
+    };
+    let held = worst(Smoother::Whittaker { cutoff: 0.15 });
+    assert!(
+        held <= 1e-6 * 9.81,
+        "held free flight deviates by {held} m/s²"
+    );
+    let fir = worst(Smoother::default_fir());
+    assert!(fir > 1.0, "the FIR should carry the noise: {fir}");
+    // Without stated gravity nothing is held: the noise shows again.
+    let mut f = noisy.clone();
+    for s in &mut f {
+        s.settings.gravity = None;
+    }
+    derive_accelerations(&mut f, fps, Smoother::Whittaker { cutoff: 0.15 }).unwrap();
+    let free = f
+        .iter()
+        .map(|s| {
+            let a = s.grains[0].acceleration.unwrap();
+            (a[0] - g[0]).hypot(a[1] - g[1])
+        })
+        .fold(0.0, f64::max);
+    assert!(free > 1.0, "unstated gravity must not be assumed: {free}");
 }

@@ -114,13 +114,16 @@ pub struct Args {
     #[arg(long)]
     pub derive_accelerations: bool,
     /// How tracks are smoothed before differentiation: fir (low-pass with a
-    /// Hamming window, as the original experiments) or savgol (Savitzky–Golay).
+    /// Hamming window, as the original experiments), savgol (Savitzky–Golay)
+    /// or whittaker (penalised least squares with the same --cutoff, holding
+    /// a grain that touches nothing at gravity, so free flights pin the
+    /// velocities around a collision).
     #[arg(long, value_enum, default_value_t = SmootherArg::Fir)]
     pub smoother: SmootherArg,
     /// FIR filter order (even; order + 1 taps).
     #[arg(long, default_value_t = 20)]
     pub fir_order: usize,
-    /// FIR cut-off as a fraction of the Nyquist frequency (fps/2).
+    /// FIR (and whittaker) cut-off as a fraction of the Nyquist frequency (fps/2).
     #[arg(long, default_value_t = 0.15)]
     pub cutoff: f64,
     /// Savitzky–Golay window (odd number of frames).
@@ -195,6 +198,7 @@ pub enum RuleArg {
 pub enum SmootherArg {
     Fir,
     Savgol,
+    Whittaker,
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -419,6 +423,9 @@ pub fn run(args: Args) -> Result<()> {
         SmootherArg::Savgol => Smoother::SavitzkyGolay {
             window: args.savgol_window,
             degree: args.savgol_degree,
+        },
+        SmootherArg::Whittaker => Smoother::Whittaker {
+            cutoff: args.cutoff,
         },
     };
     let mut derived = None;

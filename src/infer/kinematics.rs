@@ -16,6 +16,13 @@ pub enum Smoother {
     Fir { order: usize, cutoff: f64 },
     /// Local least-squares polynomials of `degree` over `window` frames (odd).
     SavitzkyGolay { window: usize, degree: usize },
+    /// Penalised least squares (Whittaker–Henderson): the track closest to
+    /// the samples under a third-difference roughness penalty whose gain is
+    /// ½ at `cutoff` of Nyquist, as the FIR's. Where a grain touches nothing
+    /// and the scene states gravity, its acceleration is known and the fit
+    /// holds it there, so free flights pin the velocities on either side of
+    /// a collision and no smoothing leaks out of the contact frames.
+    Whittaker { cutoff: f64 },
 }
 
 impl Smoother {
@@ -35,6 +42,10 @@ impl Smoother {
         match *self {
             Smoother::Fir { order, .. } => order / 2 + 1,
             Smoother::SavitzkyGolay { window, .. } => window / 2,
+            // The equivalent kernel decays as exp(−|k|/λ^(1/6)) roughly.
+            Smoother::Whittaker { cutoff } => {
+                (8.0 * whittaker_lambda(cutoff).powf(1.0 / 6.0)).ceil() as usize
+            }
         }
     }
 
@@ -44,6 +55,13 @@ impl Smoother {
                 if order < 2 || order % 2 != 0 || !(cutoff > 0.0 && cutoff < 1.0) {
                     return Err(Error::Invalid(format!(
                         "FIR filter: order must be even and ≥ 2 and the cut-off in (0, 1) of Nyquist, got {order} and {cutoff}"
+                    )));
+                }
+            }
+            Smoother::Whittaker { cutoff } => {
+                if !(cutoff > 0.0 && cutoff < 1.0) {
+                    return Err(Error::Invalid(format!(
+                        "Whittaker smoother: the cut-off must be in (0, 1) of Nyquist, got {cutoff}"
                     )));
                 }
             }
@@ -129,9 +147,28 @@ fn check_frames(frames: &[Scene], fps: f64) -> Result<()> {
     Ok(())
 }
 
-/// Derivative of order `deriv` (1 or 2) of each component along a track, per frame.
-fn differentiate(samples: &[Vec3], dt: f64, smoother: Smoother, deriv: usize) -> Vec<Vec3> {
+/// Derivative of order `deriv` (1 or 2) of each component along a track, per
+/// frame. `known` (empty, or one entry per sample) holds accelerations known
+/// exactly, which the Whittaker smoother keeps; the others ignore it.
+fn differentiate(
+    samples: &[Vec3],
+    dt: f64,
+    smoother: Smoother,
+    deriv: usize,
+    known: &[Option<Vec3>],
+) -> Result<Vec<Vec3>> {
     let n = samples.len();
+    if let Smoother::Whittaker { cutoff } = smoother {
+        let fitted = whittaker_fit(samples, dt, cutoff, known)?;
+        let mut out = vec![[0.0; 3]; n];
+        for k in 0..3 {
+            let x: Vec<f64> = fitted.iter().map(|p| p[k]).collect();
+            for (o, v) in out.iter_mut().zip(finite_difference(&x, dt, deriv)) {
+                o[k] = v;
+            }
+        }
+        return Ok(out);
+    }
     let mut out = vec![[0.0; 3]; n];
     for k in 0..3 {
         // Centred on the first sample: far from the origin, filtering raw
@@ -146,19 +183,149 @@ fn differentiate(samples: &[Vec3], dt: f64, smoother: Smoother, deriv: usize) ->
             Smoother::SavitzkyGolay { window, degree } => {
                 savitzky_golay(&x, dt, window, degree, deriv)
             }
+            Smoother::Whittaker { .. } => unreachable!("handled above"),
         };
         for (o, v) in out.iter_mut().zip(d) {
             o[k] = v;
         }
     }
-    out
+    Ok(out)
+}
+
+/// Roughness weight λ of the Whittaker smoother: its gain
+/// 1 / (1 + λ (2 sin(ω/2))⁶) is ½ at ω = π·cutoff.
+fn whittaker_lambda(cutoff: f64) -> f64 {
+    let s = 2.0 * (0.5 * std::f64::consts::PI * cutoff).sin();
+    1.0 / s.powi(6)
+}
+
+/// Positions x̂ minimising Σ (x̂ − x)² + λ Σ (Δ³x̂)², with the second
+/// difference held at a·dt² where the acceleration a is known (a stiff
+/// penalty, then refinement against it). Coordinates are taken relative to
+/// the first sample and scaled to order one, so offsets and units don't
+/// matter; the result is in the samples' coordinates.
+fn whittaker_fit(
+    samples: &[Vec3],
+    dt: f64,
+    cutoff: f64,
+    known: &[Option<Vec3>],
+) -> Result<Vec<Vec3>> {
+    let n = samples.len();
+    if n < 4 {
+        return Ok(samples.to_vec());
+    }
+    let lambda = whittaker_lambda(cutoff);
+    let origin = samples[0];
+    let scale = samples
+        .iter()
+        .flat_map(|p| (0..3).map(move |k| (p[k] - origin[k]).abs()))
+        .fold(0.0f64, f64::max);
+    let scale = if scale > 0.0 { scale } else { 1.0 };
+    // The hold's weight: far above the data's and the roughness's.
+    let hold = 1e8 * (1.0 + lambda);
+    // Second-difference rows held: (centre, target per axis), the end
+    // samples on the nearest interior stencil as `finite_difference` does.
+    let held: Vec<(usize, Vec3)> = known
+        .iter()
+        .enumerate()
+        .filter_map(|(i, a)| {
+            a.map(|a| {
+                let c = i.clamp(1, n - 2);
+                (c, a.map(|v| v * dt * dt / scale))
+            })
+        })
+        .collect();
+    // Banded upper triangle: band[j][d] = H[j − d][j], d = 0..=3.
+    let mut band = vec![[0.0f64; 4]; n];
+    for j in 0..n {
+        band[j][0] = 1.0;
+    }
+    let add_row = |band: &mut Vec<[f64; 4]>, first: usize, coef: &[f64], weight: f64| {
+        for (p, cp) in coef.iter().enumerate() {
+            for (q, cq) in coef.iter().enumerate().skip(p) {
+                band[first + q][q - p] += weight * cp * cq;
+            }
+        }
+    };
+    const D3: [f64; 4] = [-1.0, 3.0, -3.0, 1.0];
+    const D2: [f64; 3] = [1.0, -2.0, 1.0];
+    for i in 0..n - 3 {
+        add_row(&mut band, i, &D3, lambda);
+    }
+    for &(c, _) in &held {
+        add_row(&mut band, c - 1, &D2, hold);
+    }
+    let mut col_ptr = vec![0usize];
+    let (mut row_idx, mut values) = (Vec::new(), Vec::new());
+    for j in 0..n {
+        for d in (0..=3.min(j)).rev() {
+            row_idx.push(j - d);
+            values.push(band[j][d]);
+        }
+        col_ptr.push(row_idx.len());
+    }
+    let factor = crate::solver::sparse_ls::SpdFactor::new(
+        n,
+        &col_ptr,
+        &row_idx,
+        &values,
+        crate::solver::sparse_ls::Ordering::Amd,
+        0.0,
+    )?;
+    // Right-hand side per axis (column-major n × 3).
+    let mut rhs = vec![0.0; 3 * n];
+    for k in 0..3 {
+        for i in 0..n {
+            rhs[k * n + i] = (samples[i][k] - origin[k]) / scale;
+        }
+        for &(c, target) in &held {
+            for (o, coef) in D2.iter().enumerate() {
+                rhs[k * n + c - 1 + o] += hold * coef * target[k];
+            }
+        }
+    }
+    // H·x from the operators, for the refinement.
+    let apply = |x: &[f64]| -> Vec<f64> {
+        let mut y = x.to_vec();
+        for i in 0..n - 3 {
+            let r: f64 = (0..4).map(|o| D3[o] * x[i + o]).sum();
+            for o in 0..4 {
+                y[i + o] += lambda * D3[o] * r;
+            }
+        }
+        for &(c, _) in &held {
+            let r: f64 = (0..3).map(|o| D2[o] * x[c - 1 + o]).sum();
+            for o in 0..3 {
+                y[c - 1 + o] += hold * D2[o] * r;
+            }
+        }
+        y
+    };
+    let mut x = rhs.clone();
+    factor.solve_in_place(&mut x, 3)?;
+    for _ in 0..2 {
+        let mut r = vec![0.0; 3 * n];
+        for k in 0..3 {
+            let hx = apply(&x[k * n..(k + 1) * n]);
+            for i in 0..n {
+                r[k * n + i] = rhs[k * n + i] - hx[i];
+            }
+        }
+        factor.solve_in_place(&mut r, 3)?;
+        for (xi, ri) in x.iter_mut().zip(&r) {
+            *xi += ri;
+        }
+    }
+    Ok((0..n)
+        .map(|i| std::array::from_fn(|k| origin[k] + scale * x[k * n + i]))
+        .collect())
 }
 
 /// Standard deviation of the derived acceleration at each of `n` consecutive
 /// samples per unit standard deviation of white position noise: the filter
 /// and difference are linear, so it is the norm of each output's weights.
 /// It is largest at the ends of a track, where the filter has fewer neighbours.
-pub fn acceleration_noise_gain(n: usize, dt: f64, smoother: Smoother) -> Vec<f64> {
+pub fn acceleration_noise_gain(n: usize, dt: f64, smoother: Smoother) -> Result<Vec<f64>> {
     // Samples out of the stencil's reach of both ends share one gain, so a
     // long track is computed on a short one (cost independent of n).
     let reach = smoother.reach() + 1;
@@ -167,13 +334,13 @@ pub fn acceleration_noise_gain(n: usize, dt: f64, smoother: Smoother) -> Vec<f64
     let mut unit = vec![[0.0; 3]; short];
     for j in 0..short {
         unit[j][0] = 1.0;
-        let response = differentiate(&unit, dt, smoother, 2);
+        let response = differentiate(&unit, dt, smoother, 2, &[])?;
         unit[j][0] = 0.0;
         for (s, r) in sum_sq.iter_mut().zip(&response) {
             *s += r[0] * r[0];
         }
     }
-    (0..n)
+    Ok((0..n)
         .map(|i| {
             let k = if i < reach {
                 i
@@ -184,7 +351,7 @@ pub fn acceleration_noise_gain(n: usize, dt: f64, smoother: Smoother) -> Vec<f64
             };
             sum_sq[k].sqrt()
         })
-        .collect()
+        .collect())
 }
 
 /// Low-pass windowed sinc (Hamming), applied as a centred (zero-phase)
@@ -294,6 +461,23 @@ pub fn derive_accelerations(
     let mut report = KinematicsReport::default();
     let all = tracks(frames);
     report.tracks = all.len();
+    let touched: Vec<std::collections::HashSet<String>> = frames
+        .iter()
+        .map(|f| {
+            let mut ids = std::collections::HashSet::new();
+            for c in &f.contacts {
+                for p in std::iter::once(c.a).chain(match c.b {
+                    Body::Grain(b) => Some(b),
+                    _ => None,
+                }) {
+                    if let Some(g) = f.grains.get(p) {
+                        ids.insert(g.id.clone());
+                    }
+                }
+            }
+            ids
+        })
+        .collect();
     report.position_sd = estimate_position_sd(frames);
     let mut gain_sq = vec![(0.0, 0usize); frames.len()];
     let mut accel: Vec<BTreeMap<String, Vec3>> = vec![BTreeMap::new(); frames.len()];
@@ -310,12 +494,26 @@ pub fn derive_accelerations(
                 continue;
             }
             let positions: Vec<Vec3> = seg.iter().map(|s| s.1).collect();
-            let a = differentiate(&positions, dt, smoother, 2);
-            let gain = acceleration_noise_gain(seg.len(), dt, smoother);
-            for ((&(k, _), a), g) in seg.iter().zip(a).zip(gain) {
+            // A grain that touches nothing accelerates with gravity exactly —
+            // when the scene states gravity; else nothing is assumed.
+            let known: Vec<Option<Vec3>> = seg
+                .iter()
+                .map(|&(k, _)| {
+                    let declared = frames[k].settings.gravity.is_some();
+                    (declared && !touched[k].contains(id.as_str())).then(|| frames[k].gravity())
+                })
+                .collect();
+            let a = differentiate(&positions, dt, smoother, 2, &known)?;
+            let gain = acceleration_noise_gain(seg.len(), dt, smoother)?;
+            let holds = matches!(smoother, Smoother::Whittaker { .. });
+            for (((&(k, _), a), g), known) in seg.iter().zip(a).zip(gain).zip(&known) {
                 accel[k].insert(id.clone(), a);
-                gain_sq[k].0 += g * g;
-                gain_sq[k].1 += 1;
+                // Held accelerations carry no noise, and such a grain has no
+                // contact to weigh in that frame.
+                if !(holds && known.is_some()) {
+                    gain_sq[k].0 += g * g;
+                    gain_sq[k].1 += 1;
+                }
             }
         }
     }
