@@ -181,6 +181,96 @@ fn bordered_and_refactorised_active_rows_agree_with_a_dense_solve() {
     }
 }
 
+/// Rows that changed since the kept factor (added, taken out, a spring added)
+/// bordered around it: the answer and multipliers of a dense KKT solve of the
+/// new set, and the border really used (a wrong border would not refine and
+/// fall back to a factorisation).
+#[test]
+fn changed_active_rows_bordered_around_a_factor_holding_others_match_a_dense_solve() {
+    use grainforce::solver::sparse_ls::Bordering;
+    // A: 7×7 upper bidiagonal (couples neighbours), C: Σx = 1.
+    let n = 7;
+    let mut a = Triplets::new(n, n);
+    for i in 0..n {
+        a.push(i, i, 1.5 + i as f64);
+        if i + 1 < n {
+            a.push(i, i + 1, -1.0);
+        }
+    }
+    let mut c = Triplets::new(1, n);
+    for j in 0..n {
+        c.push(0, j, 1.0);
+    }
+    let rows = |list: &[&[(usize, f64)]]| {
+        let mut t = Triplets::new(list.len(), n);
+        for (i, row) in list.iter().enumerate() {
+            for &(j, v) in *row {
+                t.push(i, j, v);
+            }
+        }
+        t
+    };
+    let (g_a, g_b, g_c): (&[_], &[_], &[_]) =
+        (&[(1, 1.0), (2, -2.0)], &[(3, 1.0)], &[(5, 1.0), (6, 0.5)]);
+    let (g_d, g_e): (&[_], &[_]) = (&[(0, 1.0), (1, 1.0)], &[(4, 2.0), (5, -1.0)]);
+    let (r_a, r_b): (&[_], &[_]) = (&[(4, 3.0)], &[(0, 0.5), (1, -0.5)]);
+    let b = [1.0, -1.0, 0.5, 2.0, -0.5, 0.25, 1.5];
+    let (d, lambda) = ([1.0], 0.2);
+
+    let mut ls = EqualityLeastSquares::new(&a, &c).unwrap();
+    ls.set_bordering(Bordering::Never);
+    let (g1, r1) = (rows(&[g_a, g_b, g_c]), rows(&[r_a]));
+    let first = ls
+        .solve_with_active(&a, &c, &b, &d, lambda, &g1, &r1)
+        .unwrap();
+    assert!(first.solution.converged && !first.bordered);
+
+    // g_a and g_c out, g_d and g_e in, g_b kept at another index, r_b added.
+    ls.set_bordering(Bordering::Always);
+    let (g2, r2) = (rows(&[g_d, g_b, g_e]), rows(&[r_a, r_b]));
+    let sol = ls
+        .solve_with_active(&a, &c, &b, &d, lambda, &g2, &r2)
+        .unwrap();
+    assert!(sol.bordered, "{sol:?}");
+    assert!(sol.solution.converged, "{sol:?}");
+    assert!(sol.solution.refinement_steps <= 3, "{sol:?}");
+    let z = dense_kkt(&a, &c, &g2, &r2, &b, &d, lambda);
+    for i in 0..n {
+        assert!(
+            (sol.solution.x[i] - z[i]).abs() < 1e-12,
+            "x{i} = {} vs {}",
+            sol.solution.x[i],
+            z[i]
+        );
+    }
+    for j in 0..3 {
+        assert!(
+            (sol.multipliers[j] + z[n + 1 + j]).abs() < 1e-10,
+            "multiplier {j}: {} vs {}",
+            sol.multipliers[j],
+            -z[n + 1 + j]
+        );
+    }
+
+    // Only rows taken out (the factor still holds g_a, g_b, g_c): g_b alone.
+    let g3 = rows(&[g_b]);
+    let fewer = ls
+        .solve_with_active(&a, &c, &b, &d, lambda, &g3, &r1)
+        .unwrap();
+    assert!(fewer.bordered && fewer.solution.converged, "{fewer:?}");
+    let z = dense_kkt(&a, &c, &g3, &r1, &b, &d, lambda);
+    for i in 0..n {
+        assert!((fewer.solution.x[i] - z[i]).abs() < 1e-12, "x{i}");
+    }
+    assert!((fewer.multipliers[0] + z[n + 1]).abs() < 1e-10);
+
+    // A spring taken out is never bordered (it could be of any stiffness).
+    let no_spring = ls
+        .solve_with_active(&a, &c, &b, &d, lambda, &g1, &Triplets::new(0, n))
+        .unwrap();
+    assert!(!no_spring.bordered && no_spring.solution.converged);
+}
+
 /// Rows and equalities together, against a dense KKT solve.
 #[test]
 fn active_rows_with_equalities_match_a_dense_solve() {

@@ -14,8 +14,9 @@
 //! the projection, a spring across the sliding direction), or the apex (open,
 //! f_c = 0) — and solves the equality-constrained least squares with those rows
 //! by [`EqualityLeastSquares`] on its *fixed* symbolic analysis: one numeric
-//! factorisation per iteration. That solve is the Newton step of the fixed-point
-//! equations; the step is halved until their residual decreases.
+//! factorisation per iteration, or, when few rows changed since the last one,
+//! those rows bordered around it. That solve is the Newton step of the
+//! fixed-point equations; the step is halved until their residual decreases.
 //!
 //! Started from the unconstrained answer it settles in a handful of solves.
 //! Convergence is declared only when every contact meets its fixed-point
@@ -73,7 +74,7 @@ pub struct ActiveSetSolution {
     pub x: Vec<f64>,
     /// True when the KKT conditions hold to the tolerance: x is the optimum.
     pub converged: bool,
-    /// Linear solves done (numeric factorisations).
+    /// Linear solves done (numeric factorisations or borders).
     pub iterations: usize,
     /// Contacts on their friction limit and open contacts at the end.
     pub sliding: usize,
@@ -106,8 +107,8 @@ pub struct ActiveSetStep {
     pub residual: f64,
     /// Wall-clock time of the linear solve (factorisation and refinement) [s].
     pub seconds: f64,
-    /// The rows were bordered around the unconstrained factor (no new
-    /// factorisation).
+    /// The rows that changed since the last factorisation were bordered
+    /// around it (no new factorisation).
     pub bordered: bool,
 }
 

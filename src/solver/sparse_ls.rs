@@ -87,18 +87,22 @@ impl Ordering {
     }
 }
 
-/// How [`EqualityLeastSquares::solve_with_active`] takes few active rows on a
-/// factor of the base KKT (the same answer either way, to the refinement
+/// How [`EqualityLeastSquares::solve_with_active`] takes active rows that
+/// differ by a few from those of the kept factor (of the same A, C and λ):
+/// rows added and rows no longer active are bordered around it, or a new
+/// factor holds them all (the same answer either way, to the refinement
 /// tolerance).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Bordering {
-    /// Border them (k extra triangular solves) when k solves took less than
-    /// the numeric factorisation did, else factorise anew.
+    /// Border the k changed rows (k right-hand sides solved together) when
+    /// that is estimated to take less than the numeric factorisation did,
+    /// else factorise anew.
     #[default]
     Auto,
     /// Always a new numeric factorisation with the rows as penalties.
     Never,
-    /// Border whenever the base factor is at hand (at most 64 rows).
+    /// Border whenever a factor of the same values is at hand (at most 64
+    /// changed rows, no spring taken out).
     Always,
 }
 
@@ -133,8 +137,8 @@ pub struct ActiveLsSolution {
     /// G_i x ≥ 0: at a constrained optimum ∇(½‖Ax − b‖² + ½λ²‖x‖²) = Cᵀν + Gᵀy,
     /// and y_i > 0 means the row really holds the solution back.
     pub multipliers: Vec<f64>,
-    /// The active rows were bordered around the kept factor of the problem
-    /// without them (no new numeric factorisation), see [`Bordering`].
+    /// The active rows that changed since the kept factor were bordered
+    /// around it (no new numeric factorisation), see [`Bordering`].
     pub bordered: bool,
 }
 
@@ -188,10 +192,11 @@ struct Numeric {
     lambda2_s2: Vec<f64>,
     /// ‖row i of T C S‖∞, for the round-off-level rows of the primal residual.
     c_row_max: Vec<f64>,
+    /// The rows and springs of the current solve.
     active: ActiveRows,
-    /// The active rows and springs are inside the factor (as penalties); when
-    /// false the factor is the base KKT and they are bordered around it.
-    factor_has_active: bool,
+    /// The rows (as penalties ĝᵀĝ/δ) and springs inside the factor; the
+    /// current ones may differ from them by a few rows bordered around it.
+    in_factor: ActiveRows,
     l_values: Vec<f64>,
     /// Time of the numeric factorisation and of one triangular solve [s]:
     /// a bordered solve of k extra rows costs ~k solves, a new factor one
@@ -211,7 +216,9 @@ impl Numeric {
 
 /// Homogeneous equalities G x = 0 eliminated by a penalty inside the KKT
 /// pattern (each row may only couple unknowns that already share a row of A),
-/// so changing them needs a new numeric factorisation but no new analysis.
+/// so changing them needs a new numeric factorisation (or a border) but no
+/// new analysis.
+#[derive(Clone)]
 struct ActiveRows {
     pattern: (usize, Vec<usize>, Vec<usize>),
     vals: Vec<f64>,
@@ -268,6 +275,65 @@ impl ActiveRows {
 
     fn len(&self) -> usize {
         self.pattern.0
+    }
+
+    /// Row i of G (`springs`: of R) as a key: its sorted columns and the bits
+    /// of its values.
+    fn key(&self, springs: bool, i: usize) -> Vec<(usize, u64)> {
+        let m = if springs { &self.springs } else { &self.csr };
+        m.range(i).map(|q| (m.idx[q], m.val[q].to_bits())).collect()
+    }
+}
+
+/// How the current rows differ from those inside the factor.
+struct Changes {
+    /// Per current row: it is inside the factor (same entries).
+    kept: Vec<bool>,
+    /// Current rows and springs not in the factor.
+    added: Vec<usize>,
+    added_springs: Vec<usize>,
+    /// Rows and springs of the factor no longer current.
+    removed: Vec<usize>,
+    removed_springs: Vec<usize>,
+}
+
+impl Changes {
+    fn between(in_factor: &ActiveRows, current: &ActiveRows) -> Self {
+        let diff = |springs: bool, old_len: usize, new_len: usize| {
+            let mut old: std::collections::HashMap<Vec<(usize, u64)>, Vec<usize>> =
+                std::collections::HashMap::with_capacity(old_len);
+            for i in 0..old_len {
+                old.entry(in_factor.key(springs, i)).or_default().push(i);
+            }
+            let mut kept = vec![false; new_len];
+            let mut added = Vec::new();
+            for (i, kept_i) in kept.iter_mut().enumerate() {
+                match old.get_mut(&current.key(springs, i)).and_then(|v| v.pop()) {
+                    Some(_) => *kept_i = true,
+                    None => added.push(i),
+                }
+            }
+            let mut removed: Vec<usize> = old.into_values().flatten().collect();
+            removed.sort_unstable();
+            (kept, added, removed)
+        };
+        let (kept, added, removed) = diff(false, in_factor.len(), current.len());
+        let (_, added_springs, removed_springs) =
+            diff(true, in_factor.springs.nmajor, current.springs.nmajor);
+        Changes {
+            kept,
+            added,
+            added_springs,
+            removed,
+            removed_springs,
+        }
+    }
+
+    fn count(&self) -> usize {
+        self.added.len()
+            + self.added_springs.len()
+            + self.removed.len()
+            + self.removed_springs.len()
     }
 }
 
@@ -440,8 +506,10 @@ impl EqualityLeastSquares {
     /// the extra term ‖R x‖² (`springs`) in the objective.
     /// Each row of G may only couple unknowns that share a row of A (a contact's
     /// own unknowns do): G enters the factorisation as a penalty GᵀG/δ on the
-    /// analysed pattern, and iterative refinement then solves the exact
-    /// augmented system `[[AᵀA + λ²I, Cᵀ, Gᵀ], [C, 0, 0], [G, 0, 0]]`.
+    /// analysed pattern (rows that changed since the kept factor may instead
+    /// be bordered around it, see [`Bordering`]), and iterative refinement
+    /// then solves the exact augmented system
+    /// `[[AᵀA + λ²I, Cᵀ, Gᵀ], [C, 0, 0], [G, 0, 0]]`.
     #[allow(clippy::too_many_arguments)]
     pub fn solve_with_active(
         &mut self,
@@ -576,7 +644,11 @@ impl EqualityLeastSquares {
         })
     }
 
-    /// One factorisation with static regularisation δ, first solve, refinement.
+    /// One factorisation with static regularisation δ (or a border of the
+    /// kept one), first solve, refinement. A border that does not refine to
+    /// [`CONVERGED_TOL`] is replaced by a factorisation: taking a row out
+    /// cancels its penalty ĝᵀĝ/δ, which could cost the accuracy refinement
+    /// needs.
     #[allow(clippy::too_many_arguments)]
     fn attempt(
         &mut self,
@@ -589,38 +661,72 @@ impl EqualityLeastSquares {
         g: &Triplets,
         springs: &Triplets,
     ) -> Result<Attempt> {
+        match self.attempt_on(a, c, b, d, lambda, delta, g, springs, true) {
+            Ok(att) if !att.bordered || att.rho() <= CONVERGED_TOL => Ok(att),
+            Ok(_) | Err(Error::Solver(_)) => {
+                self.attempt_on(a, c, b, d, lambda, delta, g, springs, false)
+            }
+            Err(e) => Err(e),
+        }
+    }
+
+    /// [`attempt`](Self::attempt), bordering the changed rows only when
+    /// `may_border`.
+    #[allow(clippy::too_many_arguments)]
+    fn attempt_on(
+        &mut self,
+        a: &Triplets,
+        c: &Triplets,
+        b: &[f64],
+        d: &[f64],
+        lambda: f64,
+        delta: f64,
+        g: &Triplets,
+        springs: &Triplets,
+        may_border: bool,
+    ) -> Result<Attempt> {
         let n = self.n;
-        // Few active rows on a factor of the base KKT (the unconstrained
-        // least squares just solved): border them around it — k triangular
-        // solves — instead of a new numeric factorisation, when k solves cost
-        // less than the factorisation did.
-        let k = g.nrows + springs.nrows;
+        // On a factor of the same A, C, λ and δ, the rows that changed since
+        // it was computed (rows added, rows it holds that are no longer
+        // active) are bordered around it — k triangular solves — instead of a
+        // new numeric factorisation, when k solves cost less than the
+        // factorisation did.
         let size_all = n + c.nrows;
-        let border = k > 0
-            && k <= BORDER_MAX_ROWS
-            && k * size_all <= BORDER_MAX_ENTRIES
-            && self.numeric.as_ref().is_some_and(|num| {
-                num.same_values(a, c, lambda, delta)
-                    && !num.factor_has_active
+        let mut changes = None;
+        if let Some(num) = self.numeric.as_mut() {
+            if num.same_values(a, c, lambda, delta) {
+                if !num.active.same(g, springs) {
+                    num.active = ActiveRows::new(n, g, springs, &num.col_scale);
+                }
+                let diff = Changes::between(&num.in_factor, &num.active);
+                let k = diff.count();
+                // Removing a spring would subtract a stiffness of any size.
+                let border = may_border
+                    && k > 0
+                    && k <= BORDER_MAX_ROWS
+                    && k * size_all <= BORDER_MAX_ENTRIES
+                    && diff.removed_springs.is_empty()
                     && match self.bordering {
-                        Bordering::Auto => k as f64 * num.solve_seconds < num.factor_seconds,
+                        Bordering::Auto => {
+                            border_seconds(k, num.solve_seconds) < num.factor_seconds
+                        }
                         Bordering::Never => false,
                         Bordering::Always => true,
-                    }
-            });
-        let base_kept = k == 0
-            && self
-                .numeric
-                .as_ref()
-                .is_some_and(|num| num.same_values(a, c, lambda, delta) && !num.factor_has_active);
-        if border || base_kept {
-            let num = self.numeric.as_mut().expect("checked above");
-            if !num.active.same(g, springs) {
-                num.active = ActiveRows::new(n, g, springs, &num.col_scale);
+                    };
+                if k == 0 || border {
+                    changes = Some(diff);
+                }
             }
-        } else {
-            self.factorise(a, c, lambda, delta, g, springs)?;
         }
+        let changes = match changes {
+            Some(changes) => changes,
+            None => {
+                self.factorise(a, c, lambda, delta, g, springs)?;
+                let num = self.numeric.as_ref().expect("factorised above");
+                Changes::between(&num.in_factor, &num.active)
+            }
+        };
+        let border = changes.count() > 0;
         let num = self.numeric.as_ref().expect("factorised above");
         let symbolic = self
             .symbolic
@@ -635,34 +741,40 @@ impl EqualityLeastSquares {
                     "out of memory for the {size}-row KKT solve workspace"
                 ))
             })?;
-        let ones_g = vec![1.0; mg];
         let bordered = if border {
-            Some(Bordered::new(num, &ldlt, size, delta, self.par)?)
+            let s = &num.col_scale;
+            let columns = (changes.added.iter())
+                .map(|&i| (scaled_row(&num.active, false, i, s), delta))
+                .chain(
+                    (changes.added_springs.iter())
+                        .map(|&i| (scaled_row(&num.active, true, i, s), 1.0)),
+                )
+                .chain(
+                    (changes.removed.iter())
+                        .map(|&i| (scaled_row(&num.in_factor, false, i, s), -delta)),
+                )
+                .collect();
+            Some(Bordered::new(columns, &ldlt, size, self.par)?)
         } else {
             None
         };
-        // Solves the regularised augmented system in place: the G block is
-        // eliminated through the penalty the factor already holds, or
-        // bordered around a factor of the base KKT.
+        let kept: Vec<f64> = changes
+            .kept
+            .iter()
+            .map(|&k| if k { 1.0 } else { 0.0 })
+            .collect();
+        let any_kept = changes.kept.iter().any(|&k| k);
+        let mut border_rhs = vec![0.0; changes.count()];
+        // Solves the regularised augmented system in place: the active rows
+        // the factor holds are eliminated through their penalty, the others
+        // bordered around it.
         let mut kkt_solve = |rhs: &mut [f64]| {
             let (head, r3) = rhs.split_at_mut(size);
-            if let Some(bordered) = &bordered {
-                ldlt.solve_in_place_with_conj(
-                    Conj::No,
-                    MatMut::from_column_major_slice_mut(head, size, 1),
-                    self.par,
-                    MemStack::new(&mut stack_buf),
-                );
-                bordered.correct(head, r3);
-                return;
-            }
-            if mg > 0 {
-                let shifted: Vec<f64> = r3
-                    .iter()
-                    .zip(&num.active.row_scale)
+            if any_kept {
+                let shifted: Vec<f64> = (r3.iter().zip(&num.active.row_scale))
                     .map(|(r, t)| r * t / delta)
                     .collect();
-                let lift = mul_t_scaled(&num.active.csr, &ones_g, &num.col_scale, &shifted, n);
+                let lift = mul_t_scaled(&num.active.csr, &kept, &num.col_scale, &shifted, n);
                 for (h, l) in head.iter_mut().zip(&lift) {
                     *h += l;
                 }
@@ -673,15 +785,26 @@ impl EqualityLeastSquares {
                 self.par,
                 MemStack::new(&mut stack_buf),
             );
-            if mg > 0 {
+            if let Some(bordered) = &bordered {
+                for (slot, &i) in border_rhs.iter_mut().zip(&changes.added) {
+                    *slot = r3[i];
+                }
+                let t = bordered.correct(head, &border_rhs);
+                for (&i, ti) in changes.added.iter().zip(t.iter()) {
+                    r3[i] = *ti;
+                }
+            }
+            if any_kept {
                 let gy = mul_scaled(
                     &num.active.csr,
                     &num.active.row_scale,
                     &num.col_scale,
                     &head[..n],
                 );
-                for (r, gyi) in r3.iter_mut().zip(&gy) {
-                    *r = (gyi - *r) / delta;
+                for ((r, gyi), &k) in r3.iter_mut().zip(&gy).zip(&changes.kept) {
+                    if k {
+                        *r = (gyi - *r) / delta;
+                    }
                 }
             }
         };
@@ -738,8 +861,8 @@ impl EqualityLeastSquares {
             .zip(&num.active.row_scale)
             .map(|(w, t)| -w * t)
             .collect();
-        if !border && mg + num.active.springs.nmajor == 0 {
-            // A plain solve on the base factor: what each bordered row costs.
+        if !border {
+            // A plain solve on the factor: what each bordered row costs.
             if let Some(num) = self.numeric.as_mut() {
                 num.solve_seconds = first_solve_seconds;
             }
@@ -812,10 +935,7 @@ impl EqualityLeastSquares {
         springs: &Triplets,
     ) -> Result<()> {
         if let Some(num) = &self.numeric {
-            if num.same_values(a, c, lambda, delta)
-                && num.active.same(g, springs)
-                && num.factor_has_active == (g.nrows + springs.nrows > 0)
-            {
+            if num.same_values(a, c, lambda, delta) && num.in_factor.same(g, springs) {
                 return Ok(());
             }
         }
@@ -962,7 +1082,7 @@ impl EqualityLeastSquares {
             c_row_scale,
             lambda2_s2,
             c_row_max,
-            factor_has_active: active.len() + active.springs.nmajor > 0,
+            in_factor: active.clone(),
             active,
             l_values,
             factor_seconds: clock.elapsed().as_secs_f64(),
@@ -1068,18 +1188,27 @@ impl EqualityLeastSquares {
     }
 }
 
+/// Estimated time of a border of k rows, from that of one solve on the
+/// factor: k right-hand sides solved together cost (measured, 2D 10⁵, one
+/// solve 0.12 s) 2.2 solves for 8, 3.5 for 16, 6.3 for 32, 13 for 64.
+fn border_seconds(k: usize, solve_seconds: f64) -> f64 {
+    (1.0 + k as f64 / 4.0) * solve_seconds
+}
+
 /// At most this many active rows + springs are bordered around the base
 /// factor (beyond, a new factorisation is cheaper on any measured size).
 const BORDER_MAX_ROWS: usize = 64;
 /// … and the dense block F⁻¹B they need stays under 64 M entries (512 MB).
 const BORDER_MAX_ENTRIES: usize = 64 << 20;
 
-/// The bordered system `[[F, B], [Bᵀ, −D]]` around a factor F of the base KKT:
-/// B's columns are the scaled active rows (D = δ, the regularisation the
-/// penalty route uses) and the springs (D = 1, so that they add BᵀB to the
-/// Hessian block). Holds Y = F⁻¹B and the LU of the Schur complement BᵀY + D.
+/// The bordered system `[[F, B], [Bᵀ, −D]]` around the kept factor F: B's
+/// columns are the scaled active rows added since F (D = δ, the base
+/// regularisation), the springs added (D = 1, so that they add BᵀB to the
+/// Hessian block) and the rows F holds that are no longer active
+/// (D = −δ: eliminating them subtracts the penalty ĝᵀĝ/δ that F
+/// holds). Holds Y = F⁻¹B and the LU of the Schur complement BᵀY + D.
 struct Bordered {
-    /// B's columns (sparse): the active rows, then the springs.
+    /// B's columns (sparse).
     columns: Vec<Vec<(usize, f64)>>,
     /// Y = F⁻¹ B, column-major, size × k.
     y: Vec<f64>,
@@ -1088,22 +1217,24 @@ struct Bordered {
 }
 
 impl Bordered {
+    /// `columns`: the entries of each column of B with its D.
     fn new(
-        num: &Numeric,
+        columns: Vec<(Vec<(usize, f64)>, f64)>,
         ldlt: &LdltRef<'_, usize, f64>,
         size: usize,
-        delta: f64,
         par: Par,
     ) -> Result<Self> {
-        let mg = num.active.len();
-        let k = mg + num.active.springs.nmajor;
-        let columns: Vec<Vec<(usize, f64)>> = (0..k).map(|col| Self::column(num, col)).collect();
+        let k = columns.len();
         let mut y = vec![0.0; size * k];
-        for (col, entries) in columns.iter().enumerate() {
+        for (col, (entries, _)) in columns.iter().enumerate() {
             for &(j, v) in entries {
                 y[col * size + j] = v;
             }
         }
+        // faer's parallel solve of several right-hand sides is ~30× slower
+        // than its sequential one (2D 10⁵, 2 threads: 8 columns 3.3–4.1 s
+        // against 0.26 s), while one column takes the same time either way.
+        let par = if k > 1 { Par::Seq } else { par };
         let mut stack_buf =
             MemBuffer::try_new(ldlt.symbolic().solve_in_place_scratch::<f64>(k, par))
                 .map_err(|_| Error::Solver(format!("out of memory for {k} bordered solves")))?;
@@ -1114,13 +1245,13 @@ impl Bordered {
             MemStack::new(&mut stack_buf),
         );
         let mut m = nalgebra::DMatrix::<f64>::zeros(k, k);
-        for (i, entries) in columns.iter().enumerate() {
+        for (i, (entries, d)) in columns.iter().enumerate() {
             for &(q, b) in entries {
                 for j in 0..k {
                     m[(i, j)] += b * y[j * size + q];
                 }
             }
-            m[(i, i)] += if i < mg { delta } else { 1.0 };
+            m[(i, i)] += d;
         }
         if m.iter().any(|v| !v.is_finite()) {
             return Err(Error::Solver(
@@ -1128,42 +1259,22 @@ impl Bordered {
             ));
         }
         Ok(Bordered {
-            columns,
+            columns: columns.into_iter().map(|(entries, _)| entries).collect(),
             y,
             size,
             schur: m.lu(),
         })
     }
 
-    /// Entries of column `col` of B: an active row (scaled like the penalty
-    /// route) or a spring row.
-    fn column(num: &Numeric, col: usize) -> Vec<(usize, f64)> {
-        let mg = num.active.len();
-        let s = &num.col_scale;
-        if col < mg {
-            let t = num.active.row_scale[col];
-            let g = &num.active.csr;
-            g.range(col)
-                .map(|q| (g.idx[q], g.val[q] * s[g.idx[q]] * t))
-                .collect()
-        } else {
-            let r = &num.active.springs;
-            r.range(col - mg)
-                .map(|q| (r.idx[q], r.val[q] * s[r.idx[q]]))
-                .collect()
-        }
-    }
-
-    /// Given head = F⁻¹(rhs head) and the active rows' right-hand side r3,
+    /// Given head = F⁻¹(rhs head) and the border's right-hand side r,
     /// completes the bordered solve in place: t = (BᵀY + D)⁻¹(Bᵀ head − r),
-    /// head −= Y t, r3 = t of the active rows.
-    fn correct(&self, head: &mut [f64], r3: &mut [f64]) {
-        let mg = r3.len();
+    /// head −= Y t; returns t.
+    fn correct(&self, head: &mut [f64], r: &[f64]) -> nalgebra::DVector<f64> {
         let k = self.columns.len();
         let mut u = nalgebra::DVector::<f64>::zeros(k);
         for (i, entries) in self.columns.iter().enumerate() {
             let bz: f64 = entries.iter().map(|&(q, b)| b * head[q]).sum();
-            u[i] = bz - if i < mg { r3[i] } else { 0.0 };
+            u[i] = bz - r[i];
         }
         let t = self
             .schur
@@ -1175,8 +1286,21 @@ impl Bordered {
                 *h -= yv * tj;
             }
         }
-        r3.copy_from_slice(&t.as_slice()[..mg]);
+        t
     }
+}
+
+/// Entries of row i of T G S (`springs`: of R S, unit row scale), a column
+/// of a border.
+fn scaled_row(rows: &ActiveRows, springs: bool, i: usize, col_scale: &[f64]) -> Vec<(usize, f64)> {
+    let (m, t) = if springs {
+        (&rows.springs, 1.0)
+    } else {
+        (&rows.csr, rows.row_scale[i])
+    };
+    m.range(i)
+        .map(|q| (m.idx[q], m.val[q] * col_scale[m.idx[q]] * t))
+        .collect()
 }
 
 /// Ordering and symbolic Cholesky of the upper KKT pattern (None when empty).
