@@ -199,11 +199,15 @@ fn whittaker_lambda(cutoff: f64) -> f64 {
     1.0 / s.powi(6)
 }
 
+/// Relative KKT residual a Whittaker fit must reach.
+const WHITTAKER_KKT_TOL: f64 = 1e-8;
+
 /// Positions x̂ minimising Σ (x̂ − x)² + λ Σ (Δ³x̂)², with the second
-/// difference held at a·dt² where the acceleration a is known (a stiff
-/// penalty, then refinement against it). Coordinates are taken relative to
-/// the first sample and scaled to order one, so offsets and units don't
-/// matter; the result is in the samples' coordinates.
+/// difference equal to a·dt² where the acceleration a is known: an
+/// equality-constrained least squares (exact holds, so no penalty weight to
+/// fight λ, which spans 0.3 … 1e9 over the cut-off range). Coordinates are
+/// taken relative to the first sample and scaled to order one, so offsets
+/// and units don't matter; the result is in the samples' coordinates.
 fn whittaker_fit(
     samples: &[Vec3],
     dt: f64,
@@ -214,111 +218,83 @@ fn whittaker_fit(
     if n < 4 {
         return Ok(samples.to_vec());
     }
-    let lambda = whittaker_lambda(cutoff);
     let origin = samples[0];
     let scale = samples
         .iter()
         .flat_map(|p| (0..3).map(move |k| (p[k] - origin[k]).abs()))
         .fold(0.0f64, f64::max);
     let scale = if scale > 0.0 { scale } else { 1.0 };
-    // The hold's weight: far above the data's and the roughness's.
-    let hold = 1e8 * (1.0 + lambda);
-    // Second-difference rows held: (centre, target per axis), the end
-    // samples on the nearest interior stencil as `finite_difference` does.
-    let held: Vec<(usize, Vec3)> = known
-        .iter()
-        .enumerate()
-        .filter_map(|(i, a)| {
-            a.map(|a| {
-                let c = i.clamp(1, n - 2);
-                (c, a.map(|v| v * dt * dt / scale))
-            })
-        })
-        .collect();
-    // Banded upper triangle: band[j][d] = H[j − d][j], d = 0..=3.
-    let mut band = vec![[0.0f64; 4]; n];
-    for j in 0..n {
-        band[j][0] = 1.0;
-    }
-    let add_row = |band: &mut Vec<[f64; 4]>, first: usize, coef: &[f64], weight: f64| {
-        for (p, cp) in coef.iter().enumerate() {
-            for (q, cq) in coef.iter().enumerate().skip(p) {
-                band[first + q][q - p] += weight * cp * cq;
-            }
+    // Held second differences by centre (the ends on the nearest interior
+    // stencil, as `finite_difference` does); one row per centre.
+    let mut held: BTreeMap<usize, Vec3> = BTreeMap::new();
+    for (i, a) in known.iter().enumerate() {
+        if let Some(a) = a {
+            held.insert(i.clamp(1, n - 2), a.map(|v| v * dt * dt / scale));
         }
-    };
-    const D3: [f64; 4] = [-1.0, 3.0, -3.0, 1.0];
-    const D2: [f64; 3] = [1.0, -2.0, 1.0];
-    for i in 0..n - 3 {
-        add_row(&mut band, i, &D3, lambda);
     }
-    for &(c, _) in &held {
-        add_row(&mut band, c - 1, &D2, hold);
-    }
-    let mut col_ptr = vec![0usize];
-    let (mut row_idx, mut values) = (Vec::new(), Vec::new());
-    for j in 0..n {
-        for d in (0..=3.min(j)).rev() {
-            row_idx.push(j - d);
-            values.push(band[j][d]);
-        }
-        col_ptr.push(row_idx.len());
-    }
-    let factor = crate::solver::sparse_ls::SpdFactor::new(
-        n,
-        &col_ptr,
-        &row_idx,
-        &values,
-        crate::solver::sparse_ls::Ordering::Amd,
-        0.0,
-    )?;
-    // Right-hand side per axis (column-major n × 3).
-    let mut rhs = vec![0.0; 3 * n];
+    let mut smoother = Whittaker::new(n, cutoff, held.keys().copied())?;
+    let mut out = samples.to_vec();
     for k in 0..3 {
+        let data: Vec<f64> = samples.iter().map(|p| (p[k] - origin[k]) / scale).collect();
+        let targets: Vec<f64> = held.values().map(|t| t[k]).collect();
+        for (o, x) in out.iter_mut().zip(smoother.smooth(&data, &targets)?) {
+            o[k] = origin[k] + scale * x;
+        }
+    }
+    Ok(out)
+}
+
+/// The Whittaker smoother of one track length and set of held centres,
+/// analysed once and applied to any number of series.
+struct Whittaker {
+    fit: crate::solver::Triplets,
+    hold: crate::solver::Triplets,
+    ls: crate::solver::sparse_ls::EqualityLeastSquares,
+}
+
+impl Whittaker {
+    /// Rows [I; √λ Δ³] and, per held centre c, x[c−1] − 2x[c] + x[c+1]
+    /// (centres in 1..n−1, distinct); n ≥ 4.
+    fn new(n: usize, cutoff: f64, centres: impl Iterator<Item = usize>) -> Result<Self> {
+        use crate::solver::{sparse_ls::EqualityLeastSquares, Triplets};
+        let root_lambda = whittaker_lambda(cutoff).sqrt();
+        let mut fit = Triplets::new(2 * n - 3, n);
         for i in 0..n {
-            rhs[k * n + i] = (samples[i][k] - origin[k]) / scale;
+            fit.push(i, i, 1.0);
         }
-        for &(c, target) in &held {
-            for (o, coef) in D2.iter().enumerate() {
-                rhs[k * n + c - 1 + o] += hold * coef * target[k];
-            }
-        }
-    }
-    // H·x from the operators, for the refinement.
-    let apply = |x: &[f64]| -> Vec<f64> {
-        let mut y = x.to_vec();
         for i in 0..n - 3 {
-            let r: f64 = (0..4).map(|o| D3[o] * x[i + o]).sum();
-            for o in 0..4 {
-                y[i + o] += lambda * D3[o] * r;
+            for (o, c) in [-1.0, 3.0, -3.0, 1.0].into_iter().enumerate() {
+                fit.push(n + i, i + o, root_lambda * c);
             }
         }
-        for &(c, _) in &held {
-            let r: f64 = (0..3).map(|o| D2[o] * x[c - 1 + o]).sum();
-            for o in 0..3 {
-                y[c - 1 + o] += hold * D2[o] * r;
+        let centres: Vec<usize> = centres.collect();
+        let mut hold = Triplets::new(centres.len(), n);
+        for (r, &c) in centres.iter().enumerate() {
+            for (o, v) in [1.0, -2.0, 1.0].into_iter().enumerate() {
+                hold.push(r, c - 1 + o, v);
             }
         }
-        y
-    };
-    let mut x = rhs.clone();
-    factor.solve_in_place(&mut x, 3)?;
-    for _ in 0..2 {
-        let mut r = vec![0.0; 3 * n];
-        for k in 0..3 {
-            let hx = apply(&x[k * n..(k + 1) * n]);
-            for i in 0..n {
-                r[k * n + i] = rhs[k * n + i] - hx[i];
-            }
-        }
-        factor.solve_in_place(&mut r, 3)?;
-        for (xi, ri) in x.iter_mut().zip(&r) {
-            *xi += ri;
-        }
+        let ls = EqualityLeastSquares::new(&fit, &hold)?;
+        Ok(Whittaker { fit, hold, ls })
     }
-    Ok((0..n)
-        .map(|i| std::array::from_fn(|k| origin[k] + scale * x[k * n + i]))
-        .collect())
+
+    /// The smoothed series of `data`, with the held second differences at `targets`.
+    fn smooth(&mut self, data: &[f64], targets: &[f64]) -> Result<Vec<f64>> {
+        let mut rhs = vec![0.0; self.fit.nrows];
+        rhs[..data.len()].copy_from_slice(data);
+        let solution = self.ls.solve(&self.fit, &self.hold, &rhs, targets, 0.0)?;
+        // Tracked positions are known to ~1e-4 of a track's extent at best,
+        // so 1e-8 is far below the data; λ ~ 1e9 (cut-off 0.01) stops near
+        // 3e-9, short of the solver's own 1e-10-level tolerance.
+        if !(solution.converged || solution.kkt_residual <= WHITTAKER_KKT_TOL) {
+            return Err(Error::Solver(format!(
+                "Whittaker fit of a {}-frame track did not converge (KKT residual {:e})",
+                data.len(),
+                solution.kkt_residual
+            )));
+        }
+        Ok(solution.x)
+    }
 }
 
 /// Standard deviation of the derived acceleration at each of `n` consecutive
@@ -326,18 +302,35 @@ fn whittaker_fit(
 /// and difference are linear, so it is the norm of each output's weights.
 /// It is largest at the ends of a track, where the filter has fewer neighbours.
 pub fn acceleration_noise_gain(n: usize, dt: f64, smoother: Smoother) -> Result<Vec<f64>> {
+    smoother.validate()?;
     // Samples out of the stencil's reach of both ends share one gain, so a
     // long track is computed on a short one (cost independent of n).
     let reach = smoother.reach() + 1;
     let short = n.min(2 * reach + 1);
     let mut sum_sq = vec![0.0; short];
+    // One analysis for all unit responses (holds play no part in the gain).
+    let mut whittaker = match smoother {
+        Smoother::Whittaker { cutoff } if short >= 4 => {
+            Some(Whittaker::new(short, cutoff, std::iter::empty())?)
+        }
+        _ => None,
+    };
     let mut unit = vec![[0.0; 3]; short];
     for j in 0..short {
         unit[j][0] = 1.0;
-        let response = differentiate(&unit, dt, smoother, 2, &[])?;
+        let response: Vec<f64> = match &mut whittaker {
+            Some(w) => {
+                let column: Vec<f64> = unit.iter().map(|u| u[0]).collect();
+                finite_difference(&w.smooth(&column, &[])?, dt, 2)
+            }
+            None => differentiate(&unit, dt, smoother, 2, &[])?
+                .iter()
+                .map(|r| r[0])
+                .collect(),
+        };
         unit[j][0] = 0.0;
         for (s, r) in sum_sq.iter_mut().zip(&response) {
-            *s += r[0] * r[0];
+            *s += r * r;
         }
     }
     Ok((0..n)
@@ -480,6 +473,7 @@ pub fn derive_accelerations(
         .collect();
     report.position_sd = estimate_position_sd(frames);
     let mut gain_sq = vec![(0.0, 0usize); frames.len()];
+    let mut gains: BTreeMap<usize, Vec<f64>> = BTreeMap::new();
     let mut accel: Vec<BTreeMap<String, Vec3>> = vec![BTreeMap::new(); frames.len()];
     for (id, track) in &all {
         if track.len() < frames.len() {
@@ -504,9 +498,15 @@ pub fn derive_accelerations(
                 })
                 .collect();
             let a = differentiate(&positions, dt, smoother, 2, &known)?;
-            let gain = acceleration_noise_gain(seg.len(), dt, smoother)?;
+            // Tracks of one length share their gain: computed once.
+            let gain = match gains.entry(seg.len()) {
+                std::collections::btree_map::Entry::Occupied(e) => e.into_mut(),
+                std::collections::btree_map::Entry::Vacant(e) => {
+                    e.insert(acceleration_noise_gain(seg.len(), dt, smoother)?)
+                }
+            };
             let holds = matches!(smoother, Smoother::Whittaker { .. });
-            for (((&(k, _), a), g), known) in seg.iter().zip(a).zip(gain).zip(&known) {
+            for (((&(k, _), a), &g), known) in seg.iter().zip(a).zip(gain.iter()).zip(&known) {
                 accel[k].insert(id.clone(), a);
                 // Held accelerations carry no noise, and such a grain has no
                 // contact to weigh in that frame.
