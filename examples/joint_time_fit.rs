@@ -16,88 +16,55 @@
 //! contact's force across frames, or the filtered accelerations kept as
 //! momentum rows beside per-grain impulse rows).
 
-use grainforce::dem::perturb::{perturb, PerturbConfig};
-use grainforce::dem::{simulate, DemConfig, Preset};
-use grainforce::infer::kinematics::{impulse_check, ImpulseOptions};
-use grainforce::report::metrics::relative_error;
+#[path = "support/impact_draws.rs"]
+mod impact_draws;
+
 use grainforce::scene::{Body, Scene, Vec3};
 use grainforce::solver::sparse_ls::EqualityLeastSquares;
 use grainforce::solver::Triplets;
+use impact_draws::{ImpactDraws, FPS};
 
 fn main() -> grainforce::Result<()> {
     let stress_sd: f64 = std::env::args()
         .nth(1)
         .and_then(|s| s.parse().ok())
         .unwrap_or(0.1);
-    let run = simulate(&DemConfig::preset(Preset::Impact, 2).seed(1))?;
-    let fps = 5000.0;
-    let dt = 1.0 / fps;
-    let gravity = run.frames[0].gravity();
-    let diameter = 2.0 * run.frames[0].grains[0].radius.unwrap();
-    let sigma_x = 1e-3 * diameter;
-    let options = ImpulseOptions::default();
-    let truth: Vec<Vec<Option<Vec3>>> = run
-        .forces
-        .iter()
-        .map(|f| f.iter().map(|&x| Some(x)).collect())
-        .collect();
-    let exact = impulse_check(&run.frames, &truth, fps, gravity, &options)?;
-    let (mut moving, mut vs_true, mut relerrs) = (Vec::new(), Vec::new(), Vec::new());
-    for seed in 1..=12 {
-        let config = PerturbConfig {
-            position_noise: sigma_x,
-            seed,
-            ..Default::default()
-        };
-        let noisy = perturb(&run.frames, &config)?;
-        let forces = joint_fit(&noisy, dt, sigma_x, stress_sd)?;
-        let t: Vec<Vec3> = run.forces.iter().flatten().copied().collect();
-        let f: Vec<Vec3> = forces
-            .iter()
-            .flatten()
-            .map(|x| x.unwrap_or([0.0; 3]))
-            .collect();
-        let e = relative_error(&t, &f);
-        relerrs.push(e);
-        let check = impulse_check(&noisy, &forces, fps, gravity, &options)?;
-        let mut line = format!("seed {seed:2}: relerr {e:.4};");
-        for (r, x) in check.rows.iter().zip(&exact.rows) {
-            let gap = (r.inferred[0] - x.measured[0]).hypot(r.inferred[1] - x.measured[1]);
-            let d = gap / x.measured[0].hypot(x.measured[1]);
-            line.push_str(&format!(
-                " {}{:.3}/{d:.3}",
-                if r.moves { "" } else { "~" },
-                r.disagreement
-            ));
-            if r.moves {
-                moving.push(r.disagreement);
-                vs_true.push(d);
-            }
-        }
-        println!("{line}");
-    }
-    let summary = |v: &mut Vec<f64>| {
-        v.sort_by(f64::total_cmp);
-        let within = v.iter().filter(|&&d| d <= 0.10).count();
-        format!(
-            "median {:.3}, worst {:.3}, {within}/{} within 10 %",
-            v[v.len() / 2],
-            v[v.len() - 1],
-            v.len()
-        )
-    };
-    relerrs.sort_by(f64::total_cmp);
-    println!(
-        "stress sd {stress_sd}: relerr {:.4}..{:.4}",
-        relerrs[0], relerrs[11]
-    );
-    println!("moving, vs measured Δv: {}", summary(&mut moving));
-    println!("moving, vs noise-free Δv: {}", summary(&mut vs_true));
+    let draws = ImpactDraws::new()?;
+    let sigma_x = draws.position_noise;
+    let tally = draws.tally(|noisy| {
+        let forces = joint_fit(&noisy, 1.0 / FPS, sigma_x, stress_sd)?;
+        Ok((noisy, forces))
+    })?;
+    tally.print(&format!("joint fit, stress sd {stress_sd}"));
     Ok(())
 }
 
-fn diameter_of(g: &grainforce::scene::Grain) -> f64 {
-    2.0 * g.radius.unwrap_or(1.0)
+/// Appends one row Σ v·x[col] = rhs to (t, rhs).
+fn push_row(t: &mut Triplets, rhs: &mut Vec<f64>, entries: &[(usize, f64)], value: f64) {
+    t.nrows += 1;
+    for &(col, v) in entries {
+        t.push(t.nrows - 1, col, v);
+    }
+    rhs.push(value);
+}
+
+/// Contacts touching grain `p` of `frame`: (index, sign of the force on p, arm r).
+fn arms(frame: &Scene, p: usize) -> impl Iterator<Item = (usize, f64, [f64; 2])> + '_ {
+    let x = frame.grains[p].position;
+    frame
+        .contacts
+        .iter()
+        .enumerate()
+        .filter_map(move |(i, ct)| {
+            let sign = if ct.a == p {
+                1.0
+            } else if ct.b == Body::Grain(p) {
+                -1.0
+            } else {
+                return None;
+            };
+            Some((i, sign, [ct.point[0] - x[0], ct.point[1] - x[1]]))
+        })
 }
 
 /// Least squares over all frames at once (2D, all grains tracked in every frame).
@@ -109,8 +76,9 @@ fn joint_fit(
 ) -> grainforce::Result<Vec<Vec<Option<Vec3>>>> {
     let nf = frames.len();
     let ng = frames[0].grains.len();
-    let (f0, l0) = (100.0, 1e-4); // force and length units
-                                  // Columns: forces (2 per contact per frame), then per grain per frame x(2), v(2).
+    // Force and length units.
+    let (f0, l0) = (100.0, 1e-4);
+    // Columns: forces (2 per contact per frame), then per grain per frame x(2), v·dt(2).
     let mut force_col = Vec::new();
     let mut ncols = 0;
     for f in frames {
@@ -120,146 +88,86 @@ fn joint_fit(
     let kin0 = ncols;
     let kin = |p: usize, k: usize| kin0 + 4 * (p * nf + k);
     ncols += 4 * ng * nf;
-    let mut a = Triplets::new(0, ncols);
-    let mut b = Vec::new();
-    let mut c = Triplets::new(0, ncols);
-    let mut d = Vec::new();
+    let (mut a, mut b) = (Triplets::new(0, ncols), Vec::new());
+    let (mut c, mut d) = (Triplets::new(0, ncols), Vec::new());
     let g = frames[0].gravity();
     let origin: Vec<Vec3> = frames[0].grains.iter().map(|g| g.position).collect();
-    // Net force on grain p in frame k as (column, coefficient) per axis.
-    let net = |k: usize, p: usize, axis: usize| -> Vec<(usize, f64)> {
-        let mut out = Vec::new();
-        for (i, ct) in frames[k].contacts.iter().enumerate() {
-            let col = force_col[k] + 2 * i + axis;
-            if ct.a == p {
-                out.push((col, 1.0));
-            }
-            if ct.b == Body::Grain(p) {
-                out.push((col, -1.0));
-            }
-        }
-        out
-    };
     let stress_scale = |frame: &Scene| {
-        (frame
+        let sum: f64 = frame
             .grains
             .iter()
             .map(|g| {
                 let s = g.stress;
                 (g.volume * g.volume) * (s[0] * s[0] + s[1] * s[1] + 2.0 * s[3] * s[3])
             })
-            .sum::<f64>()
-            / ng as f64)
-            .sqrt()
+            .sum();
+        (sum / ng as f64).sqrt()
     };
     let largest = frames.iter().map(stress_scale).fold(0.0, f64::max);
     for (k, frame) in frames.iter().enumerate() {
         // Stress rows, weighted by the frame's stress scale (floored: a frame
         // of zero stress is not exact).
-        let scale = stress_scale(frame).max(1e-3 * largest);
-        let w = 1.0 / (stress_sd * scale);
+        let w = 1.0 / (stress_sd * stress_scale(frame).max(1e-3 * largest));
         for (p, grain) in frame.grains.iter().enumerate() {
-            let target = [
-                grain.volume * grain.stress[0],
-                grain.volume * grain.stress[1],
-                grain.volume * grain.stress[3],
-            ];
             let mut rows: [Vec<(usize, f64)>; 3] = Default::default();
-            for (i, ct) in frame.contacts.iter().enumerate() {
-                let sign = if ct.a == p {
-                    1.0
-                } else if ct.b == Body::Grain(p) {
-                    -1.0
-                } else {
-                    continue;
-                };
-                let r = [
-                    ct.point[0] - grain.position[0],
-                    ct.point[1] - grain.position[1],
-                ];
+            // Torque (hard): Σ r × f = Iα, as the frame-by-frame inference has.
+            let mut torque = Vec::new();
+            let size = 2.0 * grain.radius.unwrap_or(1.0);
+            for (i, sign, r) in arms(frame, p) {
                 let (cx, cy) = (force_col[k] + 2 * i, force_col[k] + 2 * i + 1);
-                rows[0].push((cx, sign * r[0] * f0));
-                rows[1].push((cy, sign * r[1] * f0));
-                rows[2].push((cx, sign * 0.5 * r[1] * f0));
-                rows[2].push((cy, sign * 0.5 * r[0] * f0));
+                let v = sign * w * f0;
+                rows[0].push((cx, v * r[0]));
+                rows[1].push((cy, v * r[1]));
+                rows[2].extend([(cx, 0.5 * v * r[1]), (cy, 0.5 * v * r[0])]);
+                torque.extend([
+                    (cy, sign * r[0] * f0 / size),
+                    (cx, -sign * r[1] * f0 / size),
+                ]);
             }
-            for (row, t) in rows.iter().zip(target) {
-                let r = b.len();
-                for &(col, v) in row {
-                    a.push(r, col, w * v);
-                }
-                b.push(w * t);
+            for (row, s) in rows.iter().zip([0, 1, 3]) {
+                push_row(&mut a, &mut b, row, w * grain.volume * grain.stress[s]);
             }
-            a.nrows = b.len();
-        }
-        // Torque rows (hard): Σ r × f = I α, as the frame-by-frame inference has.
-        for (p, grain) in frame.grains.iter().enumerate() {
             let i_alpha = match (&grain.inertia, grain.angular_acceleration) {
                 (Some(grainforce::scene::Inertia::Scalar(i)), Some(al)) => i * al[2],
                 _ => 0.0,
             };
-            let r_row = d.len();
-            for (i, ct) in frame.contacts.iter().enumerate() {
-                let sign = if ct.a == p {
-                    1.0
-                } else if ct.b == Body::Grain(p) {
-                    -1.0
-                } else {
-                    continue;
-                };
-                let r = [
-                    ct.point[0] - grain.position[0],
-                    ct.point[1] - grain.position[1],
-                ];
-                c.nrows = r_row + 1;
-                c.push(
-                    r_row,
-                    force_col[k] + 2 * i + 1,
-                    sign * r[0] * f0 / diameter_of(grain),
-                );
-                c.push(
-                    r_row,
-                    force_col[k] + 2 * i,
-                    -sign * r[1] * f0 / diameter_of(grain),
-                );
-            }
-            d.push(i_alpha / diameter_of(grain));
-            c.nrows = d.len();
-        }
-        // Track rows: measured positions.
-        for (p, grain) in frame.grains.iter().enumerate() {
+            push_row(&mut c, &mut d, &torque, i_alpha / size);
+            // Track rows: measured positions.
             for axis in 0..2 {
-                let r = b.len();
-                a.push(r, kin(p, k) + axis, l0 / sigma_x);
-                b.push((grain.position[axis] - origin[p][axis]) / sigma_x);
-                a.nrows = b.len();
+                let value = (grain.position[axis] - origin[p][axis]) / sigma_x;
+                push_row(&mut a, &mut b, &[(kin(p, k) + axis, l0 / sigma_x)], value);
             }
         }
     }
     // Integrator: x' = x + v dt + dt²(a0/3 + a1/6), v' = v + dt(a0 + a1)/2, a = N/m + g.
     for p in 0..ng {
-        let m = frames[0].grains[p].mass.unwrap();
+        let Some(m) = frames[0].grains[p].mass else {
+            return Err(grainforce::Error::Invalid(format!(
+                "grain {} has no mass",
+                frames[0].grains[p].id
+            )));
+        };
+        // Net force on p in frame k, per axis: (column, ±1).
+        let net = |k: usize, axis: usize| -> Vec<(usize, f64)> {
+            arms(&frames[k], p)
+                .map(|(i, sign, _)| (force_col[k] + 2 * i + axis, sign))
+                .collect()
+        };
+        let h = dt * dt * f0 / m;
         for k in 0..nf - 1 {
             for axis in 0..2 {
-                let r = d.len();
-                c.push(r, kin(p, k + 1) + axis, l0);
-                c.push(r, kin(p, k) + axis, -l0);
-                c.push(r, kin(p, k) + 2 + axis, -l0); // v stored as v·dt
-                for &(col, s) in &net(k, p, axis) {
-                    c.push(r, col, -dt * dt * s * f0 / m / 3.0);
-                }
-                for &(col, s) in &net(k + 1, p, axis) {
-                    c.push(r, col, -dt * dt * s * f0 / m / 6.0);
-                }
-                d.push(dt * dt * g[axis] * 0.5);
-                let r = d.len();
-                c.push(r, kin(p, k + 1) + 2 + axis, l0);
-                c.push(r, kin(p, k) + 2 + axis, -l0);
-                for &(col, s) in net(k, p, axis).iter().chain(&net(k + 1, p, axis)) {
-                    c.push(r, col, -0.5 * dt * dt * s * f0 / m);
-                }
-                d.push(dt * dt * g[axis]);
-                c.nrows = d.len();
+                let (now, next) = (net(k, axis), net(k + 1, axis));
+                let mut x_row = vec![
+                    (kin(p, k + 1) + axis, l0),
+                    (kin(p, k) + axis, -l0),
+                    (kin(p, k) + 2 + axis, -l0),
+                ];
+                x_row.extend(now.iter().map(|&(col, s)| (col, -h * s / 3.0)));
+                x_row.extend(next.iter().map(|&(col, s)| (col, -h * s / 6.0)));
+                push_row(&mut c, &mut d, &x_row, dt * dt * g[axis] * 0.5);
+                let mut v_row = vec![(kin(p, k + 1) + 2 + axis, l0), (kin(p, k) + 2 + axis, -l0)];
+                v_row.extend(now.iter().chain(&next).map(|&(col, s)| (col, -0.5 * h * s)));
+                push_row(&mut c, &mut d, &v_row, dt * dt * g[axis]);
             }
         }
     }
@@ -277,11 +185,8 @@ fn joint_fit(
         .map(|(k, f)| {
             (0..f.contacts.len())
                 .map(|i| {
-                    Some([
-                        f0 * sol.x[force_col[k] + 2 * i],
-                        f0 * sol.x[force_col[k] + 2 * i + 1],
-                        0.0,
-                    ])
+                    let col = force_col[k] + 2 * i;
+                    Some([f0 * sol.x[col], f0 * sol.x[col + 1], 0.0])
                 })
                 .collect()
         })

@@ -91,11 +91,7 @@ fn impact_with_accelerations_from_noisy_tracks() {
     let gravity = run.frames[0].gravity();
     let diameter = 2.0 * run.frames[0].grains[0].radius.unwrap();
     let options = ImpulseOptions::default();
-    let true_forces: Vec<Vec<Option<Vec3>>> = run
-        .forces
-        .iter()
-        .map(|f| f.iter().map(|&x| Some(x)).collect())
-        .collect();
+    let true_forces = run.force_sets();
     // Exact tracks and forces: only the time integration of sampled forces differs.
     let exact = impulse_check(&run.frames, &true_forces, fps, gravity, &options).unwrap();
     assert_eq!(exact.rows.len(), 6);

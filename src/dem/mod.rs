@@ -419,6 +419,16 @@ pub struct DemRun {
     pub report: GateReport,
 }
 
+impl DemRun {
+    /// The true forces in the shape inference returns them (every contact known).
+    pub fn force_sets(&self) -> Vec<Vec<Option<Vec3>>> {
+        self.forces
+            .iter()
+            .map(|f| f.iter().map(|&x| Some(x)).collect())
+            .collect()
+    }
+}
+
 /// Runs the configured preset.
 pub fn simulate(config: &DemConfig) -> Result<DemRun> {
     config.validate()?;
