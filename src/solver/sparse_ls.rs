@@ -735,12 +735,9 @@ impl EqualityLeastSquares {
         let ldlt = LdltRef::<usize, f64>::new(symbolic, &num.l_values);
         let size = symbolic.nrows();
         let mg = num.active.len();
-        let mut stack_buf = MemBuffer::try_new(symbolic.solve_in_place_scratch::<f64>(1, self.par))
-            .map_err(|_| {
-                Error::Solver(format!(
-                    "out of memory for the {size}-row KKT solve workspace"
-                ))
-            })?;
+        let mut stack_buf = workspace(symbolic.solve_in_place_scratch::<f64>(1, self.par), || {
+            format!("the {size}-row KKT solve workspace")
+        })?;
         let bordered = if border {
             let s = &num.col_scale;
             let columns = (changes.added.iter())
@@ -1039,15 +1036,10 @@ impl EqualityLeastSquares {
             dynamic_regularization_epsilon: 1e-3 * delta,
         };
         let mut l_values = vec![0.0; symbolic.len_val()];
-        let mut stack_buf = MemBuffer::try_new(
+        let mut stack_buf = workspace(
             symbolic.factorize_numeric_ldlt_scratch::<f64>(self.par, Default::default()),
-        )
-        .map_err(|_| {
-            Error::Solver(format!(
-                "out of memory for the LDLᵀ workspace ({} factor entries)",
-                symbolic.len_val()
-            ))
-        })?;
+            || format!("the LDLᵀ workspace ({} factor entries)", symbolic.len_val()),
+        )?;
         let matrix = SparseColMatRef::new(
             SymbolicSparseColMatRef::new_checked(
                 size,
@@ -1231,13 +1223,11 @@ impl Bordered {
                 y[col * size + j] = v;
             }
         }
-        // faer's parallel solve of several right-hand sides is ~30× slower
-        // than its sequential one (2D 10⁵, 2 threads: 8 columns 3.3–4.1 s
-        // against 0.26 s), while one column takes the same time either way.
-        let par = if k > 1 { Par::Seq } else { par };
-        let mut stack_buf =
-            MemBuffer::try_new(ldlt.symbolic().solve_in_place_scratch::<f64>(k, par))
-                .map_err(|_| Error::Solver(format!("out of memory for {k} bordered solves")))?;
+        let par = solve_parallelism(par, k);
+        let mut stack_buf = workspace(
+            ldlt.symbolic().solve_in_place_scratch::<f64>(k, par),
+            || format!("{k} bordered solves"),
+        )?;
         ldlt.solve_in_place_with_conj(
             Conj::No,
             MatMut::from_column_major_slice_mut(&mut y, size, k),
@@ -1384,14 +1374,10 @@ impl SpdFactor {
             });
         };
         let mut l_values = vec![0.0; sym.len_val()];
-        let mut stack_buf =
-            MemBuffer::try_new(sym.factorize_numeric_llt_scratch::<f64>(par, Default::default()))
-                .map_err(|_| {
-                Error::Solver(format!(
-                    "out of memory for the LLᵀ workspace ({} factor entries)",
-                    sym.len_val()
-                ))
-            })?;
+        let mut stack_buf = workspace(
+            sym.factorize_numeric_llt_scratch::<f64>(par, Default::default()),
+            || format!("the LLᵀ workspace ({} factor entries)", sym.len_val()),
+        )?;
         let matrix = SparseColMatRef::new(
             SymbolicSparseColMatRef::new_checked(size, size, col_ptr, None, row_idx),
             values,
@@ -1433,15 +1419,38 @@ impl SpdFactor {
                 x.len()
             )));
         }
-        let mut stack_buf = MemBuffer::try_new(sym.solve_in_place_scratch::<f64>(ncols, self.par))
-            .map_err(|_| Error::Solver(format!("out of memory for {ncols} triangular solves")))?;
+        let par = solve_parallelism(self.par, ncols);
+        let mut stack_buf = workspace(sym.solve_in_place_scratch::<f64>(ncols, par), || {
+            format!("{ncols} triangular solves")
+        })?;
         LltRef::<usize, f64>::new(sym, &self.l_values).solve_in_place_with_conj(
             Conj::No,
             MatMut::from_column_major_slice_mut(x, size, ncols),
-            self.par,
+            par,
             MemStack::new(&mut stack_buf),
         );
         Ok(())
+    }
+}
+
+/// A faer scratch buffer, or a solver error naming what it was for.
+fn workspace(
+    request: faer::dyn_stack::StackReq,
+    what: impl FnOnce() -> String,
+) -> Result<MemBuffer> {
+    MemBuffer::try_new(request).map_err(|_| Error::Solver(format!("out of memory for {}", what())))
+}
+
+/// Parallelism of a triangular solve with `ncols` right-hand sides: faer's
+/// parallel solve of several columns is far slower than its sequential one
+/// (LDLᵀ, 2D 10⁵, 2 threads: 8 columns 3.3–4.1 s against 0.26 s; LLᵀ of a
+/// 360 000-row grid: 3.0 s against 0.042 s for one column), while one column
+/// costs the same either way.
+fn solve_parallelism(par: Par, ncols: usize) -> Par {
+    if ncols > 1 {
+        Par::Seq
+    } else {
+        par
     }
 }
 
