@@ -157,39 +157,33 @@ fn differentiate(
     deriv: usize,
     known: &[Option<Vec3>],
 ) -> Result<Vec<Vec3>> {
-    let n = samples.len();
-    if let Smoother::Whittaker { cutoff } = smoother {
-        let fitted = whittaker_fit(samples, dt, cutoff, known)?;
-        let mut out = vec![[0.0; 3]; n];
+    // Per axis, centred on the first sample: far from the origin, filtering
+    // raw coordinates would add rounding of the offset's size.
+    let per_axis = |points: &[Vec3], series: &dyn Fn(&[f64]) -> Vec<f64>| {
+        let mut out = vec![[0.0; 3]; points.len()];
         for k in 0..3 {
-            let x: Vec<f64> = fitted.iter().map(|p| p[k]).collect();
-            for (o, v) in out.iter_mut().zip(finite_difference(&x, dt, deriv)) {
+            let origin = points.first().map_or(0.0, |p| p[k]);
+            let x: Vec<f64> = points.iter().map(|p| p[k] - origin).collect();
+            for (o, v) in out.iter_mut().zip(series(&x)) {
                 o[k] = v;
             }
         }
-        return Ok(out);
-    }
-    let mut out = vec![[0.0; 3]; n];
-    for k in 0..3 {
-        // Centred on the first sample: far from the origin, filtering raw
-        // coordinates would add rounding of the offset's size.
-        let origin = samples.first().map_or(0.0, |p| p[k]);
-        let x: Vec<f64> = samples.iter().map(|p| p[k] - origin).collect();
-        let d = match smoother {
-            Smoother::Fir { order, cutoff } => {
-                let smoothed = fir_zero_phase(&x, order, cutoff);
-                finite_difference(&smoothed, dt, deriv)
-            }
-            Smoother::SavitzkyGolay { window, degree } => {
-                savitzky_golay(&x, dt, window, degree, deriv)
-            }
-            Smoother::Whittaker { .. } => unreachable!("handled above"),
-        };
-        for (o, v) in out.iter_mut().zip(d) {
-            o[k] = v;
+        out
+    };
+    Ok(match smoother {
+        Smoother::Fir { order, cutoff } => per_axis(samples, &|x| {
+            finite_difference(&fir_zero_phase(x, order, cutoff), dt, deriv)
+        }),
+        Smoother::SavitzkyGolay { window, degree } => {
+            per_axis(samples, &|x| savitzky_golay(x, dt, window, degree, deriv))
         }
-    }
-    Ok(out)
+        // The fit holds all three axes together (one analysis).
+        Smoother::Whittaker { cutoff } => {
+            per_axis(&whittaker_fit(samples, dt, cutoff, known)?, &|x| {
+                finite_difference(x, dt, deriv)
+            })
+        }
+    })
 }
 
 /// Roughness weight λ of the Whittaker smoother: its gain
