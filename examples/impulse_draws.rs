@@ -12,7 +12,7 @@ mod impact_draws;
 
 use grainforce::infer::kinematics::{derive_accelerations, weight_derived_momentum, Smoother};
 use grainforce::infer::{infer_frames, InferOptions, LambdaRule, Method};
-use impact_draws::{ImpactDraws, FPS};
+use impact_draws::ImpactDraws;
 
 fn main() -> grainforce::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -39,7 +39,7 @@ fn main() -> grainforce::Result<()> {
     };
     let draws = ImpactDraws::new()?;
     let tally = draws.tally(|mut noisy| {
-        let report = derive_accelerations(&mut noisy, FPS, smoother)?;
+        let report = derive_accelerations(&mut noisy, draws.fps, smoother)?;
         let mut per_frame = vec![base.clone(); noisy.len()];
         match relative {
             _ if knee => {

@@ -8,11 +8,11 @@ use grainforce::infer::kinematics::{impulse_check, ImpulseCheck, ImpulseOptions}
 use grainforce::report::metrics::relative_error;
 use grainforce::scene::{Scene, Vec3};
 
-pub const FPS: f64 = 5000.0;
 pub const DRAWS: u64 = 12;
 
 pub struct ImpactDraws {
     pub run: DemRun,
+    pub fps: f64,
     /// Position noise of every draw [m].
     pub position_noise: f64,
     exact: ImpulseCheck,
@@ -30,17 +30,25 @@ pub struct Tally {
 
 impl ImpactDraws {
     pub fn new() -> grainforce::Result<Self> {
-        let run = simulate(&DemConfig::preset(Preset::Impact, 2).seed(1))?;
+        Self::of(Preset::Impact)
+    }
+
+    /// The same draws on another dynamic preset (2D, DEM seed 1).
+    pub fn of(preset: Preset) -> grainforce::Result<Self> {
+        let config = DemConfig::preset(preset, 2).seed(1);
+        let fps = config.frame_rate;
+        let run = simulate(&config)?;
         let diameter = 2.0 * run.frames[0].grains[0].radius.unwrap_or(0.0);
         let exact = impulse_check(
             &run.frames,
             &run.force_sets(),
-            FPS,
+            fps,
             run.frames[0].gravity(),
             &ImpulseOptions::default(),
         )?;
         Ok(ImpactDraws {
             run,
+            fps,
             position_noise: 1e-3 * diameter,
             exact,
         })
@@ -68,7 +76,13 @@ impl ImpactDraws {
             let e = relative_error(&truth, &inferred);
             tally.relerrs.push(e);
             let gravity = noisy[0].gravity();
-            let check = impulse_check(&noisy, &forces, FPS, gravity, &ImpulseOptions::default())?;
+            let check = impulse_check(
+                &noisy,
+                &forces,
+                self.fps,
+                gravity,
+                &ImpulseOptions::default(),
+            )?;
             let mut line =
                 format!("seed {seed:2}: relerr {e:.4}; disagreement (vs measured/noise-free Δv)");
             for (r, x) in check.rows.iter().zip(&self.exact.rows) {

@@ -2,6 +2,7 @@
 
 use grainforce::error::{Error, Result};
 use grainforce::infer::kinematics::{self, Smoother};
+use grainforce::infer::time_fit;
 use grainforce::infer::uncertainty::{
     force_uncertainty, NoiseEstimate, Uncertainty, UncertaintyOptions,
 };
@@ -132,6 +133,19 @@ pub struct Args {
     /// Savitzky–Golay polynomial degree.
     #[arg(long, default_value_t = 3)]
     pub savgol_degree: usize,
+    /// Sequences, dynamic: frames (each frame its own problem, momentum from
+    /// accelerations differentiated from the filtered tracks) or joint (all
+    /// frames at once: forces, positions and velocities fitted to the raw
+    /// tracks through the integrator and to the stresses, each contact's force
+    /// smooth in time — see --roughness; more accurate and the impulses follow
+    /// the tracks; one larger problem, see the README). Needs --fps.
+    #[arg(long, value_enum, default_value_t = TimeFitArg::Frames)]
+    pub time_fit: TimeFitArg,
+    /// Joint time fit: σ_r, the standard deviation of the second difference
+    /// of a contact force component from frame to frame [N]. Default: three
+    /// times its rms in the frame-by-frame answer.
+    #[arg(long, value_name = "NEWTONS")]
+    pub roughness: Option<f64>,
     /// Sequences: write the impulse check (table 3.1) to this CSV, one row per
     /// grain tracked over at least --impulse-window + 1 consecutive frames.
     /// Columns: grain, first_frame, last_frame; start_window, end_window: the
@@ -199,6 +213,12 @@ pub enum SmootherArg {
     Fir,
     Savgol,
     Whittaker,
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum TimeFitArg {
+    Frames,
+    Joint,
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -400,8 +420,53 @@ fn uncertainty(
         .collect()
 }
 
+/// What `--time-fit joint` needs, checked before any frame is inferred.
+fn check_time_fit(args: &Args, opts: &InferOptions, selection: &Selection) -> Result<f64> {
+    if opts.method != Method::Dynamic {
+        return Err(Error::Invalid(
+            "--time-fit joint fits momentum over time: use it with --method dynamic".into(),
+        ));
+    }
+    if *selection != Selection::All {
+        return Err(Error::Invalid(
+            "--time-fit joint infers whole frames: drop --grains/--region".into(),
+        ));
+    }
+    if args.uncertainty.is_some() {
+        return Err(Error::Invalid(
+            "--uncertainty resamples frame by frame; it does not combine with --time-fit joint"
+                .into(),
+        ));
+    }
+    args.fps
+        .ok_or_else(|| Error::Invalid("--time-fit joint needs the frame rate: give --fps".into()))
+}
+
+/// The joint time fit of `--time-fit joint`, from the frame-by-frame answer.
+fn time_fit(
+    args: &Args,
+    opts: &InferOptions,
+    fps: f64,
+    frames: &[scene::Scene],
+    results: &[infer::Inference],
+) -> Result<time_fit::TimeFit> {
+    let fit = time_fit::TimeFitOptions {
+        fps,
+        position_sd: args.position_sd,
+        stress_sd: args.stress_sd,
+        roughness: args.roughness,
+    };
+    let frame_by_frame: Vec<Vec<Option<grainforce::scene::Vec3>>> =
+        results.iter().map(|r| r.forces.clone()).collect();
+    time_fit::infer_time_fit(frames, opts, &fit, Some(&frame_by_frame))
+}
+
 pub fn run(args: Args) -> Result<()> {
     let (opts, selection) = options(&args)?;
+    let joint_fps = match args.time_fit {
+        TimeFitArg::Frames => None,
+        TimeFitArg::Joint => Some(check_time_fit(&args, &opts, &selection)?),
+    };
     let mut frames = scene::read_sequence(&args.scene)?;
     if let Some(r) = &args.frames {
         let (lo, hi) = range("--frames", r)?;
@@ -462,10 +527,20 @@ pub fn run(args: Args) -> Result<()> {
     {
         kinematics::weight_derived_momentum(&frames, &mut per_frame, k, stress_sd)?;
     }
-    let results = if frames.len() == 1 {
+    let mut results = if frames.len() == 1 {
         vec![infer::infer(&frames[0], &per_frame[0])?]
     } else {
         infer::infer_frames(&frames, &per_frame, !args.quiet)?
+    };
+    let time_fit = match joint_fps {
+        None => None,
+        Some(fps) => {
+            let fit = time_fit(&args, &opts, fps, &frames, &results)?;
+            for (result, forces) in results.iter_mut().zip(&fit.forces) {
+                result.forces = forces.clone();
+            }
+            Some(fit.report)
+        }
     };
     let uncertainties = match args.uncertainty {
         Some(draws) => Some(uncertainty(
@@ -503,7 +578,13 @@ pub fn run(args: Args) -> Result<()> {
     let mut impulse_summary = None;
     if let Some(path) = &args.report {
         let reports: Vec<&infer::InferenceReport> = results.iter().map(|r| &r.report).collect();
-        let json = if reports.len() == 1 {
+        let json = if let Some(fit) = &time_fit {
+            // The frames' reports describe the frame-by-frame start.
+            serde_json::to_string_pretty(&serde_json::json!({
+                "time_fit": fit,
+                "frame_by_frame": reports,
+            }))
+        } else if reports.len() == 1 {
             serde_json::to_string_pretty(reports[0])
         } else {
             serde_json::to_string_pretty(&reports)
@@ -593,8 +674,13 @@ pub fn run(args: Args) -> Result<()> {
         grainforce::report::chart::save_png(path, img)?;
     }
     if !args.quiet {
-        for r in &results {
-            eprint!("{}", r.report);
+        match &time_fit {
+            Some(fit) => eprint!("{fit}"),
+            None => {
+                for r in &results {
+                    eprint!("{}", r.report);
+                }
+            }
         }
         for u in uncertainties.iter().flatten() {
             eprintln!(

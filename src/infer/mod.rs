@@ -14,6 +14,7 @@ pub mod kinematics;
 mod lambda;
 mod polish;
 mod report;
+pub mod time_fit;
 pub mod uncertainty;
 
 pub use crate::solver::active_set::ActiveSetSettings;
