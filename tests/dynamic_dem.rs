@@ -257,3 +257,61 @@ fn impulse_csv_from_the_cli() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("window"));
     assert!(!impulse.exists() && !forces.exists());
 }
+
+#[test]
+fn frame_range_infers_the_same_forces_as_the_whole_sequence() {
+    // --frames selects what is inferred, not what the filter sees: the
+    // accelerations of frames 40..59 come from the whole tracks, so those
+    // frames get the same forces as in a run over every frame (before, the
+    // window's ends were the filter's ends).
+    let run = simulate(&DemConfig::preset(Preset::Impact, 2).seed(1)).unwrap();
+    let diameter = 2.0 * run.frames[0].grains[0].radius.unwrap();
+    let noisy = perturb(
+        &run.frames,
+        &PerturbConfig {
+            position_noise: 1e-3 * diameter,
+            seed: 5,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("impact");
+    grainforce::scene::write_sequence(&scene, &noisy).unwrap();
+    let infer = |out: &std::path::Path, extra: &[&str]| {
+        let status = std::process::Command::new(env!("CARGO_BIN_EXE_grainforce"))
+            .arg("infer")
+            .arg(&scene)
+            .args([
+                "--method",
+                "dynamic",
+                "--fps",
+                "5000",
+                "--derive-accelerations",
+                "-q",
+            ])
+            .args(["-o", out.to_str().unwrap()])
+            .args(extra)
+            .status()
+            .unwrap();
+        assert!(status.success());
+        grainforce::scene::read_forces(out).unwrap()
+    };
+    let all = infer(&dir.path().join("all.csv"), &[]);
+    let window = infer(&dir.path().join("window.csv"), &["--frames", "40..59"]);
+    let in_window: Vec<_> = all
+        .rows
+        .iter()
+        .filter(|r| (40..=59).contains(&r.frame.unwrap()))
+        .collect();
+    assert_eq!(window.rows.len(), in_window.len());
+    assert!(!window.rows.is_empty());
+    for (w, a) in window.rows.iter().zip(in_window) {
+        assert_eq!((w.frame, &w.contact), (a.frame, &a.contact));
+        let gap = (w.force[0] - a.force[0]).hypot(w.force[1] - a.force[1]);
+        assert!(
+            gap <= 1e-6 * (1.0 + a.force[0].hypot(a.force[1])),
+            "{w:?} vs {a:?}"
+        );
+    }
+}

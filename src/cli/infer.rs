@@ -103,7 +103,8 @@ pub struct Args {
     #[arg(long, value_name = "PARETO.csv")]
     pub pareto: Option<PathBuf>,
     /// Sequences: infer only frames A..B (inclusive), e.g. to split a long
-    /// experiment across a cluster job array.
+    /// experiment across a cluster job array. Accelerations are still derived
+    /// from the whole tracks, so a range gets the forces a full run gives it.
     #[arg(long, value_name = "A..B")]
     pub frames: Option<String>,
     /// Sequences: frames per second. Needed to derive accelerations from the
@@ -468,18 +469,27 @@ pub fn run(args: Args) -> Result<()> {
         TimeFitArg::Joint => Some(check_time_fit(&args, &opts, &selection)?),
     };
     let mut frames = scene::read_sequence(&args.scene)?;
-    if let Some(r) = &args.frames {
-        let (lo, hi) = range("--frames", r)?;
-        frames.retain(|f| {
-            f.frame
-                .is_some_and(|k| (k as f64) >= lo && (k as f64) <= hi)
-        });
-        if frames.is_empty() {
-            return Err(Error::Invalid(format!(
-                "--frames {r}: no frame of the sequence lies in that range"
-            )));
+    // --frames picks the frames inferred; accelerations are still derived
+    // from the whole tracks, so a window's ends are not a filter's ends.
+    let keep: Option<Vec<bool>> = match &args.frames {
+        Some(r) => {
+            let (lo, hi) = range("--frames", r)?;
+            let keep: Vec<bool> = frames
+                .iter()
+                .map(|f| {
+                    f.frame
+                        .is_some_and(|k| (k as f64) >= lo && (k as f64) <= hi)
+                })
+                .collect();
+            if !keep.contains(&true) {
+                return Err(Error::Invalid(format!(
+                    "--frames {r}: no frame of the sequence lies in that range"
+                )));
+            }
+            Some(keep)
         }
-    }
+        None => None,
+    };
     let smoother = match args.smoother {
         SmootherArg::Fir => Smoother::Fir {
             order: args.fir_order,
@@ -512,6 +522,14 @@ pub fn run(args: Args) -> Result<()> {
             );
         }
         derived = Some(k);
+    }
+    if let Some(keep) = &keep {
+        let mut kept = keep.iter();
+        frames.retain(|_| *kept.next().unwrap_or(&false));
+        if let Some(k) = &mut derived {
+            let mut kept = keep.iter();
+            k.acceleration_sd.retain(|_| *kept.next().unwrap_or(&false));
+        }
     }
     let mut per_frame = Vec::with_capacity(frames.len());
     for frame in &frames {

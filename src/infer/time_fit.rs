@@ -680,6 +680,7 @@ pub fn infer_time_fit(
             };
             let constrained =
                 active_set::solve(&mut ls, &problem, &cone_list, &sol.x, &opts.active_set)?;
+
             if constrained.converged {
                 (
                     constrained.x,
@@ -702,7 +703,15 @@ pub fn infer_time_fit(
                     regularized: 0,
                     cones: cone_list.clone(),
                 };
-                let mut ip = conic::solve(&conic_problem, &opts.conic)?;
+                // The joint problem is always feasible (zero forces, free
+                // tracks), so an interior-point failure is numerical: say so
+                // rather than pass its diagnosis on.
+                let mut ip = conic::solve(&conic_problem, &opts.conic).map_err(|e| {
+                    Error::Solver(format!(
+                        "time fit: neither the active set ({}) nor the interior point ({e}) solved the joint problem; infer frame by frame (--time-fit frames)",
+                        constrained.reason.clone().unwrap_or_default()
+                    ))
+                })?;
                 if ip.softened {
                     return Err(Error::Solver(format!(
                         "time fit: the interior point met the moment and integrator rows only softened ({}); infer frame by frame instead",
