@@ -333,7 +333,7 @@ pub fn infer_time_fit(
         let mut here = vec![None; frame.contacts.len()];
         for system in &assembly.systems {
             for cone in cones(system, opts.cone) {
-                cone_list.push(shift_cone(cone, ncols));
+                cone_list.push(cone.shifted(ncols));
             }
             for u in &system.unknowns {
                 let count = u.count(dim);
@@ -779,43 +779,6 @@ pub fn infer_time_fit(
         warnings,
     };
     Ok(TimeFit { forces, report })
-}
-
-/// The same cone on unknowns shifted by `by`.
-fn shift_cone(cone: Cone, by: usize) -> Cone {
-    match cone {
-        Cone::NonNegative { normal } => Cone::NonNegative {
-            normal: normal + by,
-        },
-        Cone::Wedge {
-            normal,
-            tangent,
-            mu,
-        } => Cone::Wedge {
-            normal: normal + by,
-            tangent: tangent + by,
-            mu,
-        },
-        Cone::Circular { normal, t1, t2, mu } => Cone::Circular {
-            normal: normal + by,
-            t1: t1 + by,
-            t2: t2 + by,
-            mu,
-        },
-        Cone::Pyramid {
-            normal,
-            t1,
-            t2,
-            mu,
-            facets,
-        } => Cone::Pyramid {
-            normal: normal + by,
-            t1: t1 + by,
-            t2: t2 + by,
-            mu,
-            facets,
-        },
-    }
 }
 
 /// Appends the rows of `m` (columns shifted by `offset`, values × `scale`,

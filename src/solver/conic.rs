@@ -44,6 +44,43 @@ pub enum Cone {
 }
 
 impl Cone {
+    /// The same cone on unknowns shifted by `by` (a block placed in a larger problem).
+    pub fn shifted(self, by: usize) -> Cone {
+        match self {
+            Cone::NonNegative { normal } => Cone::NonNegative {
+                normal: normal + by,
+            },
+            Cone::Wedge {
+                normal,
+                tangent,
+                mu,
+            } => Cone::Wedge {
+                normal: normal + by,
+                tangent: tangent + by,
+                mu,
+            },
+            Cone::Circular { normal, t1, t2, mu } => Cone::Circular {
+                normal: normal + by,
+                t1: t1 + by,
+                t2: t2 + by,
+                mu,
+            },
+            Cone::Pyramid {
+                normal,
+                t1,
+                t2,
+                mu,
+                facets,
+            } => Cone::Pyramid {
+                normal: normal + by,
+                t1: t1 + by,
+                t2: t2 + by,
+                mu,
+                facets,
+            },
+        }
+    }
+
     /// How far `x` lies outside the cone (0 inside), in the units of x.
     pub fn violation(&self, x: &[f64]) -> f64 {
         match *self {
