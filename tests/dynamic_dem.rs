@@ -1,5 +1,7 @@
 //! Dynamic inference on DEM sequences (the `impact` and `bed-impact` presets).
 
+mod common;
+
 use grainforce::dem::perturb::{perturb, PerturbConfig};
 use grainforce::dem::{simulate, DemConfig, Preset};
 use grainforce::infer::kinematics::{
@@ -180,37 +182,22 @@ fn impact_with_accelerations_from_noisy_tracks() {
 
 #[test]
 fn impulse_csv_from_the_cli() {
-    let run = simulate(&DemConfig::preset(Preset::Impact, 2).seed(1)).unwrap();
-    let diameter = 2.0 * run.frames[0].grains[0].radius.unwrap();
-    let noisy = perturb(
-        &run.frames,
-        &PerturbConfig {
-            position_noise: 1e-3 * diameter,
-            seed: 2,
-            ..Default::default()
-        },
-    )
-    .unwrap();
-    let dir = tempfile::tempdir().unwrap();
-    let scene = dir.path().join("impact");
-    grainforce::scene::write_sequence(&scene, &noisy).unwrap();
+    let case = common::noisy_impact_on_disk(2);
+    let diameter = 2.0 * case.run.frames[0].grains[0].radius.unwrap();
+    let dir = &case.dir;
     let (forces, impulse) = (dir.path().join("f.csv"), dir.path().join("i.csv"));
     let infer = |extra: &[&str]| {
-        std::process::Command::new(env!("CARGO_BIN_EXE_grainforce"))
-            .arg("infer")
-            .arg(&scene)
-            .args([
-                "--method",
-                "dynamic",
-                "--fps",
-                "5000",
-                "--derive-accelerations",
-            ])
-            .args(["-o", forces.to_str().unwrap()])
-            .args(["--impulse", impulse.to_str().unwrap()])
-            .args(extra)
-            .output()
-            .unwrap()
+        let mut args = vec![
+            "--method",
+            "dynamic",
+            "--fps",
+            "5000",
+            "--derive-accelerations",
+        ];
+        args.extend(["-o", forces.to_str().unwrap()]);
+        args.extend(["--impulse", impulse.to_str().unwrap()]);
+        args.extend(extra);
+        common::grainforce_infer(&case.scene, &args)
     };
     let out = infer(&[]);
     let stderr = String::from_utf8_lossy(&out.stderr);
@@ -264,41 +251,25 @@ fn frame_range_infers_the_same_forces_as_the_whole_sequence() {
     // accelerations of frames 40..59 come from the whole tracks, so those
     // frames get the same forces as in a run over every frame (before, the
     // window's ends were the filter's ends).
-    let run = simulate(&DemConfig::preset(Preset::Impact, 2).seed(1)).unwrap();
-    let diameter = 2.0 * run.frames[0].grains[0].radius.unwrap();
-    let noisy = perturb(
-        &run.frames,
-        &PerturbConfig {
-            position_noise: 1e-3 * diameter,
-            seed: 5,
-            ..Default::default()
-        },
-    )
-    .unwrap();
-    let dir = tempfile::tempdir().unwrap();
-    let scene = dir.path().join("impact");
-    grainforce::scene::write_sequence(&scene, &noisy).unwrap();
+    let case = common::noisy_impact_on_disk(5);
     let infer = |out: &std::path::Path, extra: &[&str]| {
-        let status = std::process::Command::new(env!("CARGO_BIN_EXE_grainforce"))
-            .arg("infer")
-            .arg(&scene)
-            .args([
-                "--method",
-                "dynamic",
-                "--fps",
-                "5000",
-                "--derive-accelerations",
-                "-q",
-            ])
-            .args(["-o", out.to_str().unwrap()])
-            .args(extra)
-            .status()
-            .unwrap();
-        assert!(status.success());
+        let mut args = vec![
+            "--method",
+            "dynamic",
+            "--fps",
+            "5000",
+            "--derive-accelerations",
+            "-q",
+        ];
+        args.extend(["-o", out.to_str().unwrap()]);
+        args.extend(extra);
+        assert!(common::grainforce_infer(&case.scene, &args)
+            .status
+            .success());
         grainforce::scene::read_forces(out).unwrap()
     };
-    let all = infer(&dir.path().join("all.csv"), &[]);
-    let window = infer(&dir.path().join("window.csv"), &["--frames", "40..59"]);
+    let all = infer(&case.dir.path().join("all.csv"), &[]);
+    let window = infer(&case.dir.path().join("window.csv"), &["--frames", "40..59"]);
     let in_window: Vec<_> = all
         .rows
         .iter()

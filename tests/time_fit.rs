@@ -1,12 +1,16 @@
 //! The joint time fit (`--time-fit joint`): all frames of a sequence at once,
 //! against the raw tracks, forces smooth in time.
 
+mod common;
+
 use grainforce::dem::perturb::{perturb, PerturbConfig};
 use grainforce::dem::{simulate, DemConfig, DemRun, Preset};
 use grainforce::infer::kinematics::{
     derive_accelerations, impulse_check, weight_derived_momentum, ImpulseOptions, Smoother,
 };
-use grainforce::infer::time_fit::{estimate_roughness, infer_time_fit, TimeFitOptions};
+use grainforce::infer::time_fit::{
+    estimate_roughness, infer_time_fit, TimeFitOptions, ROUGHNESS_FACTOR,
+};
 use grainforce::infer::{infer_frames, ConeModel, InferOptions, Method};
 use grainforce::report::metrics::relative_error;
 use grainforce::scene::{Body, Scene, Vec3};
@@ -90,14 +94,24 @@ fn impact_from_noisy_tracks_beats_frame_by_frame() {
             "seed {seed}: {e_joint} vs {e_frames}"
         );
         assert!(fit.report.roughness_estimated && fit.report.position_sd_estimated);
-        // Every contact of every frame has a force that meets Coulomb.
+        // Every contact of every frame has a force that meets Coulomb (to
+        // round-off of the largest force).
+        let largest = fit
+            .forces
+            .iter()
+            .flatten()
+            .flatten()
+            .fold(0.0f64, |m, f| m.max(f[0].hypot(f[1])));
         for (frame, forces) in noisy.iter().zip(&fit.forces) {
             for (c, f) in frame.contacts.iter().zip(forces) {
                 let f = f.expect("every contact is fitted");
                 let fn_ = -(f[0] * c.normal[0] + f[1] * c.normal[1]);
                 let ft = (f[0] + fn_ * c.normal[0]).hypot(f[1] + fn_ * c.normal[1]);
-                assert!(fn_ >= -1e-9 * 1e4, "tension {fn_}");
-                assert!(ft <= c.mu.unwrap() * fn_ + 1e-6, "{ft} > μ {fn_}");
+                assert!(fn_ >= -1e-12 * largest, "tension {fn_}");
+                assert!(
+                    ft <= c.mu.unwrap() * fn_ + 1e-12 * largest,
+                    "{ft} > μ {fn_}"
+                );
             }
         }
         let check = impulse_check(
@@ -260,12 +274,20 @@ fn exact_tracks_recover_the_forces_in_2d_and_3d() {
             .collect();
         let mut fit = TimeFitOptions::new(fps);
         fit.stress_sd = 0.01;
-        fit.roughness = Some(3.0 * estimate_roughness(frames, &known).unwrap());
+        fit.roughness = Some(ROUGHNESS_FACTOR * estimate_roughness(frames, &known).unwrap());
         let out = infer_time_fit(frames, &dynamic(), &fit, None).unwrap();
         let e = overall(truth, &out.forces);
         eprintln!("{dim}D exact tracks: relerr {e:.2e}\n{}", out.report);
         assert!(e <= 0.01, "{dim}D: relerr {e}");
         assert!(!out.report.roughness_estimated);
+        // The noise-free 3D tracks (σ_x at its floor, 1e-7 m) go through the
+        // tenfold loosening on the kept analysis; its answer is the one scored.
+        let loosened = out
+            .report
+            .warnings
+            .iter()
+            .any(|w| w.contains("position sd raised"));
+        assert_eq!(loosened, dim == 3, "{}", out.report);
     }
 }
 
@@ -367,37 +389,21 @@ fn bad_requests_are_clear_errors() {
 
 #[test]
 fn cli_joint_time_fit() {
-    let run = impact(2);
-    let diameter = 2.0 * run.frames[0].grains[0].radius.unwrap();
-    let noisy = perturb(
-        &run.frames,
-        &PerturbConfig {
-            position_noise: 1e-3 * diameter,
-            seed: 4,
-            ..Default::default()
-        },
-    )
-    .unwrap();
-    let dir = tempfile::tempdir().unwrap();
-    let scene = dir.path().join("impact");
-    grainforce::scene::write_sequence(&scene, &noisy).unwrap();
+    let case = common::noisy_impact_on_disk(4);
+    let (run, dir) = (&case.run, &case.dir);
     let (forces, report) = (dir.path().join("f.csv"), dir.path().join("r.json"));
     let infer = |extra: &[&str]| {
-        std::process::Command::new(env!("CARGO_BIN_EXE_grainforce"))
-            .arg("infer")
-            .arg(&scene)
-            .args([
-                "--fps",
-                "5000",
-                "--derive-accelerations",
-                "--time-fit",
-                "joint",
-            ])
-            .args(["-o", forces.to_str().unwrap()])
-            .args(["--report", report.to_str().unwrap()])
-            .args(extra)
-            .output()
-            .unwrap()
+        let mut args = vec![
+            "--fps",
+            "5000",
+            "--derive-accelerations",
+            "--time-fit",
+            "joint",
+        ];
+        args.extend(["-o", forces.to_str().unwrap()]);
+        args.extend(["--report", report.to_str().unwrap()]);
+        args.extend(extra);
+        common::grainforce_infer(&case.scene, &args)
     };
     let out = infer(&["--method", "dynamic"]);
     let stderr = String::from_utf8_lossy(&out.stderr);
@@ -427,8 +433,21 @@ fn cli_joint_time_fit() {
     // Only with --method dynamic; nothing written on refusal.
     std::fs::remove_file(&forces).unwrap();
     std::fs::remove_file(&report).unwrap();
-    let out = infer(&["--method", "qs"]);
-    assert!(!out.status.success());
-    assert!(String::from_utf8_lossy(&out.stderr).contains("--method dynamic"));
-    assert!(!forces.exists() && !report.exists());
+    for (extra, message) in [
+        (&["--method", "qs"][..], "--method dynamic"),
+        (&["--method", "dynamic", "--roughness", "-1"], "--roughness"),
+        (&["--method", "dynamic", "--stress-sd", "0"], "--stress-sd"),
+        (
+            &["--method", "dynamic", "--uncertainty", "3"],
+            "--uncertainty",
+        ),
+    ] {
+        let out = infer(extra);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            !out.status.success() && stderr.contains(message),
+            "{extra:?}: {stderr}"
+        );
+        assert!(!forces.exists() && !report.exists());
+    }
 }

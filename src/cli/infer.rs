@@ -145,7 +145,7 @@ pub struct Args {
     /// Joint time fit: σ_r, the standard deviation of the second difference
     /// of a contact force component from frame to frame [N]. Default: three
     /// times its rms in the frame-by-frame answer.
-    #[arg(long, value_name = "NEWTONS")]
+    #[arg(long, value_name = "NEWTONS", allow_negative_numbers = true)]
     pub roughness: Option<f64>,
     /// Sequences: write the impulse check (table 3.1) to this CSV, one row per
     /// grain tracked over at least --impulse-window + 1 consecutive frames.
@@ -439,6 +439,18 @@ fn check_time_fit(args: &Args, opts: &InferOptions, selection: &Selection) -> Re
                 .into(),
         ));
     }
+    // The library checks these too, but only after the frame-by-frame pass.
+    if args.stress_sd <= 0.0 {
+        return Err(Error::Invalid(format!(
+            "--time-fit joint weighs the stresses by 1/σ_s: --stress-sd must be positive, got {}",
+            args.stress_sd
+        )));
+    }
+    if let Some(r) = args.roughness.filter(|r| !(*r > 0.0 && r.is_finite())) {
+        return Err(Error::Invalid(format!(
+            "--roughness must be positive and finite, got {r}"
+        )));
+    }
     args.fps
         .ok_or_else(|| Error::Invalid("--time-fit joint needs the frame rate: give --fps".into()))
 }
@@ -554,8 +566,8 @@ pub fn run(args: Args) -> Result<()> {
         None => None,
         Some(fps) => {
             let fit = time_fit(&args, &opts, fps, &frames, &results)?;
-            for (result, forces) in results.iter_mut().zip(&fit.forces) {
-                result.forces = forces.clone();
+            for (result, forces) in results.iter_mut().zip(fit.forces) {
+                result.forces = forces;
             }
             Some(fit.report)
         }

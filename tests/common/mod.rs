@@ -362,3 +362,48 @@ pub fn cubic_stack(mu: f64) -> (Scene, Vec<[f64; 3]>) {
     set_stresses(&mut s, &forces);
     (s, forces)
 }
+
+/// The `impact` preset (2D, DEM seed 1) with 0.1 % of a diameter position
+/// noise (draw `seed`), also written as a sequence folder `impact` in a
+/// temporary directory (kept alive by `dir`).
+pub struct NoisyImpact {
+    pub run: grainforce::dem::DemRun,
+    pub noisy: Vec<Scene>,
+    pub dir: tempfile::TempDir,
+    pub scene: std::path::PathBuf,
+}
+
+pub fn noisy_impact_on_disk(seed: u64) -> NoisyImpact {
+    use grainforce::dem::perturb::{perturb, PerturbConfig};
+    use grainforce::dem::{simulate, DemConfig, Preset};
+    let run = simulate(&DemConfig::preset(Preset::Impact, 2).seed(1)).unwrap();
+    let diameter = 2.0 * run.frames[0].grains[0].radius.unwrap();
+    let config = PerturbConfig {
+        position_noise: 1e-3 * diameter,
+        seed,
+        ..Default::default()
+    };
+    let noisy = perturb(&run.frames, &config).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("impact");
+    scene::write_sequence(&scene, &noisy).unwrap();
+    NoisyImpact {
+        run,
+        noisy,
+        dir,
+        scene,
+    }
+}
+
+/// `grainforce infer SCENE ARGS…`, its output captured.
+pub fn grainforce_infer<S: AsRef<std::ffi::OsStr>>(
+    scene: &std::path::Path,
+    args: &[S],
+) -> std::process::Output {
+    std::process::Command::new(env!("CARGO_BIN_EXE_grainforce"))
+        .arg("infer")
+        .arg(scene)
+        .args(args)
+        .output()
+        .unwrap()
+}
