@@ -32,57 +32,59 @@ fn main() -> grainforce::Result<()> {
     let assembly = assemble(&scene, &AssembleOptions::default())?;
     if let Some(system) = assembly.systems.iter().max_by_key(|s| s.n) {
         let cones = grainforce::infer::cones(system, grainforce::infer::ConeModel::Exact);
-        let t = Instant::now();
-        let mut ls = EqualityLeastSquares::with_ordering(
-            &system.stress,
-            &system.momentum,
-            &system.contact_blocks(),
-            Ordering::for_dim(dim),
-        )?;
-        let start = ls.solve(
-            &system.stress,
-            &system.momentum,
-            &system.stress_rhs,
-            &system.momentum_rhs,
-            0.0,
-        )?;
-        let t_ls = t.elapsed().as_secs_f64();
-        let problem = LeastSquares {
-            a: &system.stress,
-            b: &system.stress_rhs,
-            c: &system.momentum,
-            d: &system.momentum_rhs,
-            lambda: 0.0,
-        };
-        let sol = active_set::solve(
-            &mut ls,
-            &problem,
-            &cones,
-            &start.x,
-            &active_set::ActiveSetSettings::default(),
-        )?;
-        println!(
-            "{} unknowns: least squares {t_ls:.2} s, then {} active-set solves in {:.2} s (converged: {})",
-            system.n,
-            sol.iterations,
-            t.elapsed().as_secs_f64() - t_ls,
-            sol.converged
-        );
-        println!("solve  rows  step  changed  residual  seconds  route");
-        for (k, h) in sol.history.iter().enumerate() {
+        // Cold (pieces of the unconstrained answer) against predicted (Gauss–Seidel guess).
+        for predict in [false, true] {
+            let t = Instant::now();
+            let mut ls = EqualityLeastSquares::with_ordering(
+                &system.stress,
+                &system.momentum,
+                &system.contact_blocks(),
+                Ordering::for_dim(dim),
+            )?;
+            let start = ls.solve(
+                &system.stress,
+                &system.momentum,
+                &system.stress_rhs,
+                &system.momentum_rhs,
+                0.0,
+            )?;
+            let t_ls = t.elapsed().as_secs_f64();
+            let problem = LeastSquares {
+                a: &system.stress,
+                b: &system.stress_rhs,
+                c: &system.momentum,
+                d: &system.momentum_rhs,
+                lambda: 0.0,
+            };
+            let settings = active_set::ActiveSetSettings {
+                predict,
+                ..Default::default()
+            };
+            let sol = active_set::solve(&mut ls, &problem, &cones, &start.x, &settings)?;
             println!(
-                "{:>5} {:>5} {:>5} {:>8} {:>9.1e} {:>8.3} {}",
-                k + 1,
-                h.active_rows,
-                h.step,
-                h.changed,
-                h.residual,
-                h.seconds,
-                if h.bordered { "bordered" } else { "factorised" }
+                "{} unknowns, first active set {}: least squares {t_ls:.2} s, then {} active-set solves in {:.2} s (converged: {})",
+                system.n,
+                if predict { "predicted" } else { "projected" },
+                sol.iterations,
+                t.elapsed().as_secs_f64() - t_ls,
+                sol.converged
             );
-        }
-        if let Some(r) = sol.reason {
-            println!("stopped: {r}");
+            println!("solve  rows  step  changed  residual  seconds  route");
+            for (k, h) in sol.history.iter().enumerate() {
+                println!(
+                    "{:>5} {:>5} {:>5} {:>8} {:>9.1e} {:>8.3} {}",
+                    k + 1,
+                    h.active_rows,
+                    h.step,
+                    h.changed,
+                    h.residual,
+                    h.seconds,
+                    if h.bordered { "bordered" } else { "factorised" }
+                );
+            }
+            if let Some(r) = sol.reason {
+                println!("stopped: {r}");
+            }
         }
     }
     for solver in [

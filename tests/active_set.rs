@@ -429,7 +429,11 @@ fn warm_pieces_from_a_nearby_lambda_give_the_same_optimum_sooner() {
         &system.contact_blocks(),
     )
     .unwrap();
-    let settings = active_set::ActiveSetSettings::default();
+    // Cold = the pieces of the unconstrained answer, without the 2D guess.
+    let settings = active_set::ActiveSetSettings {
+        predict: false,
+        ..Default::default()
+    };
     let mut run = |lambda: f64, warm: Option<&active_set::ActivePieces>| {
         let problem = LeastSquares {
             a: &system.stress,
@@ -502,6 +506,8 @@ fn an_unsettled_active_set_falls_back_to_the_interior_point_and_says_so() {
     let (scene, _) = noisy_packing(2, 400, 0.5, Noise::Stress);
     let mut o = with_solver(Method::Qs, ConstrainedSolver::ActiveSet);
     o.active_set.max_iterations = 1;
+    // The 2D guess of the first active set is good enough to settle in one.
+    o.active_set.predict = false;
     let r = infer(&scene, &o).unwrap();
     assert_ne!(r.report.solver_status, "ActiveSet");
     assert!(
@@ -579,4 +585,74 @@ fn active_set_settings_are_validated() {
         r.x
     );
     assert_eq!(r.open, 1);
+}
+
+/// The 2D guess of the first active set (Gauss–Seidel sweeps on the relaxed
+/// correction) changes the route, not the answer: the same optimum as the
+/// pieces of the unconstrained answer, with a first active set much closer to
+/// the final one and fewer solves — with and without Tikhonov.
+#[test]
+fn predicted_first_active_set_reaches_the_same_optimum_in_fewer_solves() {
+    use grainforce::assemble::{assemble, AssembleOptions};
+    use grainforce::solver::{active_set, LeastSquares};
+    let (scene, _) = noisy_packing(2, 3000, 0.5, Noise::Stress);
+    let assembly = assemble(&scene, &AssembleOptions::default()).unwrap();
+    let system = assembly.systems.iter().max_by_key(|s| s.n).unwrap();
+    let cones = grainforce::infer::cones(system, grainforce::infer::ConeModel::Exact);
+    for lambda in [0.0, 0.1] {
+        let run = |predict: bool| {
+            let mut ls = EqualityLeastSquares::with_coupling(
+                &system.stress,
+                &system.momentum,
+                &system.contact_blocks(),
+            )
+            .unwrap();
+            let problem = LeastSquares {
+                a: &system.stress,
+                b: &system.stress_rhs,
+                c: &system.momentum,
+                d: &system.momentum_rhs,
+                lambda,
+            };
+            let start = ls
+                .solve(problem.a, problem.c, problem.b, problem.d, lambda)
+                .unwrap();
+            let settings = active_set::ActiveSetSettings {
+                predict,
+                ..Default::default()
+            };
+            active_set::solve(&mut ls, &problem, &cones, &start.x, &settings).unwrap()
+        };
+        let (projected, predicted) = (run(false), run(true));
+        assert!(
+            projected.converged && predicted.converged,
+            "λ = {lambda}: {:?} {:?}",
+            projected.reason,
+            predicted.reason
+        );
+        let gap = relative_error(&to_vec3(&projected.x), &to_vec3(&predicted.x));
+        let first = |s: &active_set::ActiveSetSolution| s.history[0].changed;
+        eprintln!(
+            "λ = {lambda}: projected {} solves (first changes {}), predicted {} solves (first changes {}), {} sliding, gap {gap:.1e}",
+            projected.iterations,
+            first(&projected),
+            predicted.iterations,
+            first(&predicted),
+            predicted.sliding
+        );
+        assert!(predicted.sliding > 50, "friction must bind for the test to mean anything");
+        assert!(gap < 1e-9, "λ = {lambda}: optima differ by {gap:.2e}");
+        assert!(
+            predicted.iterations < projected.iterations,
+            "λ = {lambda}: predicted {} solves, projected {}",
+            predicted.iterations,
+            projected.iterations
+        );
+        assert!(
+            4 * first(&predicted) < first(&projected),
+            "λ = {lambda}: the guess left {} changes, the projection {}",
+            first(&predicted),
+            first(&projected)
+        );
+    }
 }

