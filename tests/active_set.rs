@@ -640,7 +640,10 @@ fn predicted_first_active_set_reaches_the_same_optimum_in_fewer_solves() {
             first(&predicted),
             predicted.sliding
         );
-        assert!(predicted.sliding > 50, "friction must bind for the test to mean anything");
+        assert!(
+            predicted.sliding > 50,
+            "friction must bind for the test to mean anything"
+        );
         assert!(gap < 1e-9, "λ = {lambda}: optima differ by {gap:.2e}");
         assert!(
             predicted.iterations < projected.iterations,
