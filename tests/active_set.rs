@@ -264,6 +264,25 @@ fn changed_active_rows_bordered_around_a_factor_holding_others_match_a_dense_sol
     }
     assert!((fewer.multipliers[0] + z[n + 1]).abs() < 1e-10);
 
+    // The next border shares the taken-out columns with that one (reused)
+    // and adds new ones (solved): still the dense answer.
+    let g_f: &[_] = &[(2, 1.0), (3, 0.5)];
+    let g4 = rows(&[g_d, g_b, g_e, g_f]);
+    let mixed = ls
+        .solve_with_active(&a, &c, &b, &d, lambda, &g4, &r1)
+        .unwrap();
+    assert!(mixed.bordered && mixed.solution.converged, "{mixed:?}");
+    let z = dense_kkt(&a, &c, &g4, &r1, &b, &d, lambda);
+    for i in 0..n {
+        assert!((mixed.solution.x[i] - z[i]).abs() < 1e-12, "x{i}");
+    }
+    for j in 0..4 {
+        assert!(
+            (mixed.multipliers[j] + z[n + 1 + j]).abs() < 1e-10,
+            "multiplier {j}"
+        );
+    }
+
     // A spring taken out is never bordered (it could be of any stiffness).
     let no_spring = ls
         .solve_with_active(&a, &c, &b, &d, lambda, &g1, &Triplets::new(0, n))

@@ -199,6 +199,9 @@ struct Numeric {
     /// current ones may differ from them by a few rows bordered around it.
     in_factor: ActiveRows,
     l_values: Vec<f64>,
+    /// The last border solved around this factor, whose columns the next
+    /// border may reuse.
+    last_border: Option<Bordered>,
     /// Time of the numeric factorisation and of one triangular solve [s]:
     /// a bordered solve of k extra rows costs ~k solves, a new factor one
     /// factorisation.
@@ -701,6 +704,14 @@ impl EqualityLeastSquares {
                 }
                 let diff = Changes::between(&num.in_factor, &num.active);
                 let k = diff.count();
+                // Only the columns the last border did not solve cost solves.
+                let fresh = match &num.last_border {
+                    Some(last) if k <= BORDER_MAX_ROWS => border_columns(num, &diff, delta)
+                        .iter()
+                        .filter(|col| !last.holds(col))
+                        .count(),
+                    _ => k,
+                };
                 // Removing a spring would subtract a stiffness of any size.
                 let border = may_border
                     && k > 0
@@ -709,7 +720,7 @@ impl EqualityLeastSquares {
                     && diff.removed_springs.is_empty()
                     && match self.bordering {
                         Bordering::Auto => {
-                            border_seconds(k, num.solve_seconds, self.par) < num.factor_seconds
+                            border_seconds(fresh, num.solve_seconds, self.par) < num.factor_seconds
                         }
                         Bordering::Never => false,
                         Bordering::Always => true,
@@ -728,6 +739,7 @@ impl EqualityLeastSquares {
             }
         };
         let border = changes.count() > 0;
+        let previous = self.numeric.as_mut().and_then(|n| n.last_border.take());
         let num = self.numeric.as_ref().expect("factorised above");
         let symbolic = self
             .symbolic
@@ -740,19 +752,14 @@ impl EqualityLeastSquares {
             format!("the {size}-row KKT solve workspace")
         })?;
         let bordered = if border {
-            let s = &num.col_scale;
-            let columns = (changes.added.iter())
-                .map(|&i| (scaled_row(&num.active, false, i, s), delta))
-                .chain(
-                    (changes.added_springs.iter())
-                        .map(|&i| (scaled_row(&num.active, true, i, s), 1.0)),
-                )
-                .chain(
-                    (changes.removed.iter())
-                        .map(|&i| (scaled_row(&num.in_factor, false, i, s), -delta)),
-                )
-                .collect();
-            Some(Bordered::new(columns, &ldlt, size, self.par)?)
+            let columns = border_columns(num, &changes, delta);
+            Some(Bordered::new(
+                columns,
+                &ldlt,
+                size,
+                self.par,
+                previous.as_ref(),
+            )?)
         } else {
             None
         };
@@ -859,11 +866,12 @@ impl EqualityLeastSquares {
             .zip(&num.active.row_scale)
             .map(|(w, t)| -w * t)
             .collect();
-        if !border {
-            // A plain solve on the factor: what each bordered row costs.
-            if let Some(num) = self.numeric.as_mut() {
+        if let Some(num) = self.numeric.as_mut() {
+            if !border {
+                // A plain solve on the factor: what each bordered row costs.
                 num.solve_seconds = first_solve_seconds;
             }
+            num.last_border = bordered.or(previous);
         }
         Ok(Attempt {
             x,
@@ -1078,6 +1086,7 @@ impl EqualityLeastSquares {
             in_factor: active.clone(),
             active,
             l_values,
+            last_border: None,
             factor_seconds: clock.elapsed().as_secs_f64(),
             solve_seconds: f64::INFINITY,
         });
@@ -1194,6 +1203,45 @@ fn border_seconds(k: usize, solve_seconds: f64, par: Par) -> f64 {
     (1.0 + k as f64 / (4 * threads) as f64) * solve_seconds
 }
 
+/// Solves F Y = B in place for the columns of `y` (column-major, `size`
+/// rows). Multi-column solves are fast only sequentially (see
+/// `solve_parallelism`), so the threads split the columns instead.
+fn solve_columns(
+    ldlt: &LdltRef<'_, usize, f64>,
+    y: &mut [f64],
+    size: usize,
+    par: Par,
+) -> Result<()> {
+    let k = y.len() / size.max(1);
+    if k == 0 {
+        return Ok(());
+    }
+    let threads = match par {
+        Par::Seq => 1,
+        Par::Rayon(n) => n.get(),
+    };
+    let per_thread = k.div_ceil(threads.clamp(1, k));
+    let stack_bytes = ldlt
+        .symbolic()
+        .solve_in_place_scratch::<f64>(per_thread, Par::Seq);
+    let chunks: Vec<&mut [f64]> = y.chunks_mut(size * per_thread).collect();
+    let solved: Vec<Result<()>> = chunks
+        .into_par_iter()
+        .map(|chunk| {
+            let cols = chunk.len() / size;
+            let mut stack_buf = workspace(stack_bytes, || format!("{k} bordered solves"))?;
+            ldlt.solve_in_place_with_conj(
+                Conj::No,
+                MatMut::from_column_major_slice_mut(chunk, size, cols),
+                Par::Seq,
+                MemStack::new(&mut stack_buf),
+            );
+            Ok(())
+        })
+        .collect();
+    solved.into_iter().collect()
+}
+
 /// At most this many active rows + springs are bordered around the base
 /// factor (beyond, a new factorisation is cheaper on any measured size).
 const BORDER_MAX_ROWS: usize = 64;
@@ -1207,55 +1255,69 @@ const BORDER_MAX_ENTRIES: usize = 64 << 20;
 /// (D = −δ: eliminating them subtracts the penalty ĝᵀĝ/δ that F
 /// holds). Holds Y = F⁻¹B and the LU of the Schur complement BᵀY + D.
 struct Bordered {
-    /// B's columns (sparse).
+    /// B's columns (sparse) and their D.
     columns: Vec<Vec<(usize, f64)>>,
+    d: Vec<f64>,
     /// Y = F⁻¹ B, column-major, size × k.
     y: Vec<f64>,
     size: usize,
     schur: nalgebra::LU<f64, nalgebra::Dyn, nalgebra::Dyn>,
 }
 
+/// The columns of B for the rows that changed since the factor, each with
+/// its D (see [`Bordered`]).
+fn border_columns(num: &Numeric, changes: &Changes, delta: f64) -> Vec<BorderColumn> {
+    let s = &num.col_scale;
+    (changes.added.iter())
+        .map(|&i| (scaled_row(&num.active, false, i, s), delta))
+        .chain((changes.added_springs.iter()).map(|&i| (scaled_row(&num.active, true, i, s), 1.0)))
+        .chain((changes.removed.iter()).map(|&i| (scaled_row(&num.in_factor, false, i, s), -delta)))
+        .collect()
+}
+
+/// A column of B (sparse) and its D.
+type BorderColumn = (Vec<(usize, f64)>, f64);
+
 impl Bordered {
-    /// `columns`: the entries of each column of B with its D.
+    /// Whether this border already solved that column.
+    fn holds(&self, (entries, d): &BorderColumn) -> bool {
+        (self.columns.iter().zip(&self.d)).any(|(e, pd)| e == entries && pd == d)
+    }
+
+    /// `columns`: the entries of each column of B with its D. Columns that
+    /// `previous` (a border on the same factor) already solved are copied,
+    /// not solved again: consecutive bordered solves share most columns.
     fn new(
-        columns: Vec<(Vec<(usize, f64)>, f64)>,
+        columns: Vec<BorderColumn>,
         ldlt: &LdltRef<'_, usize, f64>,
         size: usize,
         par: Par,
+        previous: Option<&Bordered>,
     ) -> Result<Self> {
         let k = columns.len();
         let mut y = vec![0.0; size * k];
-        for (col, (entries, _)) in columns.iter().enumerate() {
-            for &(j, v) in entries {
-                y[col * size + j] = v;
+        let mut fresh = Vec::new();
+        for (col, (entries, d)) in columns.iter().enumerate() {
+            let target = &mut y[col * size..(col + 1) * size];
+            let known = previous.and_then(|p| {
+                (p.columns.iter().zip(&p.d)).position(|(e, pd)| e == entries && pd == d)
+            });
+            match (previous, known) {
+                (Some(p), Some(j)) => target.copy_from_slice(&p.y[j * size..(j + 1) * size]),
+                _ => fresh.push(col),
             }
         }
-        // Multi-column solves are fast only sequentially (see
-        // `solve_parallelism`), so the threads split the columns instead.
-        let threads = match par {
-            Par::Seq => 1,
-            Par::Rayon(n) => n.get(),
-        };
-        let per_thread = k.div_ceil(threads.clamp(1, k.max(1))).max(1);
-        let stack_bytes = ldlt
-            .symbolic()
-            .solve_in_place_scratch::<f64>(per_thread, Par::Seq);
-        let chunks: Vec<&mut [f64]> = y.chunks_mut(size * per_thread).collect();
-        let solved: Vec<Result<()>> = chunks
-            .into_par_iter()
-            .map(|chunk| {
-                let cols = chunk.len() / size;
-                let mut stack_buf = workspace(stack_bytes, || format!("{k} bordered solves"))?;
-                ldlt.solve_in_place_with_conj(
-                    Conj::No,
-                    MatMut::from_column_major_slice_mut(chunk, size, cols),
-                    Par::Seq,
-                    MemStack::new(&mut stack_buf),
-                );
-                Ok(())
-            })
-            .collect();
-        solved.into_iter().collect::<Result<Vec<()>>>()?;
+        // The columns to solve, packed, then scattered back.
+        let mut rhs = vec![0.0; size * fresh.len()];
+        for (slot, &col) in fresh.iter().enumerate() {
+            for &(j, v) in &columns[col].0 {
+                rhs[slot * size + j] = v;
+            }
+        }
+        solve_columns(ldlt, &mut rhs, size, par)?;
+        for (slot, &col) in fresh.iter().enumerate() {
+            y[col * size..(col + 1) * size].copy_from_slice(&rhs[slot * size..(slot + 1) * size]);
+        }
         let mut m = nalgebra::DMatrix::<f64>::zeros(k, k);
         for (i, (entries, d)) in columns.iter().enumerate() {
             for &(q, b) in entries {
@@ -1270,8 +1332,10 @@ impl Bordered {
                 "the bordered Schur complement is not finite".into(),
             ));
         }
+        let d = columns.iter().map(|(_, d)| *d).collect();
         Ok(Bordered {
             columns: columns.into_iter().map(|(entries, _)| entries).collect(),
+            d,
             y,
             size,
             schur: m.lu(),
