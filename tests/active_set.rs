@@ -225,63 +225,41 @@ fn changed_active_rows_bordered_around_a_factor_holding_others_match_a_dense_sol
         .unwrap();
     assert!(first.solution.converged && !first.bordered);
 
-    // g_a and g_c out, g_d and g_e in, g_b kept at another index, r_b added.
+    // A bordered solve of (g, r) on `ls`: the dense KKT answer and multipliers.
     ls.set_bordering(Bordering::Always);
-    let (g2, r2) = (rows(&[g_d, g_b, g_e]), rows(&[r_a, r_b]));
-    let sol = ls
-        .solve_with_active(&a, &c, &b, &d, lambda, &g2, &r2)
-        .unwrap();
-    assert!(sol.bordered, "{sol:?}");
-    assert!(sol.solution.converged, "{sol:?}");
-    assert!(sol.solution.refinement_steps <= 3, "{sol:?}");
-    let z = dense_kkt(&a, &c, &g2, &r2, &b, &d, lambda);
-    for i in 0..n {
-        assert!(
-            (sol.solution.x[i] - z[i]).abs() < 1e-12,
-            "x{i} = {} vs {}",
-            sol.solution.x[i],
-            z[i]
-        );
-    }
-    for j in 0..3 {
-        assert!(
-            (sol.multipliers[j] + z[n + 1 + j]).abs() < 1e-10,
-            "multiplier {j}: {} vs {}",
-            sol.multipliers[j],
-            -z[n + 1 + j]
-        );
-    }
-
-    // Only rows taken out (the factor still holds g_a, g_b, g_c): g_b alone.
-    let g3 = rows(&[g_b]);
-    let fewer = ls
-        .solve_with_active(&a, &c, &b, &d, lambda, &g3, &r1)
-        .unwrap();
-    assert!(fewer.bordered && fewer.solution.converged, "{fewer:?}");
-    let z = dense_kkt(&a, &c, &g3, &r1, &b, &d, lambda);
-    for i in 0..n {
-        assert!((fewer.solution.x[i] - z[i]).abs() < 1e-12, "x{i}");
-    }
-    assert!((fewer.multipliers[0] + z[n + 1]).abs() < 1e-10);
-
-    // The next border shares the taken-out columns with that one (reused)
-    // and adds new ones (solved): still the dense answer.
+    let mut bordered_matches_dense = |g: &Triplets, r: &Triplets, what: &str| {
+        let sol = ls.solve_with_active(&a, &c, &b, &d, lambda, g, r).unwrap();
+        assert!(sol.bordered && sol.solution.converged, "{what}: {sol:?}");
+        assert!(sol.solution.refinement_steps <= 3, "{what}: {sol:?}");
+        let z = dense_kkt(&a, &c, g, r, &b, &d, lambda);
+        for i in 0..n {
+            let (got, want) = (sol.solution.x[i], z[i]);
+            assert!((got - want).abs() < 1e-12, "{what}: x{i} = {got} vs {want}");
+        }
+        for j in 0..g.nrows {
+            let (got, want) = (sol.multipliers[j], -z[n + 1 + j]);
+            assert!(
+                (got - want).abs() < 1e-10,
+                "{what}: multiplier {j}: {got} vs {want}"
+            );
+        }
+    };
+    bordered_matches_dense(
+        &rows(&[g_d, g_b, g_e]),
+        &rows(&[r_a, r_b]),
+        "g_a and g_c out, g_d and g_e in, g_b kept at another index, r_b added",
+    );
+    bordered_matches_dense(
+        &rows(&[g_b]),
+        &r1,
+        "only rows taken out (the factor still holds g_a, g_b, g_c): g_b alone",
+    );
     let g_f: &[_] = &[(2, 1.0), (3, 0.5)];
-    let g4 = rows(&[g_d, g_b, g_e, g_f]);
-    let mixed = ls
-        .solve_with_active(&a, &c, &b, &d, lambda, &g4, &r1)
-        .unwrap();
-    assert!(mixed.bordered && mixed.solution.converged, "{mixed:?}");
-    let z = dense_kkt(&a, &c, &g4, &r1, &b, &d, lambda);
-    for i in 0..n {
-        assert!((mixed.solution.x[i] - z[i]).abs() < 1e-12, "x{i}");
-    }
-    for j in 0..4 {
-        assert!(
-            (mixed.multipliers[j] + z[n + 1 + j]).abs() < 1e-10,
-            "multiplier {j}"
-        );
-    }
+    bordered_matches_dense(
+        &rows(&[g_d, g_b, g_e, g_f]),
+        &r1,
+        "the taken-out columns of the last border reused, new ones solved",
+    );
 
     // A spring taken out is never bordered (it could be of any stiffness).
     let no_spring = ls
@@ -436,35 +414,17 @@ fn the_ordering_does_not_change_the_answer() {
 /// start, in fewer solves.
 #[test]
 fn warm_pieces_from_a_nearby_lambda_give_the_same_optimum_sooner() {
-    use grainforce::assemble::{assemble, AssembleOptions};
-    use grainforce::solver::{active_set, LeastSquares};
+    use grainforce::solver::active_set;
     let (scene, _) = noisy_packing(2, 900, 0.5, Noise::Stress);
-    let assembly = assemble(&scene, &AssembleOptions::default()).unwrap();
-    let system = assembly.systems.iter().max_by_key(|s| s.n).unwrap();
-    let cones = grainforce::infer::cones(system, grainforce::infer::ConeModel::Exact);
-    let mut ls = EqualityLeastSquares::with_coupling(
-        &system.stress,
-        &system.momentum,
-        &system.contact_blocks(),
-    )
-    .unwrap();
+    let (system, cones) = largest_system(&scene);
+    let mut ls = factor_for(&system);
     // Cold = the pieces of the unconstrained answer, without the 2D guess.
     let settings = active_set::ActiveSetSettings {
         predict: false,
         ..Default::default()
     };
     let mut run = |lambda: f64, warm: Option<&active_set::ActivePieces>| {
-        let problem = LeastSquares {
-            a: &system.stress,
-            b: &system.stress_rhs,
-            c: &system.momentum,
-            d: &system.momentum_rhs,
-            lambda,
-        };
-        let start = ls
-            .solve(problem.a, problem.c, problem.b, problem.d, lambda)
-            .unwrap();
-        active_set::solve_from(&mut ls, &problem, &cones, &start.x, warm, &settings).unwrap()
+        active_set_after_least_squares(&mut ls, &system, &cones, lambda, warm, &settings)
     };
     let previous = run(1e-3, None);
     assert!(
@@ -492,6 +452,49 @@ fn warm_pieces_from_a_nearby_lambda_give_the_same_optimum_sooner() {
         warm.iterations,
         cold.iterations
     );
+}
+
+/// The largest cluster of a scene, assembled, with its exact cones.
+fn largest_system(
+    scene: &Scene,
+) -> (
+    grainforce::assemble::System,
+    Vec<grainforce::solver::conic::Cone>,
+) {
+    use grainforce::assemble::{assemble, AssembleOptions};
+    let assembly = assemble(scene, &AssembleOptions::default()).unwrap();
+    let system = assembly.systems.into_iter().max_by_key(|s| s.n).unwrap();
+    let cones = grainforce::infer::cones(&system, grainforce::infer::ConeModel::Exact);
+    (system, cones)
+}
+
+/// A fresh analysis of a system's least squares.
+fn factor_for(system: &grainforce::assemble::System) -> EqualityLeastSquares {
+    EqualityLeastSquares::with_coupling(&system.stress, &system.momentum, &system.contact_blocks())
+        .unwrap()
+}
+
+/// The unconstrained least squares at λ on `ls`, then the active set from it.
+fn active_set_after_least_squares(
+    ls: &mut EqualityLeastSquares,
+    system: &grainforce::assemble::System,
+    cones: &[grainforce::solver::conic::Cone],
+    lambda: f64,
+    warm: Option<&grainforce::solver::active_set::ActivePieces>,
+    settings: &grainforce::solver::active_set::ActiveSetSettings,
+) -> grainforce::solver::active_set::ActiveSetSolution {
+    use grainforce::solver::{active_set, LeastSquares};
+    let problem = LeastSquares {
+        a: &system.stress,
+        b: &system.stress_rhs,
+        c: &system.momentum,
+        d: &system.momentum_rhs,
+        lambda,
+    };
+    let start = ls
+        .solve(problem.a, problem.c, problem.b, problem.d, lambda)
+        .unwrap();
+    active_set::solve_from(ls, &problem, cones, &start.x, warm, settings).unwrap()
 }
 
 fn to_vec3(x: &[f64]) -> Vec<Vec3> {
@@ -612,35 +615,17 @@ fn active_set_settings_are_validated() {
 /// the final one and fewer solves — with and without Tikhonov.
 #[test]
 fn predicted_first_active_set_reaches_the_same_optimum_in_fewer_solves() {
-    use grainforce::assemble::{assemble, AssembleOptions};
-    use grainforce::solver::{active_set, LeastSquares};
+    use grainforce::solver::active_set;
     let (scene, _) = noisy_packing(2, 3000, 0.5, Noise::Stress);
-    let assembly = assemble(&scene, &AssembleOptions::default()).unwrap();
-    let system = assembly.systems.iter().max_by_key(|s| s.n).unwrap();
-    let cones = grainforce::infer::cones(system, grainforce::infer::ConeModel::Exact);
+    let (system, cones) = largest_system(&scene);
     for lambda in [0.0, 0.1] {
         let run = |predict: bool| {
-            let mut ls = EqualityLeastSquares::with_coupling(
-                &system.stress,
-                &system.momentum,
-                &system.contact_blocks(),
-            )
-            .unwrap();
-            let problem = LeastSquares {
-                a: &system.stress,
-                b: &system.stress_rhs,
-                c: &system.momentum,
-                d: &system.momentum_rhs,
-                lambda,
-            };
-            let start = ls
-                .solve(problem.a, problem.c, problem.b, problem.d, lambda)
-                .unwrap();
             let settings = active_set::ActiveSetSettings {
                 predict,
                 ..Default::default()
             };
-            active_set::solve(&mut ls, &problem, &cones, &start.x, &settings).unwrap()
+            let mut ls = factor_for(&system);
+            active_set_after_least_squares(&mut ls, &system, &cones, lambda, None, &settings)
         };
         let (projected, predicted) = (run(false), run(true));
         assert!(
