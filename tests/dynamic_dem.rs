@@ -187,17 +187,10 @@ fn impulse_csv_from_the_cli() {
     let dir = &case.dir;
     let (forces, impulse) = (dir.path().join("f.csv"), dir.path().join("i.csv"));
     let infer = |extra: &[&str]| {
-        let mut args = vec![
-            "--method",
-            "dynamic",
-            "--fps",
-            "5000",
-            "--derive-accelerations",
-        ];
-        args.extend(["-o", forces.to_str().unwrap()]);
+        let mut args = vec!["--method", "dynamic", "-o", forces.to_str().unwrap()];
         args.extend(["--impulse", impulse.to_str().unwrap()]);
         args.extend(extra);
-        common::grainforce_infer(&case.scene, &args)
+        case.infer_from_tracks(&args)
     };
     let out = infer(&[]);
     let stderr = String::from_utf8_lossy(&out.stderr);
@@ -230,7 +223,7 @@ fn impulse_csv_from_the_cli() {
         assert_eq!(r[3], 21.0, "{r:?}");
         assert!((39.0..=53.0).contains(&r[4]), "{r:?}");
         let slope_var = |l: f64| 12.0 / (l * (l * l - 1.0));
-        let sd = 1e-3 * diameter * 5000.0 * (slope_var(r[3]) + slope_var(r[4])).sqrt();
+        let sd = 1e-3 * diameter * case.fps * (slope_var(r[3]) + slope_var(r[4])).sqrt();
         assert!((r[9] / sd - 1.0).abs() < 0.15, "{r:?}: sd {sd}");
     }
     // A stated noise is used as given; a bad window is an error, not a file.
@@ -253,19 +246,9 @@ fn frame_range_infers_the_same_forces_as_the_whole_sequence() {
     // window's ends were the filter's ends).
     let case = common::noisy_impact_on_disk(5);
     let infer = |out: &std::path::Path, extra: &[&str]| {
-        let mut args = vec![
-            "--method",
-            "dynamic",
-            "--fps",
-            "5000",
-            "--derive-accelerations",
-            "-q",
-        ];
-        args.extend(["-o", out.to_str().unwrap()]);
+        let mut args = vec!["--method", "dynamic", "-q", "-o", out.to_str().unwrap()];
         args.extend(extra);
-        assert!(common::grainforce_infer(&case.scene, &args)
-            .status
-            .success());
+        assert!(case.infer_from_tracks(&args).status.success());
         grainforce::scene::read_forces(out).unwrap()
     };
     let all = infer(&case.dir.path().join("all.csv"), &[]);

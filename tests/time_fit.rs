@@ -393,17 +393,10 @@ fn cli_joint_time_fit() {
     let (run, dir) = (&case.run, &case.dir);
     let (forces, report) = (dir.path().join("f.csv"), dir.path().join("r.json"));
     let infer = |extra: &[&str]| {
-        let mut args = vec![
-            "--fps",
-            "5000",
-            "--derive-accelerations",
-            "--time-fit",
-            "joint",
-        ];
-        args.extend(["-o", forces.to_str().unwrap()]);
+        let mut args = vec!["--time-fit", "joint", "-o", forces.to_str().unwrap()];
         args.extend(["--report", report.to_str().unwrap()]);
         args.extend(extra);
-        common::grainforce_infer(&case.scene, &args)
+        case.infer_from_tracks(&args)
     };
     let out = infer(&["--method", "dynamic"]);
     let stderr = String::from_utf8_lossy(&out.stderr);

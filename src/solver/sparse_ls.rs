@@ -697,6 +697,8 @@ impl EqualityLeastSquares {
         // factorisation did.
         let size_all = n + c.nrows;
         let mut changes = None;
+        // The border's columns, when the choice below already built them.
+        let mut built = None;
         if let Some(num) = self.numeric.as_mut() {
             if num.same_values(a, c, lambda, delta) {
                 if !num.active.same(g, springs) {
@@ -705,11 +707,14 @@ impl EqualityLeastSquares {
                 let diff = Changes::between(&num.in_factor, &num.active);
                 let k = diff.count();
                 // Only the columns the last border did not solve cost solves.
+                // Only the columns the last border did not solve cost solves.
                 let fresh = match &num.last_border {
-                    Some(last) if k <= BORDER_MAX_ROWS => border_columns(num, &diff, delta)
-                        .iter()
-                        .filter(|col| !last.holds(col))
-                        .count(),
+                    Some(last) if k <= BORDER_MAX_ROWS => {
+                        let columns = border_columns(num, &diff, delta);
+                        let fresh = columns.iter().filter(|col| !last.holds(col)).count();
+                        built = Some(columns);
+                        fresh
+                    }
                     _ => k,
                 };
                 // Removing a spring would subtract a stiffness of any size.
@@ -752,7 +757,7 @@ impl EqualityLeastSquares {
             format!("the {size}-row KKT solve workspace")
         })?;
         let bordered = if border {
-            let columns = border_columns(num, &changes, delta);
+            let columns = built.unwrap_or_else(|| border_columns(num, &changes, delta));
             Some(Bordered::new(
                 columns,
                 &ldlt,
@@ -1196,11 +1201,7 @@ impl EqualityLeastSquares {
 /// for 64; the threads share the columns (2 threads, one solve 0.18 s: 21
 /// columns 0.66 s, 47 columns 1.37 s).
 fn border_seconds(k: usize, solve_seconds: f64, par: Par) -> f64 {
-    let threads = match par {
-        Par::Seq => 1,
-        Par::Rayon(n) => n.get(),
-    };
-    (1.0 + k as f64 / (4 * threads) as f64) * solve_seconds
+    (1.0 + k as f64 / (4 * thread_count(par)) as f64) * solve_seconds
 }
 
 /// Solves F Y = B in place for the columns of `y` (column-major, `size`
@@ -1216,11 +1217,7 @@ fn solve_columns(
     if k == 0 {
         return Ok(());
     }
-    let threads = match par {
-        Par::Seq => 1,
-        Par::Rayon(n) => n.get(),
-    };
-    let per_thread = k.div_ceil(threads.clamp(1, k));
+    let per_thread = k.div_ceil(thread_count(par).clamp(1, k));
     let stack_bytes = ldlt
         .symbolic()
         .solve_in_place_scratch::<f64>(per_thread, Par::Seq);
@@ -1240,6 +1237,13 @@ fn solve_columns(
         })
         .collect();
     solved.into_iter().collect()
+}
+
+fn thread_count(par: Par) -> usize {
+    match par {
+        Par::Seq => 1,
+        Par::Rayon(n) => n.get(),
+    }
 }
 
 /// At most this many active rows + springs are bordered around the base
@@ -1280,8 +1284,13 @@ type BorderColumn = (Vec<(usize, f64)>, f64);
 
 impl Bordered {
     /// Whether this border already solved that column.
-    fn holds(&self, (entries, d): &BorderColumn) -> bool {
-        (self.columns.iter().zip(&self.d)).any(|(e, pd)| e == entries && pd == d)
+    fn holds(&self, column: &BorderColumn) -> bool {
+        self.position(column).is_some()
+    }
+
+    /// Where this border holds that column.
+    fn position(&self, (entries, d): &BorderColumn) -> Option<usize> {
+        (self.columns.iter().zip(&self.d)).position(|(e, pd)| e == entries && pd == d)
     }
 
     /// `columns`: the entries of each column of B with its D. Columns that
@@ -1297,14 +1306,13 @@ impl Bordered {
         let k = columns.len();
         let mut y = vec![0.0; size * k];
         let mut fresh = Vec::new();
-        for (col, (entries, d)) in columns.iter().enumerate() {
-            let target = &mut y[col * size..(col + 1) * size];
-            let known = previous.and_then(|p| {
-                (p.columns.iter().zip(&p.d)).position(|(e, pd)| e == entries && pd == d)
-            });
-            match (previous, known) {
-                (Some(p), Some(j)) => target.copy_from_slice(&p.y[j * size..(j + 1) * size]),
-                _ => fresh.push(col),
+        for (col, column) in columns.iter().enumerate() {
+            let known = previous.and_then(|p| Some((p, p.position(column)?)));
+            match known {
+                Some((p, j)) => {
+                    y[col * size..(col + 1) * size].copy_from_slice(&p.y[j * size..(j + 1) * size])
+                }
+                None => fresh.push(col),
             }
         }
         // The columns to solve, packed, then scattered back.

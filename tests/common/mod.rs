@@ -371,12 +371,27 @@ pub struct NoisyImpact {
     pub noisy: Vec<Scene>,
     pub dir: tempfile::TempDir,
     pub scene: std::path::PathBuf,
+    /// The preset's frame rate [1/s].
+    pub fps: f64,
+}
+
+impl NoisyImpact {
+    /// `grainforce infer` on the noisy tracks at the preset's frame rate,
+    /// accelerations derived from the tracks, then `args` (the method too).
+    pub fn infer_from_tracks(&self, args: &[&str]) -> std::process::Output {
+        let fps = self.fps.to_string();
+        let mut all = vec!["--fps", &fps, "--derive-accelerations"];
+        all.extend(args);
+        grainforce_infer(&self.scene, &all)
+    }
 }
 
 pub fn noisy_impact_on_disk(seed: u64) -> NoisyImpact {
     use grainforce::dem::perturb::{perturb, PerturbConfig};
     use grainforce::dem::{simulate, DemConfig, Preset};
-    let run = simulate(&DemConfig::preset(Preset::Impact, 2).seed(1)).unwrap();
+    let config = DemConfig::preset(Preset::Impact, 2).seed(1);
+    let fps = config.frame_rate;
+    let run = simulate(&config).unwrap();
     let diameter = 2.0 * run.frames[0].grains[0].radius.unwrap();
     let config = PerturbConfig {
         position_noise: 1e-3 * diameter,
@@ -392,6 +407,7 @@ pub fn noisy_impact_on_disk(seed: u64) -> NoisyImpact {
         noisy,
         dir,
         scene,
+        fps,
     }
 }
 

@@ -102,11 +102,13 @@ impl Stencils {
 }
 
 /// The pieces the relaxed correction lands on, or `None` when some contact is
-/// 3D (no guess; the caller starts from the pieces of x₀).
+/// 3D (no guess; the caller starts from the pieces of x₀). `diag` is
+/// diag(AᵀA + λ²I).
 pub(super) fn pieces(
     problem: &LeastSquares,
     contacts: &[Contact],
     start: &[f64],
+    diag: &[f64],
 ) -> Option<Vec<Piece>> {
     if contacts.iter().any(|ct| ct.tangents.len() > 1) {
         return None;
@@ -138,10 +140,6 @@ pub(super) fn pieces(
     let lambda2 = lambda * lambda;
     // Row weights: 1 on A, ρT² on C, each C row of unit norm in the metric
     // diag(AᵀA + λ²)⁻¹ so that ρ has no units.
-    let mut diag = vec![lambda2; a.ncols];
-    for q in 0..a.nnz() {
-        diag[a.cols[q]] += a.vals[q] * a.vals[q];
-    }
     let mut weight = vec![1.0; a.nrows + c.nrows];
     let c_weight = &mut weight[a.nrows..];
     c_weight.iter_mut().for_each(|w| *w = 0.0);
