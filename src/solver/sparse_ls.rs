@@ -24,6 +24,7 @@
 
 mod compressed;
 mod identifiability;
+mod nodes;
 mod ordering;
 
 pub use identifiability::{identifiability, Identifiability};
@@ -37,10 +38,11 @@ use faer::linalg::cholesky::ldlt::factor::LdltRegularization;
 use faer::linalg::cholesky::llt::factor::LltRegularization;
 use faer::perm::PermRef;
 use faer::sparse::linalg::cholesky::{
-    factorize_symbolic_cholesky, LdltRef, LltRef, SymbolicCholesky, SymmetricOrdering,
+    factorize_symbolic_cholesky, LltRef, SymbolicCholesky, SymmetricOrdering,
 };
 use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
 use faer::{Conj, MatMut, Par, Side};
+use nodes::{Factor, FactorNodes, SparseColumn};
 use rayon::prelude::*;
 
 use super::Triplets;
@@ -95,14 +97,14 @@ impl Ordering {
 /// tolerance).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Bordering {
-    /// Border the k changed rows (k right-hand sides solved together) when
-    /// that is estimated to take less than the numeric factorisation did,
-    /// else factorise anew.
+    /// Border the k changed rows (one sparse forward solve each, over the
+    /// part of the factor it reaches) when that is estimated to take less
+    /// than the numeric factorisation did, else factorise anew.
     #[default]
     Auto,
     /// Always a new numeric factorisation with the rows as penalties.
     Never,
-    /// Border whenever a factor of the same values is at hand (at most 64
+    /// Border whenever a factor of the same values is at hand (at most 256
     /// changed rows, no spring taken out).
     Always,
 }
@@ -179,8 +181,9 @@ impl Attempt {
     }
 }
 
-/// Numeric state tied to one set of values, one λ and one δ.
-struct Numeric {
+/// What every factorisation of one A, C, λ and δ starts from, whatever the
+/// active rows: the equilibration and the KKT values without those rows.
+struct Base {
     delta: f64,
     lambda: f64,
     a_vals: Vec<f64>,
@@ -193,17 +196,36 @@ struct Numeric {
     lambda2_s2: Vec<f64>,
     /// ‖row i of T C S‖∞, for the round-off-level rows of the primal residual.
     c_row_max: Vec<f64>,
+    /// Upper KKT values, regularised, before the active rows' penalties and
+    /// the springs are added.
+    values: Vec<f64>,
+}
+
+impl Base {
+    fn same(&self, a: &Triplets, c: &Triplets, lambda: f64, delta: f64) -> bool {
+        self.delta == delta
+            && self.lambda == lambda
+            && self.a_vals == a.vals
+            && self.c_vals == c.vals
+    }
+}
+
+/// Numeric state tied to one set of values, one λ and one δ.
+struct Numeric {
+    base: Base,
     /// The rows and springs of the current solve.
     active: ActiveRows,
     /// The rows (as penalties ĝᵀĝ/δ) and springs inside the factor; the
     /// current ones may differ from them by a few rows bordered around it.
     in_factor: ActiveRows,
     l_values: Vec<f64>,
+    /// The factor's nodes, for split and sparse solves.
+    nodes: FactorNodes,
     /// The last border solved around this factor, whose columns the next
     /// border may reuse.
     last_border: Option<Bordered>,
-    /// Time of the numeric factorisation and of one triangular solve [s]:
-    /// a bordered solve of k extra rows costs ~k solves, a new factor one
+    /// Time of the numeric factorisation and of one solve [s]: a border
+    /// costs the share of a solve its columns reach, a new factor one
     /// factorisation.
     factor_seconds: f64,
     solve_seconds: f64,
@@ -211,10 +233,7 @@ struct Numeric {
 
 impl Numeric {
     fn same_values(&self, a: &Triplets, c: &Triplets, lambda: f64, delta: f64) -> bool {
-        self.delta == delta
-            && self.lambda == lambda
-            && self.a_vals == a.vals
-            && self.c_vals == c.vals
+        self.base.same(a, c, lambda, delta)
     }
 }
 
@@ -590,12 +609,12 @@ impl EqualityLeastSquares {
         // converged, primal stuck) are not helped by a larger δ.
         let mut ladder: Vec<f64> = DELTA_LADDER.to_vec();
         if let Some(num) = &self.numeric {
-            if num.lambda == lambda
-                && num.a_vals == a.vals
-                && num.c_vals == c.vals
+            if num.base.lambda == lambda
+                && num.base.a_vals == a.vals
+                && num.base.c_vals == c.vals
                 && num.active.same(g, springs)
             {
-                ladder.retain(|&delta| delta >= num.delta);
+                ladder.retain(|&delta| delta >= num.base.delta);
             }
         }
         let mut best: Option<Attempt> = None;
@@ -692,40 +711,41 @@ impl EqualityLeastSquares {
         let n = self.n;
         // On a factor of the same A, C, λ and δ, the rows that changed since
         // it was computed (rows added, rows it holds that are no longer
-        // active) are bordered around it — k triangular solves — instead of a
-        // new numeric factorisation, when k solves cost less than the
-        // factorisation did.
-        let size_all = n + c.nrows;
+        // active) are bordered around it — one sparse forward solve each —
+        // instead of a new numeric factorisation, when those solves cost less
+        // than the factorisation did.
         let mut changes = None;
         // The border's columns, when the choice below already built them.
         let mut built = None;
-        if let Some(num) = self.numeric.as_mut() {
+        if let (Some(num), Some(symbolic)) = (self.numeric.as_mut(), self.symbolic.as_ref()) {
             if num.same_values(a, c, lambda, delta) {
                 if !num.active.same(g, springs) {
-                    num.active = ActiveRows::new(n, g, springs, &num.col_scale);
+                    num.active = ActiveRows::new(n, g, springs, &num.base.col_scale);
                 }
                 let diff = Changes::between(&num.in_factor, &num.active);
                 let k = diff.count();
-                // Only the columns the last border did not solve cost solves.
-                // Only the columns the last border did not solve cost solves.
-                let fresh = match &num.last_border {
-                    Some(last) if k <= BORDER_MAX_ROWS => {
-                        let columns = border_columns(num, &diff, delta);
-                        let fresh = columns.iter().filter(|col| !last.holds(col)).count();
-                        built = Some(columns);
-                        fresh
-                    }
-                    _ => k,
-                };
                 // Removing a spring would subtract a stiffness of any size.
-                let border = may_border
-                    && k > 0
-                    && k <= BORDER_MAX_ROWS
-                    && k * size_all <= BORDER_MAX_ENTRIES
-                    && diff.removed_springs.is_empty()
+                let may =
+                    may_border && k > 0 && k <= BORDER_MAX_ROWS && diff.removed_springs.is_empty();
+                let border = may
                     && match self.bordering {
                         Bordering::Auto => {
-                            border_seconds(fresh, num.solve_seconds, self.par) < num.factor_seconds
+                            // Only the columns the last border did not solve cost solves.
+                            let columns = border_columns(num, &diff, delta);
+                            let factor = Factor {
+                                symbolic,
+                                values: &num.l_values,
+                                nodes: &num.nodes,
+                            };
+                            let fresh = (columns.iter())
+                                .filter(|col| {
+                                    !num.last_border.as_ref().is_some_and(|b| b.holds(col))
+                                })
+                                .map(|(entries, _)| entries.as_slice());
+                            let share = factor.reach_share(fresh);
+                            let seconds = share * num.solve_seconds / thread_count(self.par) as f64;
+                            built = Some(columns);
+                            seconds < num.factor_seconds
                         }
                         Bordering::Never => false,
                         Bordering::Always => true,
@@ -746,25 +766,19 @@ impl EqualityLeastSquares {
         let border = changes.count() > 0;
         let previous = self.numeric.as_mut().and_then(|n| n.last_border.take());
         let num = self.numeric.as_ref().expect("factorised above");
-        let symbolic = self
-            .symbolic
-            .as_ref()
-            .expect("non-empty KKT has a symbolic factor");
-        let ldlt = LdltRef::<usize, f64>::new(symbolic, &num.l_values);
-        let size = symbolic.nrows();
+        let factor = Factor {
+            symbolic: self
+                .symbolic
+                .as_ref()
+                .expect("non-empty KKT has a symbolic factor"),
+            values: &num.l_values,
+            nodes: &num.nodes,
+        };
+        let size = factor.rows();
         let mg = num.active.len();
-        let mut stack_buf = workspace(symbolic.solve_in_place_scratch::<f64>(1, self.par), || {
-            format!("the {size}-row KKT solve workspace")
-        })?;
         let bordered = if border {
             let columns = built.unwrap_or_else(|| border_columns(num, &changes, delta));
-            Some(Bordered::new(
-                columns,
-                &ldlt,
-                size,
-                self.par,
-                previous.as_ref(),
-            )?)
+            Some(Bordered::new(columns, &factor, previous.as_ref())?)
         } else {
             None
         };
@@ -777,38 +791,34 @@ impl EqualityLeastSquares {
         let mut border_rhs = vec![0.0; changes.count()];
         // Solves the regularised augmented system in place: the active rows
         // the factor holds are eliminated through their penalty, the others
-        // bordered around it.
+        // bordered around it, between the two halves of the factor's solve.
         let mut kkt_solve = |rhs: &mut [f64]| {
             let (head, r3) = rhs.split_at_mut(size);
             if any_kept {
                 let shifted: Vec<f64> = (r3.iter().zip(&num.active.row_scale))
                     .map(|(r, t)| r * t / delta)
                     .collect();
-                let lift = mul_t_scaled(&num.active.csr, &kept, &num.col_scale, &shifted, n);
+                let lift = mul_t_scaled(&num.active.csr, &kept, &num.base.col_scale, &shifted, n);
                 for (h, l) in head.iter_mut().zip(&lift) {
                     *h += l;
                 }
             }
-            ldlt.solve_in_place_with_conj(
-                Conj::No,
-                MatMut::from_column_major_slice_mut(head, size, 1),
-                self.par,
-                MemStack::new(&mut stack_buf),
-            );
-            if let Some(bordered) = &bordered {
-                for (slot, &i) in border_rhs.iter_mut().zip(&changes.added) {
-                    *slot = r3[i];
+            factor.solve_with(head, |v| {
+                if let Some(bordered) = &bordered {
+                    for (slot, &i) in border_rhs.iter_mut().zip(&changes.added) {
+                        *slot = r3[i];
+                    }
+                    let t = bordered.correct(&factor, v, &border_rhs);
+                    for (&i, ti) in changes.added.iter().zip(t.iter()) {
+                        r3[i] = *ti;
+                    }
                 }
-                let t = bordered.correct(head, &border_rhs);
-                for (&i, ti) in changes.added.iter().zip(t.iter()) {
-                    r3[i] = *ti;
-                }
-            }
+            });
             if any_kept {
                 let gy = mul_scaled(
                     &num.active.csr,
                     &num.active.row_scale,
-                    &num.col_scale,
+                    &num.base.col_scale,
                     &head[..n],
                 );
                 for ((r, gyi), &k) in r3.iter_mut().zip(&gy).zip(&changes.kept) {
@@ -820,7 +830,11 @@ impl EqualityLeastSquares {
         };
 
         let ones_a = vec![1.0; a.nrows];
-        let d_hat: Vec<f64> = d.iter().zip(&num.c_row_scale).map(|(v, t)| v * t).collect();
+        let d_hat: Vec<f64> = d
+            .iter()
+            .zip(&num.base.c_row_scale)
+            .map(|(v, t)| v * t)
+            .collect();
         let zeros = vec![0.0; size + mg];
         // The residual at z = 0 is the right-hand side.
         let (mut z, _, _) = self.kkt_residual(num, &ones_a, b, &d_hat, &zeros);
@@ -856,7 +870,7 @@ impl EqualityLeastSquares {
         }
         let x: Vec<f64> = best.3[..n]
             .iter()
-            .zip(&num.col_scale)
+            .zip(&num.base.col_scale)
             .map(|(y, s)| y * s)
             .collect();
         if x.iter().any(|v| !v.is_finite()) {
@@ -950,8 +964,92 @@ impl EqualityLeastSquares {
                 return Ok(());
             }
         }
-        self.numeric = None;
+        // Only the active rows changed: start from the last factorisation's
+        // base (and its L storage) instead of equilibrating and forming AᵀA again.
+        let (base, l_values) = match self.numeric.take() {
+            Some(num) if num.same_values(a, c, lambda, delta) => (num.base, num.l_values),
+            old => (
+                self.base(a, c, lambda, delta)?,
+                old.map(|num| num.l_values).unwrap_or_default(),
+            ),
+        };
         let clock = std::time::Instant::now();
+        let n = self.n;
+        let size = n + c.nrows;
+        let active = ActiveRows::new(n, g, springs, &base.col_scale);
+        let mut values = base.values.clone();
+        // Penalty ĝᵀĝ/δ of each active row ĝ = T G S, and the springs (R S)ᵀ(R S),
+        // both on the contact blocks of the analysed pattern.
+        let penalty_scale: Vec<f64> = active.row_scale.iter().map(|t| t / delta.sqrt()).collect();
+        for (rows, row_scale, name) in [
+            (&active.csr, penalty_scale.as_slice(), "active row"),
+            (&active.springs, &vec![1.0; springs.nrows][..], "spring row"),
+        ] {
+            self.add_row_products(&mut values, rows, row_scale, &base.col_scale, name)?;
+        }
+        if let Some(p) = values.iter().position(|v| !v.is_finite()) {
+            return Err(Error::Solver(format!(
+                "KKT entry {p} is not finite after equilibration (values of A or C overflow when squared)"
+            )));
+        }
+
+        let symbolic = self
+            .symbolic
+            .as_ref()
+            .expect("non-empty KKT has a symbolic factor");
+        let signs: Vec<i8> = (0..size).map(|k| if k < n { 1 } else { -1 }).collect();
+        let regularization = LdltRegularization {
+            dynamic_regularization_signs: Some(&signs),
+            dynamic_regularization_delta: delta,
+            dynamic_regularization_epsilon: 1e-3 * delta,
+        };
+        let mut l_values = l_values;
+        l_values.resize(symbolic.len_val(), 0.0);
+        let mut stack_buf = workspace(
+            symbolic.factorize_numeric_ldlt_scratch::<f64>(self.par, Default::default()),
+            || format!("the LDLᵀ workspace ({} factor entries)", symbolic.len_val()),
+        )?;
+        let matrix = SparseColMatRef::new(
+            SymbolicSparseColMatRef::new_checked(
+                size,
+                size,
+                &self.kkt_col_ptr,
+                None,
+                &self.kkt_row_idx,
+            ),
+            &values,
+        );
+        symbolic
+            .factorize_numeric_ldlt(
+                &mut l_values,
+                matrix,
+                Side::Upper,
+                regularization,
+                self.par,
+                MemStack::new(&mut stack_buf),
+                Default::default(),
+            )
+            .map_err(|e| {
+                Error::Solver(format!(
+                    "sparse LDLᵀ of the {size}×{size} KKT matrix failed ({e:?}); λ = {lambda}, δ = {delta}"
+                ))
+            })?;
+        self.numeric = Some(Numeric {
+            base,
+            in_factor: active.clone(),
+            active,
+            nodes: FactorNodes::new(symbolic, &l_values),
+            l_values,
+            last_border: None,
+            factor_seconds: clock.elapsed().as_secs_f64(),
+            solve_seconds: f64::INFINITY,
+        });
+        Ok(())
+    }
+
+    /// The equilibration of [A; C] and the regularised KKT values without
+    /// active rows (see [`Base`]).
+    fn base(&mut self, a: &Triplets, c: &Triplets, lambda: f64, delta: f64) -> Result<Base> {
         let n = self.n;
         let (ma, mc) = (a.nrows, c.nrows);
         self.a_csr.refill(&a.vals);
@@ -997,9 +1095,6 @@ impl EqualityLeastSquares {
                 .collect()
         };
         let c_row_max = row_max(&self.c_csr, &c_row_scale);
-        let active = ActiveRows::new(n, g, springs, &col_scale);
-
-        let size = n + mc;
         let mut values = vec![0.0; self.kkt_row_idx.len()];
         let mut work = vec![0.0; n];
         gram_upper_values(
@@ -1016,15 +1111,6 @@ impl EqualityLeastSquares {
             // Rows are sorted with i ≤ j: the diagonal closes the column.
             values[self.kkt_col_ptr[j + 1] - 1] += lambda2_s2[j] + delta;
         }
-        // Penalty ĝᵀĝ/δ of each active row ĝ = T G S, and the springs (R S)ᵀ(R S),
-        // both on the contact blocks of the analysed pattern.
-        let penalty_scale: Vec<f64> = active.row_scale.iter().map(|t| t / delta.sqrt()).collect();
-        for (rows, row_scale, name) in [
-            (&active.csr, penalty_scale.as_slice(), "active row"),
-            (&active.springs, &vec![1.0; springs.nrows][..], "spring row"),
-        ] {
-            self.add_row_products(&mut values, rows, row_scale, &col_scale, name)?;
-        }
         for (i, t) in c_row_scale.iter().enumerate() {
             let mut p = self.kkt_col_ptr[n + i];
             for q in self.c_csr.range(i) {
@@ -1033,53 +1119,7 @@ impl EqualityLeastSquares {
             }
             values[p] = -delta;
         }
-        if let Some(p) = values.iter().position(|v| !v.is_finite()) {
-            return Err(Error::Solver(format!(
-                "KKT entry {p} is not finite after equilibration (values of A or C overflow when squared)"
-            )));
-        }
-
-        let symbolic = self
-            .symbolic
-            .as_ref()
-            .expect("non-empty KKT has a symbolic factor");
-        let signs: Vec<i8> = (0..size).map(|k| if k < n { 1 } else { -1 }).collect();
-        let regularization = LdltRegularization {
-            dynamic_regularization_signs: Some(&signs),
-            dynamic_regularization_delta: delta,
-            dynamic_regularization_epsilon: 1e-3 * delta,
-        };
-        let mut l_values = vec![0.0; symbolic.len_val()];
-        let mut stack_buf = workspace(
-            symbolic.factorize_numeric_ldlt_scratch::<f64>(self.par, Default::default()),
-            || format!("the LDLᵀ workspace ({} factor entries)", symbolic.len_val()),
-        )?;
-        let matrix = SparseColMatRef::new(
-            SymbolicSparseColMatRef::new_checked(
-                size,
-                size,
-                &self.kkt_col_ptr,
-                None,
-                &self.kkt_row_idx,
-            ),
-            &values,
-        );
-        symbolic
-            .factorize_numeric_ldlt(
-                &mut l_values,
-                matrix,
-                Side::Upper,
-                regularization,
-                self.par,
-                MemStack::new(&mut stack_buf),
-                Default::default(),
-            )
-            .map_err(|e| {
-                Error::Solver(format!(
-                    "sparse LDLᵀ of the {size}×{size} KKT matrix failed ({e:?}); λ = {lambda}, δ = {delta}"
-                ))
-            })?;
-        self.numeric = Some(Numeric {
+        Ok(Base {
             delta,
             lambda,
             a_vals: a.vals.clone(),
@@ -1088,14 +1128,8 @@ impl EqualityLeastSquares {
             c_row_scale,
             lambda2_s2,
             c_row_max,
-            in_factor: active.clone(),
-            active,
-            l_values,
-            last_border: None,
-            factor_seconds: clock.elapsed().as_secs_f64(),
-            solve_seconds: f64::INFINITY,
-        });
-        Ok(())
+            values,
+        })
     }
 
     /// Residual of the unregularised equilibrated KKT system at z = (y, μ, w), and
@@ -1113,7 +1147,7 @@ impl EqualityLeastSquares {
         let mc = d_hat.len();
         let (y, rest) = z.split_at(n);
         let (mu, w) = rest.split_at(mc);
-        let (s, t) = (&num.col_scale, &num.c_row_scale);
+        let (s, t) = (&num.base.col_scale, &num.base.c_row_scale);
         let (g_csr, tg) = (&num.active.csr, &num.active.row_scale);
         let ay = mul_scaled(&self.a_csr, ones_a, s, y);
         let ra: Vec<f64> = b.iter().zip(&ay).map(|(bi, ai)| bi - ai).collect();
@@ -1149,7 +1183,7 @@ impl EqualityLeastSquares {
         let mut r = Vec::with_capacity(z.len());
         let (mut dual_num, mut dual_den) = (0.0f64, 0.0f64);
         for j in 0..n {
-            let reg = num.lambda2_s2[j] * y[j];
+            let reg = num.base.lambda2_s2[j] * y[j];
             let g = atr[j] - reg - ctmu[j] - gtw[j] - rtry[j];
             dual_num = dual_num.max(g.abs());
             dual_den = dual_den
@@ -1184,7 +1218,7 @@ impl EqualityLeastSquares {
         };
         for i in 0..mc {
             let rc = d_hat[i] - cy[i];
-            row_check(rc, primal_bound[i], d_hat[i], num.c_row_max[i]);
+            row_check(rc, primal_bound[i], d_hat[i], num.base.c_row_max[i]);
             r.push(rc);
         }
         for i in 0..gy.len() {
@@ -1195,50 +1229,6 @@ impl EqualityLeastSquares {
     }
 }
 
-/// Estimated time of a border of k rows, from that of one solve on the
-/// factor: k right-hand sides solved together on one thread cost (measured,
-/// 2D 10⁵, one solve 0.12 s) 2.2 solves for 8, 3.5 for 16, 6.3 for 32, 13
-/// for 64; the threads share the columns (2 threads, one solve 0.18 s: 21
-/// columns 0.66 s, 47 columns 1.37 s).
-fn border_seconds(k: usize, solve_seconds: f64, par: Par) -> f64 {
-    (1.0 + k as f64 / (4 * thread_count(par)) as f64) * solve_seconds
-}
-
-/// Solves F Y = B in place for the columns of `y` (column-major, `size`
-/// rows). Multi-column solves are fast only sequentially (see
-/// `solve_parallelism`), so the threads split the columns instead.
-fn solve_columns(
-    ldlt: &LdltRef<'_, usize, f64>,
-    y: &mut [f64],
-    size: usize,
-    par: Par,
-) -> Result<()> {
-    let k = y.len() / size.max(1);
-    if k == 0 {
-        return Ok(());
-    }
-    let per_thread = k.div_ceil(thread_count(par).clamp(1, k));
-    let stack_bytes = ldlt
-        .symbolic()
-        .solve_in_place_scratch::<f64>(per_thread, Par::Seq);
-    let chunks: Vec<&mut [f64]> = y.chunks_mut(size * per_thread).collect();
-    let solved: Vec<Result<()>> = chunks
-        .into_par_iter()
-        .map(|chunk| {
-            let cols = chunk.len() / size;
-            let mut stack_buf = workspace(stack_bytes, || format!("{k} bordered solves"))?;
-            ldlt.solve_in_place_with_conj(
-                Conj::No,
-                MatMut::from_column_major_slice_mut(chunk, size, cols),
-                Par::Seq,
-                MemStack::new(&mut stack_buf),
-            );
-            Ok(())
-        })
-        .collect();
-    solved.into_iter().collect()
-}
-
 fn thread_count(par: Par) -> usize {
     match par {
         Par::Seq => 1,
@@ -1247,31 +1237,28 @@ fn thread_count(par: Par) -> usize {
 }
 
 /// At most this many active rows + springs are bordered around the base
-/// factor (beyond, a new factorisation is cheaper on any measured size).
-const BORDER_MAX_ROWS: usize = 64;
-/// … and the dense block F⁻¹B they need stays under 64 M entries (512 MB).
-const BORDER_MAX_ENTRIES: usize = 64 << 20;
+/// factor: the dense Schur complement costs k² sparse products to form.
+const BORDER_MAX_ROWS: usize = 256;
 
-/// The bordered system `[[F, B], [Bᵀ, −D]]` around the kept factor F: B's
-/// columns are the scaled active rows added since F (D = δ, the base
-/// regularisation), the springs added (D = 1, so that they add BᵀB to the
-/// Hessian block) and the rows F holds that are no longer active
-/// (D = −δ: eliminating them subtracts the penalty ĝᵀĝ/δ that F
-/// holds). Holds Y = F⁻¹B and the LU of the Schur complement BᵀY + D.
+/// The bordered system `[[F, B], [Bᵀ, −D]]` around the kept factor
+/// F = Pᵀ L D Lᵀ P: B's columns are the scaled active rows added since F
+/// (D = δ, the base regularisation), the springs added (D = 1, so that they
+/// add BᵀB to the Hessian block) and the rows F holds that are no longer
+/// active (D = −δ: eliminating them subtracts the penalty ĝᵀĝ/δ that F
+/// holds). Holds W = L⁻¹ P B, sparse (each column reaches few nodes of the
+/// factor), and the LU of the Schur complement BᵀF⁻¹B + D = Wᵀ D⁻¹ W + D.
 struct Bordered {
     /// B's columns (sparse) and their D.
     columns: Vec<Vec<(usize, f64)>>,
     d: Vec<f64>,
-    /// Y = F⁻¹ B, column-major, size × k.
-    y: Vec<f64>,
-    size: usize,
+    w: Vec<SparseColumn>,
     schur: nalgebra::LU<f64, nalgebra::Dyn, nalgebra::Dyn>,
 }
 
 /// The columns of B for the rows that changed since the factor, each with
 /// its D (see [`Bordered`]).
 fn border_columns(num: &Numeric, changes: &Changes, delta: f64) -> Vec<BorderColumn> {
-    let s = &num.col_scale;
+    let s = &num.base.col_scale;
     (changes.added.iter())
         .map(|&i| (scaled_row(&num.active, false, i, s), delta))
         .chain((changes.added_springs.iter()).map(|&i| (scaled_row(&num.active, true, i, s), 1.0)))
@@ -1298,41 +1285,36 @@ impl Bordered {
     /// not solved again: consecutive bordered solves share most columns.
     fn new(
         columns: Vec<BorderColumn>,
-        ldlt: &LdltRef<'_, usize, f64>,
-        size: usize,
-        par: Par,
+        factor: &Factor<'_>,
         previous: Option<&Bordered>,
     ) -> Result<Self> {
         let k = columns.len();
-        let mut y = vec![0.0; size * k];
-        let mut fresh = Vec::new();
-        for (col, column) in columns.iter().enumerate() {
-            let known = previous.and_then(|p| Some((p, p.position(column)?)));
-            match known {
-                Some((p, j)) => {
-                    y[col * size..(col + 1) * size].copy_from_slice(&p.y[j * size..(j + 1) * size])
-                }
-                None => fresh.push(col),
-            }
-        }
-        // The columns to solve, packed, then scattered back.
-        let mut rhs = vec![0.0; size * fresh.len()];
-        for (slot, &col) in fresh.iter().enumerate() {
-            for &(j, v) in &columns[col].0 {
-                rhs[slot * size + j] = v;
-            }
-        }
-        solve_columns(ldlt, &mut rhs, size, par)?;
-        for (slot, &col) in fresh.iter().enumerate() {
-            y[col * size..(col + 1) * size].copy_from_slice(&rhs[slot * size..(slot + 1) * size]);
-        }
+        let size = factor.rows();
+        let w: Vec<SparseColumn> = columns
+            .par_iter()
+            .map_init(
+                || (vec![0.0; size], vec![false; factor.node_total()]),
+                |(scratch, marked), column| {
+                    let known = previous.and_then(|p| Some((p, p.position(column)?)));
+                    match known {
+                        Some((p, j)) => p.w[j].clone(),
+                        None => factor.forward_sparse(&column.0, scratch, marked),
+                    }
+                },
+            )
+            .collect();
         let mut m = nalgebra::DMatrix::<f64>::zeros(k, k);
-        for (i, (entries, d)) in columns.iter().enumerate() {
-            for &(q, b) in entries {
-                for j in 0..k {
-                    m[(i, j)] += b * y[j * size + q];
-                }
+        let mut dense = vec![0.0; size];
+        for (i, wi) in w.iter().enumerate() {
+            factor.scatter_scaled(wi, &mut dense);
+            for (j, wj) in w.iter().enumerate().skip(i) {
+                let v = factor.dot(wj, &dense);
+                m[(i, j)] = v;
+                m[(j, i)] = v;
             }
+            factor.clear(wi, &mut dense);
+        }
+        for (i, (_, d)) in columns.iter().enumerate() {
             m[(i, i)] += d;
         }
         if m.iter().any(|v| !v.is_finite()) {
@@ -1344,31 +1326,27 @@ impl Bordered {
         Ok(Bordered {
             columns: columns.into_iter().map(|(entries, _)| entries).collect(),
             d,
-            y,
-            size,
+            w,
             schur: m.lu(),
         })
     }
 
-    /// Given head = F⁻¹(rhs head) and the border's right-hand side r,
-    /// completes the bordered solve in place: t = (BᵀY + D)⁻¹(Bᵀ head − r),
-    /// head −= Y t; returns t.
-    fn correct(&self, head: &mut [f64], r: &[f64]) -> nalgebra::DVector<f64> {
+    /// Given v = D⁻¹ L⁻¹ P h, the middle of the solve of F z = h, and the
+    /// border's right-hand side r, completes the bordered solve in place:
+    /// t = S⁻¹(Wᵀ v − r), v −= D⁻¹ W t (the backward half then gives
+    /// z = F⁻¹(h − B t)); returns t.
+    fn correct(&self, factor: &Factor<'_>, v: &mut [f64], r: &[f64]) -> nalgebra::DVector<f64> {
         let k = self.columns.len();
-        let mut u = nalgebra::DVector::<f64>::zeros(k);
-        for (i, entries) in self.columns.iter().enumerate() {
-            let bz: f64 = entries.iter().map(|&(q, b)| b * head[q]).sum();
-            u[i] = bz - r[i];
-        }
+        let u = nalgebra::DVector::from_iterator(
+            k,
+            (self.w.iter().zip(r)).map(|(w, ri)| factor.dot(w, v) - ri),
+        );
         let t = self
             .schur
             .solve(&u)
             .unwrap_or_else(|| nalgebra::DVector::from_element(k, f64::NAN));
-        for (j, tj) in t.iter().enumerate() {
-            let yj = &self.y[j * self.size..(j + 1) * self.size];
-            for (h, yv) in head.iter_mut().zip(yj) {
-                *h -= yv * tj;
-            }
+        for (w, tj) in self.w.iter().zip(t.iter()) {
+            factor.sub_scaled(v, *tj, w);
         }
         t
     }
