@@ -311,7 +311,7 @@ pub fn solve_from(
         .collect();
 
     // Each solve only needs the accuracy at which convergence is declared.
-    ls.set_refinement_target(0.1 * CONVERGED_TOL);
+    ls.set_refinement_target(CONVERGED_TOL);
     let initial = match warm.filter(|w| w.0.len() == contacts.len()) {
         Some(w) => Some(w.0.clone()),
         None if settings.predict => predict::pieces(problem, &contacts, start, &diag),
