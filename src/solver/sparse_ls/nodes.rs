@@ -6,10 +6,17 @@
 //! tree path from its entries to the root), which is what a border column
 //! costs instead of a full solve.
 
+use faer::linalg::matmul::matmul;
+use faer::linalg::triangular_solve;
+use faer::reborrow::{Reborrow, ReborrowMut};
 use faer::sparse::linalg::cholesky::{SymbolicCholesky, SymbolicCholeskyRaw};
+use faer::{Accum, MatMut, MatRef, Par};
 
 /// Marks a node without parent (a root of the elimination forest).
 const ROOT: u32 = u32::MAX;
+/// Nodes with at least this many columns go through faer's dense kernels
+/// (vectorised); smaller ones through plain loops, without call overhead.
+const DENSE_MIN: usize = 8;
 
 /// The node structure of one numeric LDLᵀ factor and its D⁻¹.
 pub(super) struct FactorNodes {
@@ -108,23 +115,37 @@ fn node<'a>(symbolic: &'a SymbolicCholesky<usize>, values: &'a [f64], s: usize) 
 }
 
 impl Node<'_> {
+    /// L_top and L_bottom as matrices.
+    fn blocks(&self) -> (MatRef<'_, f64>, MatRef<'_, f64>) {
+        let rows = self.size + self.pattern.len();
+        MatRef::from_column_major_slice(self.values, rows, self.size).split_at_row(self.size)
+    }
+
     /// x[cols] ← L_top⁻¹ x[cols]; x[pattern] −= L_bottom x[cols].
     fn forward(&self, x: &mut [f64], below: &mut Vec<f64>) {
         let rows = self.size + self.pattern.len();
         let top = &mut x[self.start..self.start + self.size];
         below.clear();
         below.resize(self.pattern.len(), 0.0);
-        for j in 0..self.size {
-            let column = &self.values[j * rows..(j + 1) * rows];
-            let xj = top[j];
-            if xj == 0.0 {
-                continue;
-            }
-            for (t, l) in top[j + 1..].iter_mut().zip(&column[j + 1..self.size]) {
-                *t -= l * xj;
-            }
-            for (b, l) in below.iter_mut().zip(&column[self.size..]) {
-                *b += l * xj;
+        if self.size >= DENSE_MIN {
+            let (l_top, l_bottom) = self.blocks();
+            let mut top = MatMut::from_column_major_slice_mut(top, self.size, 1);
+            triangular_solve::solve_unit_lower_triangular_in_place(l_top, top.rb_mut(), Par::Seq);
+            let below = MatMut::from_column_major_slice_mut(below, self.pattern.len(), 1);
+            matmul(below, Accum::Replace, l_bottom, top.rb(), 1.0, Par::Seq);
+        } else {
+            for j in 0..self.size {
+                let column = &self.values[j * rows..(j + 1) * rows];
+                let xj = top[j];
+                if xj == 0.0 {
+                    continue;
+                }
+                for (t, l) in top[j + 1..].iter_mut().zip(&column[j + 1..self.size]) {
+                    *t -= l * xj;
+                }
+                for (b, l) in below.iter_mut().zip(&column[self.size..]) {
+                    *b += l * xj;
+                }
             }
         }
         for (&i, b) in self.pattern.iter().zip(below.iter()) {
@@ -138,18 +159,37 @@ impl Node<'_> {
         below.clear();
         below.extend(self.pattern.iter().map(|&i| x[i]));
         let top = &mut x[self.start..self.start + self.size];
-        for j in (0..self.size).rev() {
-            let column = &self.values[j * rows..(j + 1) * rows];
-            let mut sum: f64 = below
-                .iter()
-                .zip(&column[self.size..])
-                .map(|(b, l)| b * l)
-                .sum();
-            sum += (top[j + 1..].iter())
-                .zip(&column[j + 1..self.size])
-                .map(|(t, l)| t * l)
-                .sum::<f64>();
-            top[j] -= sum;
+        if self.size >= DENSE_MIN {
+            let (l_top, l_bottom) = self.blocks();
+            let mut top = MatMut::from_column_major_slice_mut(top, self.size, 1);
+            let below = MatRef::from_column_major_slice(below, self.pattern.len(), 1);
+            matmul(
+                top.rb_mut(),
+                Accum::Add,
+                l_bottom.transpose(),
+                below,
+                -1.0,
+                Par::Seq,
+            );
+            triangular_solve::solve_unit_upper_triangular_in_place(
+                l_top.transpose(),
+                top,
+                Par::Seq,
+            );
+        } else {
+            for j in (0..self.size).rev() {
+                let column = &self.values[j * rows..(j + 1) * rows];
+                let mut sum: f64 = below
+                    .iter()
+                    .zip(&column[self.size..])
+                    .map(|(b, l)| b * l)
+                    .sum();
+                sum += (top[j + 1..].iter())
+                    .zip(&column[j + 1..self.size])
+                    .map(|(t, l)| t * l)
+                    .sum::<f64>();
+                top[j] -= sum;
+            }
         }
     }
 }
