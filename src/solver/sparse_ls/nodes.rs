@@ -241,21 +241,12 @@ impl Factor<'_> {
         scratch: &mut [f64],
         marked: &mut [bool],
     ) -> SparseColumn {
-        let inv = self.symbolic.perm().map(|p| p.arrays().1);
-        let permuted = |i: usize| inv.map_or(i, |inv| inv[i]);
         let mut nodes = Vec::new();
-        for &(i, _) in b {
-            let mut s = self.nodes.node_of[permuted(i)];
-            while s != ROOT && !marked[s as usize] {
-                marked[s as usize] = true;
-                nodes.push(s);
-                s = self.nodes.parent[s as usize];
-            }
-        }
+        self.reach(b, marked, &mut nodes);
         // Parents follow their children in the factor's column order.
         nodes.sort_unstable();
         for &(i, v) in b {
-            scratch[permuted(i)] += v;
+            scratch[self.permuted(i)] += v;
         }
         let mut below = Vec::new();
         let mut values = Vec::new();
@@ -270,22 +261,32 @@ impl Factor<'_> {
         SparseColumn { nodes, values }
     }
 
+    /// Appends to `nodes` the nodes on the paths from b's entries to the
+    /// root that are not marked yet, and marks them.
+    fn reach(&self, b: &[(usize, f64)], marked: &mut [bool], nodes: &mut Vec<u32>) {
+        for &(i, _) in b {
+            let mut s = self.nodes.node_of[self.permuted(i)];
+            while s != ROOT && !marked[s as usize] {
+                marked[s as usize] = true;
+                nodes.push(s);
+                s = self.nodes.parent[s as usize];
+            }
+        }
+    }
+
+    /// Row i of the original order in the factor's order.
+    fn permuted(&self, i: usize) -> usize {
+        self.symbolic.perm().map_or(i, |p| p.arrays().1[i])
+    }
+
     /// The share of a full solve (both halves) that forward solves of these
     /// sparse columns cost: the factor entries of the nodes each reaches.
     pub fn reach_share<'c>(&self, columns: impl Iterator<Item = &'c [(usize, f64)]>) -> f64 {
-        let inv = self.symbolic.perm().map(|p| p.arrays().1);
         let mut marked = vec![false; self.count()];
         let mut path = Vec::new();
         let mut entries = 0usize;
         for b in columns {
-            for &(i, _) in b {
-                let mut s = self.nodes.node_of[inv.map_or(i, |inv| inv[i])];
-                while s != ROOT && !marked[s as usize] {
-                    marked[s as usize] = true;
-                    path.push(s);
-                    s = self.nodes.parent[s as usize];
-                }
-            }
+            self.reach(b, &mut marked, &mut path);
             for s in path.drain(..) {
                 marked[s as usize] = false;
                 let node = self.node(s as usize);
@@ -295,7 +296,7 @@ impl Factor<'_> {
         entries as f64 / (2 * self.values.len()).max(1) as f64
     }
 
-    /// Calls `f` on each node's column range of w and the entries of w there.
+    /// Each node's column range reached by w, with w's entries there.
     fn segments<'w>(
         &'w self,
         w: &'w SparseColumn,
