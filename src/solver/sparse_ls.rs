@@ -835,9 +835,10 @@ impl EqualityLeastSquares {
             .zip(&num.base.c_row_scale)
             .map(|(v, t)| v * t)
             .collect();
-        let zeros = vec![0.0; size + mg];
-        // The residual at z = 0 is the right-hand side.
-        let (mut z, _, _) = self.kkt_residual(num, &ones_a, b, &d_hat, &zeros);
+        // The right-hand side (the residual at z = 0): (S Aᵀb, T d, 0).
+        let mut z = mul_t_scaled(&self.a_csr, &ones_a, &num.base.col_scale, b, n);
+        z.extend_from_slice(&d_hat);
+        z.resize(size + mg, 0.0);
         let clock = std::time::Instant::now();
         kkt_solve(&mut z);
         let first_solve_seconds = clock.elapsed().as_secs_f64();
