@@ -202,11 +202,13 @@ struct Base {
 }
 
 impl Base {
+    /// Built for these A, C and λ (whatever δ).
+    fn same_problem(&self, a: &Triplets, c: &Triplets, lambda: f64) -> bool {
+        self.lambda == lambda && self.a_vals == a.vals && self.c_vals == c.vals
+    }
+
     fn same(&self, a: &Triplets, c: &Triplets, lambda: f64, delta: f64) -> bool {
-        self.delta == delta
-            && self.lambda == lambda
-            && self.a_vals == a.vals
-            && self.c_vals == c.vals
+        self.delta == delta && self.same_problem(a, c, lambda)
     }
 }
 
@@ -234,6 +236,15 @@ struct Numeric {
 impl Numeric {
     fn same_values(&self, a: &Triplets, c: &Triplets, lambda: f64, delta: f64) -> bool {
         self.base.same(a, c, lambda, delta)
+    }
+
+    /// This factor with its symbolic part, for split and sparse solves.
+    fn factor<'a>(&'a self, symbolic: &'a SymbolicCholesky<usize>) -> Factor<'a> {
+        Factor {
+            symbolic,
+            values: &self.l_values,
+            nodes: &self.nodes,
+        }
     }
 }
 
@@ -609,11 +620,7 @@ impl EqualityLeastSquares {
         // converged, primal stuck) are not helped by a larger δ.
         let mut ladder: Vec<f64> = DELTA_LADDER.to_vec();
         if let Some(num) = &self.numeric {
-            if num.base.lambda == lambda
-                && num.base.a_vals == a.vals
-                && num.base.c_vals == c.vals
-                && num.active.same(g, springs)
-            {
+            if num.base.same_problem(a, c, lambda) && num.active.same(g, springs) {
                 ladder.retain(|&delta| delta >= num.base.delta);
             }
         }
@@ -732,11 +739,7 @@ impl EqualityLeastSquares {
                         Bordering::Auto => {
                             // Only the columns the last border did not solve cost solves.
                             let columns = border_columns(num, &diff, delta);
-                            let factor = Factor {
-                                symbolic,
-                                values: &num.l_values,
-                                nodes: &num.nodes,
-                            };
+                            let factor = num.factor(symbolic);
                             let fresh = (columns.iter())
                                 .filter(|col| {
                                     !num.last_border.as_ref().is_some_and(|b| b.holds(col))
@@ -766,14 +769,11 @@ impl EqualityLeastSquares {
         let border = changes.count() > 0;
         let previous = self.numeric.as_mut().and_then(|n| n.last_border.take());
         let num = self.numeric.as_ref().expect("factorised above");
-        let factor = Factor {
-            symbolic: self
-                .symbolic
+        let factor = num.factor(
+            self.symbolic
                 .as_ref()
                 .expect("non-empty KKT has a symbolic factor"),
-            values: &num.l_values,
-            nodes: &num.nodes,
-        };
+        );
         let size = factor.rows();
         let mg = num.active.len();
         let bordered = if border {
@@ -888,7 +888,7 @@ impl EqualityLeastSquares {
             .collect();
         if let Some(num) = self.numeric.as_mut() {
             if !border {
-                // A plain solve on the factor: what each bordered row costs.
+                // A plain solve on the factor: the unit of a border's cost.
                 num.solve_seconds = first_solve_seconds;
             }
             num.last_border = bordered.or(previous);
