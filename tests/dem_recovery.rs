@@ -86,3 +86,25 @@ fn collapsed_feasible_set_is_detected() {
         "{report}"
     );
 }
+
+#[test]
+fn default_presets_balance_to_round_off() {
+    // At the default gate (1e-4) the grains are out of balance at that level;
+    // the written residual accelerations make the files balance anyway, so
+    // the DEM's forces are the exact answer (`dem box --dim 3`, 155 s in the
+    // dev profile, is checked the same way by hand: 2.6e-16).
+    for (preset, dim) in [
+        (Preset::Oedometer, 2),
+        (Preset::Oedometer, 3),
+        (Preset::Box, 2),
+    ] {
+        let run = simulate(&DemConfig::preset(preset, dim).seed(7)).unwrap();
+        assert!(
+            run.report.unbalanced_ratio > 1e-6,
+            "gate met far below its default"
+        );
+        let (e, report) = qs_relerr(&run.frames[0], &run.forces[0]);
+        eprintln!("{preset:?} {dim}D: relerr {e:.2e}");
+        assert!(e <= 1e-6, "{preset:?} {dim}D: relerr {e}\n{report}");
+    }
+}

@@ -252,22 +252,10 @@ fn heavy_noise_and_disks_cut_by_the_border() {
     }
 }
 
-/// The shared folder lives beside the project (`../shared`); GRAINFORCE_SHARED
-/// overrides it for checkouts elsewhere.
-fn shared_dir() -> PathBuf {
-    std::env::var_os("GRAINFORCE_SHARED")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared"))
-}
-
 #[test]
 fn pepe_circles_external_images() {
-    let dir = shared_dir().join("external/pepe-circles");
-    assert!(
-        dir.is_dir(),
-        "external check images not found at {} (expected shared/ beside the project, or set GRAINFORCE_SHARED)",
-        dir.display()
-    );
+    // MIT-licensed test data of another project, copied with its licence.
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/external/pepe-circles");
     for i in 1..=3 {
         let image = load_gray(&dir.join(format!("test_circles_{i}.bmp"))).unwrap();
         let truth: Vec<[f64; 2]> =

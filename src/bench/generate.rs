@@ -467,6 +467,12 @@ fn exact_forces(
     Ok((truth, residual / mean))
 }
 
+const MAX_PROJECTION_SWEEPS: usize = 30;
+
+fn max_abs(v: &[f64]) -> f64 {
+    v.iter().fold(0.0f64, |m, x| m.max(x.abs()))
+}
+
 /// Least-change projection onto K x = 0 via a Cholesky factorisation of K Kᵀ
 /// (+ a tiny shift for safety) and two refinement sweeps.
 struct Projector<'a> {
@@ -519,14 +525,25 @@ impl<'a> Projector<'a> {
         Ok(Projector { k, llt })
     }
 
+    /// Sweeps until K x stops shrinking: on nearly redundant rows (an almost
+    /// perfect lattice, K Kᵀ conditioned like 1/jitter²) each sweep only
+    /// contracts by ~shift/σ², and a truth left out of balance there would
+    /// make exact data inconsistent.
     fn project(&self, x: &mut [f64]) -> Result<()> {
-        for _ in 0..3 {
-            let mut y = self.k.mul(x);
+        let mut y = self.k.mul(x);
+        let mut residual = max_abs(&y);
+        for _ in 0..MAX_PROJECTION_SWEEPS {
             self.llt.solve_in_place(&mut y, 1)?;
             let correction = self.k.mul_transpose(&y);
             for (xi, ci) in x.iter_mut().zip(correction) {
                 *xi -= ci;
             }
+            y = self.k.mul(x);
+            let next = max_abs(&y);
+            if !(next < 0.5 * residual) {
+                break;
+            }
+            residual = next;
         }
         Ok(())
     }

@@ -460,6 +460,6 @@ pub fn write_run(dir: &Path, run: &DemRun) -> Result<()> {
     let text =
         serde_json::to_string_pretty(&run.report).map_err(|e| Error::Invalid(e.to_string()))?;
     let path = dir.join("dem_report.json");
-    std::fs::write(&path, text + "\n").map_err(|e| Error::io(&path, e))?;
+    scene::write_file_atomically(&path, (text + "\n").as_bytes())?;
     Ok(())
 }

@@ -5,8 +5,11 @@ use super::sim::System;
 use crate::scene::{self, Body, Contact, Grain, Inertia, Scene, Settings, Vec3, Wall};
 
 /// Builds one frame from the contacts recorded at the last force evaluation.
-/// `dynamic` adds accelerations; `relabel` numbers contacts c0, c1, … in
-/// order instead of by their persistent ids.
+/// `dynamic` writes the integrator's accelerations; otherwise each grain gets
+/// the residual a = Σf/m + g, α = Σ r × f / I of the recorded forces, so a
+/// quasi-static frame balances to round-off whatever gate it was relaxed to.
+/// `relabel` numbers contacts c0, c1, … in order instead of by their
+/// persistent ids.
 pub(crate) fn snapshot(
     sys: &System,
     settings: &Settings,
@@ -19,11 +22,15 @@ pub(crate) fn snapshot(
     s.frame = frame;
     s.settings = settings.clone();
     let mut moments = vec![[0.0f64; 6]; sys.len()];
+    let mut net = vec![[0.0f64; 3]; sys.len()];
+    let mut torque = vec![[0.0f64; 3]; sys.len()];
     let mut forces = Vec::with_capacity(sys.records.len());
     for (k, rec) in sys.records.iter().enumerate() {
         let a = rec.a as usize;
         let ra = scene::sub(rec.point, sys.x[a]);
         add_sym(&mut moments[a], scene::sym_outer(ra, rec.force));
+        add3(&mut net[a], rec.force);
+        add3(&mut torque[a], scene::cross(ra, rec.force));
         let b = if rec.wall {
             Body::Wall(rec.b as usize)
         } else {
@@ -31,6 +38,8 @@ pub(crate) fn snapshot(
             let rb = scene::sub(rec.point, sys.x[b]);
             let fb = [-rec.force[0], -rec.force[1], -rec.force[2]];
             add_sym(&mut moments[b], scene::sym_outer(rb, fb));
+            add3(&mut net[b], fb);
+            add3(&mut torque[b], scene::cross(rb, fb));
             Body::Grain(b)
         };
         let id = if relabel { k as u64 } else { rec.id - 1 };
@@ -62,6 +71,11 @@ pub(crate) fn snapshot(
         if dynamic {
             g.acceleration = Some(sys.a[i]);
             g.angular_acceleration = Some(sys.alpha[i]);
+        } else {
+            let m = sys.mass[i];
+            g.acceleration = Some([0, 1, 2].map(|k| net[i][k] / m + sys.gravity[k]));
+            let inv_i = 1.0 / sys.inertia[i];
+            g.angular_acceleration = Some(torque[i].map(|t| t * inv_i));
         }
         s.grains.push(g);
     }

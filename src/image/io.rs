@@ -2,7 +2,7 @@
 
 use super::FloatImage;
 use crate::error::{Error, Result};
-use ::image::{DynamicImage, ImageBuffer, ImageError, Luma};
+use ::image::{DynamicImage, ImageBuffer, ImageError, ImageFormat, Luma};
 use std::path::{Path, PathBuf};
 
 /// Reads an image (PNG, TIFF or BMP; 8- or 16-bit, gray or colour) as
@@ -86,7 +86,7 @@ pub fn check_same_size(
 /// Writes intensities in [0, 1] (clamped) as an 8- or 16-bit grayscale image;
 /// the format follows the extension (PNG, TIFF or BMP).
 pub fn save_gray(path: &Path, image: &FloatImage, bits: u8) -> Result<()> {
-    let result = match bits {
+    let image: DynamicImage = match bits {
         8 => {
             let data = image.as_raw().iter().map(|&v| quantise(v, 255.0) as u8);
             ImageBuffer::<Luma<u8>, Vec<u8>>::from_raw(
@@ -95,7 +95,7 @@ pub fn save_gray(path: &Path, image: &FloatImage, bits: u8) -> Result<()> {
                 data.collect(),
             )
             .expect("same dimensions")
-            .save(path)
+            .into()
         }
         16 => {
             let data = image.as_raw().iter().map(|&v| quantise(v, 65535.0) as u16);
@@ -105,7 +105,7 @@ pub fn save_gray(path: &Path, image: &FloatImage, bits: u8) -> Result<()> {
                 data.collect(),
             )
             .expect("same dimensions")
-            .save(path)
+            .into()
         }
         _ => {
             return Err(Error::Invalid(format!(
@@ -113,10 +113,21 @@ pub fn save_gray(path: &Path, image: &FloatImage, bits: u8) -> Result<()> {
             )))
         }
     };
-    result.map_err(|e| match e {
+    save_atomically(path, &image)
+}
+
+/// Encodes in memory in the format the extension names, then writes to a
+/// temporary file that is renamed into place: a killed run leaves the old
+/// file or none.
+pub(crate) fn save_atomically(path: &Path, image: &DynamicImage) -> Result<()> {
+    let format = ImageFormat::from_path(path)
+        .map_err(|e| Error::data(path, None, None, format!("cannot write image: {e}")))?;
+    let mut bytes = std::io::Cursor::new(Vec::new());
+    image.write_to(&mut bytes, format).map_err(|e| match e {
         ImageError::IoError(io) => Error::io(path, io),
         other => Error::data(path, None, None, format!("cannot write image: {other}")),
-    })
+    })?;
+    crate::scene::write_file_atomically(path, bytes.get_ref())
 }
 
 fn quantise(v: f32, full_scale: f32) -> f32 {

@@ -102,7 +102,7 @@ impl PixelFrame {
 
     pub fn write(&self, path: &Path) -> Result<()> {
         let text = serde_json::to_string_pretty(self).expect("a frame always serialises");
-        std::fs::write(path, text + "\n").map_err(|e| Error::io(path, e))
+        crate::scene::write_file_atomically(path, (text + "\n").as_bytes())
     }
 }
 

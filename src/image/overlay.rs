@@ -7,7 +7,7 @@ use super::contacts::{ContactBody, PixelContact, WallLine};
 use super::detect::Disk;
 use super::font::draw_text;
 use super::FloatImage;
-use crate::error::{Error, Result};
+use crate::error::Result;
 use ::image::{Rgb, RgbImage};
 use imageproc::drawing::{draw_filled_circle_mut, draw_line_segment_mut};
 use std::path::Path;
@@ -72,8 +72,5 @@ pub fn draw_overlay(
 }
 
 pub fn save_overlay(path: &Path, overlay: &RgbImage) -> Result<()> {
-    overlay.save(path).map_err(|e| match e {
-        ::image::ImageError::IoError(io) => Error::io(path, io),
-        other => Error::data(path, None, None, format!("cannot write overlay: {other}")),
-    })
+    super::io::save_atomically(path, &::image::DynamicImage::ImageRgb8(overlay.clone()))
 }

@@ -1,5 +1,5 @@
 //! Importers: other tools' output converted into the scene contract
-//! (`shared/scene-format.md`), with the true contact forces where the source has
+//! (`docs/scene-format.md`), with the true contact forces where the source has
 //! them. One submodule per format; each returns an [`ImportedScene`].
 //!
 //! Conventions shared by all importers:

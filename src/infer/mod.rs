@@ -157,7 +157,8 @@ pub fn infer(scene: &Scene, opts: &InferOptions) -> Result<Inference> {
     assemble_opts.single_system = opts.method == Method::Scaled;
     let assembly = assemble::assemble(scene, &assemble_opts)?;
     let mut report = InferenceReport::new(scene, opts, &assembly);
-    report.unique = check_identifiability(&assembly, opts.identifiability_limit)?;
+    (report.unique, report.conditioning) =
+        check_identifiability(&assembly, opts.identifiability_limit)?;
     let factors = FactorCache::new(&assembly);
 
     let (solutions, lambda_trace) = match opts.method {
@@ -755,18 +756,22 @@ pub(crate) fn as_solution(
     )
 }
 
-/// Whether the data determine the forces: N(K_st) ∩ N(K_eq) = {0} in every cluster.
-fn check_identifiability(assembly: &Assembly, limit: usize) -> Result<Option<bool>> {
+/// Whether the data determine the forces (N(K_st) ∩ N(K_eq) = {0} in every
+/// cluster), and the smallest σ_min/σ_max of the clusters' equilibrated
+/// [K_st; K_eq].
+fn check_identifiability(assembly: &Assembly, limit: usize) -> Result<(Option<bool>, Option<f64>)> {
     let n: usize = assembly.systems.iter().map(|s| s.n).sum();
     if n > limit {
-        return Ok(None);
+        return Ok((None, None));
     }
+    let mut unique = true;
+    let mut conditioning = 1.0f64;
     for s in &assembly.systems {
-        if !sparse_ls::identifiability(&s.stress, &s.momentum)?.unique {
-            return Ok(Some(false));
-        }
+        let check = sparse_ls::identifiability(&s.stress, &s.momentum)?;
+        unique &= check.unique;
+        conditioning = conditioning.min(check.sigma_min_relative);
     }
-    Ok(Some(true))
+    Ok((Some(unique), Some(conditioning)))
 }
 
 /// Explains an infeasible problem: is it friction (μ too small) or the sign of

@@ -48,6 +48,10 @@ pub struct InferenceReport {
     pub stress_scale: Option<f64>,
     /// Whether the forces are uniquely determined by the data (None: not checked).
     pub unique: Option<bool>,
+    /// Estimate of σ_min/σ_max of the equilibrated [K_st; K_eq] (smallest
+    /// over clusters; None: not checked): a relative error η in the data can
+    /// move the forces by up to ~η/σ.
+    pub conditioning: Option<f64>,
     pub solver_status: String,
     /// How each solve went (algorithm, iterations, fallbacks), deduplicated.
     pub solver_attempts: Vec<String>,
@@ -113,6 +117,7 @@ impl InferenceReport {
             pareto: None,
             stress_scale: None,
             unique: None,
+            conditioning: None,
             solver_status: "not run".into(),
             solver_attempts: Vec::new(),
             iterations: 0,
@@ -282,11 +287,18 @@ impl std::fmt::Display for InferenceReport {
                 "stress      scale estimated from walls: {s:.5} (measured stresses × {s:.5})"
             )?;
         }
+        let conditioning = match self.conditioning {
+            Some(c) => format!(
+                " (σ_min/σ_max {c:.1e}: errors in the data are amplified at most ~{:.1}×)",
+                1.0 / c
+            ),
+            None => String::new(),
+        };
         match self.unique {
-            Some(true) => writeln!(f, "unique      yes: the data determine every force")?,
+            Some(true) => writeln!(f, "unique      yes: the data determine every force{conditioning}")?,
             Some(false) => writeln!(
                 f,
-                "unique      NO: N(K_st) ∩ N(K_eq) ≠ {{0}}, other force fields fit the data equally well"
+                "unique      NO: N(K_st) ∩ N(K_eq) ≠ {{0}}, other force fields fit the data equally well{conditioning}"
             )?,
             None => writeln!(f, "unique      not checked")?,
         }

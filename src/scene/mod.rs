@@ -1,5 +1,5 @@
 //! The scene: grains, contacts, walls and settings, as the data contract
-//! (`shared/scene-format.md`) describes them. One type serves 2D and 3D: vectors
+//! (`docs/scene-format.md`) describes them. One type serves 2D and 3D: vectors
 //! are `[f64; 3]` with z = 0 in 2D, and [`Scene::dim`] says which.
 
 mod io;
