@@ -1,7 +1,7 @@
 //! VTK export: written files are read back (a small XML reader below) and, when
 //! ParaView's `pvpython` is installed, loaded by ParaView itself.
 
-use grainforce::export::vtk::{write_frame, write_series};
+use grainforce::export::vtk::{write_frame, write_series, Encoding};
 use grainforce::import::{lammps, net_forces, ImportedScene};
 use grainforce::scene::{self, Body};
 use std::path::Path;
@@ -16,48 +16,102 @@ fn lammps_run() -> ImportedScene {
     .unwrap()
 }
 
-/// The numbers of a named DataArray, and its NumberOfComponents.
-fn data_array(xml: &str, name: &str) -> (usize, Vec<f64>) {
-    let tag = format!("Name=\"{name}\"");
-    let start = xml.find(&tag).unwrap_or_else(|| panic!("no array {name}"));
+/// The XML part of a `.vtp` file and, for appended raw data, the bytes after
+/// the `_` marker.
+fn split(file: &[u8]) -> (String, &[u8]) {
+    let marker = b"<AppendedData encoding=\"raw\">";
+    match file.windows(marker.len()).position(|w| w == marker) {
+        Some(at) => {
+            let underscore = at + file[at..].iter().position(|&b| b == b'_').unwrap();
+            let tail = b"\n  </AppendedData>\n</VTKFile>\n";
+            assert!(file.ends_with(tail), "appended block not closed");
+            (
+                String::from_utf8(file[..at].to_vec()).unwrap(),
+                &file[underscore + 1..file.len() - tail.len()],
+            )
+        }
+        None => (String::from_utf8(file.to_vec()).unwrap(), &[]),
+    }
+}
+
+fn field<'a>(tag: &'a str, name: &str) -> Option<&'a str> {
+    tag.split(&format!(" {name}=\"")).nth(1)?.split('"').next()
+}
+
+/// The numbers of a named DataArray, and its NumberOfComponents, read as a
+/// VTK reader does: ASCII text, or a UInt64 byte count and little-endian
+/// values at `offset` in the appended block.
+fn data_array(file: &[u8], name: &str) -> (usize, Vec<f64>) {
+    let (xml, appended) = split(file);
+    let start = xml
+        .find(&format!("Name=\"{name}\""))
+        .unwrap_or_else(|| panic!("no array {name}"));
+    let start = xml[..start].rfind('<').unwrap();
     let open_end = start + xml[start..].find('>').unwrap();
-    let comps: usize = xml[start..open_end]
-        .split("NumberOfComponents=\"")
-        .nth(1)
-        .unwrap()
-        .split('"')
-        .next()
-        .unwrap()
-        .parse()
-        .unwrap();
-    let close = open_end + xml[open_end..].find("</DataArray>").unwrap();
-    let values = xml[open_end + 1..close]
-        .split_whitespace()
-        .map(|v| v.parse().unwrap())
-        .collect();
+    let tag = &xml[start..open_end];
+    let comps: usize = field(tag, "NumberOfComponents").unwrap().parse().unwrap();
+    let values = match field(tag, "format").unwrap() {
+        "ascii" => {
+            let close = open_end + xml[open_end..].find("</DataArray>").unwrap();
+            xml[open_end + 1..close]
+                .split_whitespace()
+                .map(|v| v.parse().unwrap())
+                .collect()
+        }
+        "appended" => {
+            assert!(tag.ends_with('/'), "an appended array has no body");
+            let offset: usize = field(tag, "offset").unwrap().parse().unwrap();
+            let len = u64::from_le_bytes(appended[offset..offset + 8].try_into().unwrap()) as usize;
+            let bytes = &appended[offset + 8..offset + 8 + len];
+            match field(tag, "type").unwrap() {
+                "Float64" => bytes
+                    .chunks_exact(8)
+                    .map(|b| f64::from_le_bytes(b.try_into().unwrap()))
+                    .collect(),
+                "Int64" => bytes
+                    .chunks_exact(8)
+                    .map(|b| i64::from_le_bytes(b.try_into().unwrap()) as f64)
+                    .collect(),
+                "Int32" => bytes
+                    .chunks_exact(4)
+                    .map(|b| i32::from_le_bytes(b.try_into().unwrap()) as f64)
+                    .collect(),
+                other => panic!("unexpected type {other}"),
+            }
+        }
+        other => panic!("unexpected format {other}"),
+    };
     (comps, values)
 }
 
-fn attribute(xml: &str, name: &str) -> usize {
-    xml.split(&format!("{name}=\""))
-        .nth(1)
-        .unwrap()
-        .split('"')
-        .next()
-        .unwrap()
-        .parse()
-        .unwrap()
+fn attribute(file: &[u8], name: &str) -> usize {
+    field(&split(file).0, name).unwrap().parse().unwrap()
 }
 
 #[test]
-fn grains_and_contacts_read_back() {
+fn grains_and_contacts_read_back_binary_and_ascii() {
+    let mut sizes = Vec::new();
+    for encoding in [Encoding::Binary, Encoding::Ascii] {
+        sizes.push(read_back(encoding));
+    }
+    // Binary is the compact default.
+    assert!(
+        sizes[0] < sizes[1],
+        "binary {} B, ascii {} B",
+        sizes[0],
+        sizes[1]
+    );
+}
+
+/// Writes the LAMMPS frame, checks every array, returns the contacts file's size.
+fn read_back(encoding: Encoding) -> usize {
     let run = lammps_run();
     let (frame, forces) = (&run.frames[0], &run.forces.as_ref().unwrap()[0]);
     let dir = tempfile::tempdir().unwrap();
-    let files = write_frame(&dir.path().join("out.vtp"), frame, Some(forces)).unwrap();
+    let files = write_frame(&dir.path().join("out.vtp"), frame, Some(forces), encoding).unwrap();
     assert_eq!(files.contacts, dir.path().join("out_contacts.vtp"));
 
-    let grains = std::fs::read_to_string(&files.grains).unwrap();
+    let grains = std::fs::read(&files.grains).unwrap();
     assert_eq!(attribute(&grains, "NumberOfPoints"), 40);
     let (c, radius) = data_array(&grains, "radius");
     assert_eq!((c, radius.len()), (1, 40));
@@ -77,7 +131,7 @@ fn grains_and_contacts_read_back() {
         }
     }
 
-    let contacts = std::fs::read_to_string(&files.contacts).unwrap();
+    let contacts = std::fs::read(&files.contacts).unwrap();
     let walls = frame
         .contacts
         .iter()
@@ -105,6 +159,7 @@ fn grains_and_contacts_read_back() {
         let m = scene::norm(forces[i]);
         assert!((fnorm[i].powi(2) + ftan[i].powi(2) - m * m).abs() <= 1e-9 * m * m);
     }
+    contacts.len()
 }
 
 #[test]
@@ -112,7 +167,7 @@ fn a_sequence_gets_a_pvd_index() {
     let run = lammps_run();
     let dir = tempfile::tempdir().unwrap();
     let pvd = dir.path().join("run.pvd");
-    let files = write_series(&pvd, &run.frames, run.forces.as_deref()).unwrap();
+    let files = write_series(&pvd, &run.frames, run.forces.as_deref(), Encoding::Binary).unwrap();
     assert_eq!(files.len(), 2);
     let index = std::fs::read_to_string(&pvd).unwrap();
     assert_eq!(index.matches("<DataSet").count(), 4);
@@ -121,7 +176,13 @@ fn a_sequence_gets_a_pvd_index() {
         assert!(f.grains.exists() && f.contacts.exists());
     }
     // A force set per frame is required.
-    assert!(write_series(&pvd, &run.frames, Some(&run.forces.as_ref().unwrap()[..1])).is_err());
+    assert!(write_series(
+        &pvd,
+        &run.frames,
+        Some(&run.forces.as_ref().unwrap()[..1]),
+        Encoding::Binary
+    )
+    .is_err());
 }
 
 /// ParaView reads the files and finds the same counts and a force value.
@@ -138,7 +199,13 @@ fn paraview_loads_the_files_when_installed() {
     let run = lammps_run();
     let (frame, forces) = (&run.frames[0], &run.forces.as_ref().unwrap()[0]);
     let dir = tempfile::tempdir().unwrap();
-    let files = write_frame(&dir.path().join("out.vtp"), frame, Some(forces)).unwrap();
+    let files = write_frame(
+        &dir.path().join("out.vtp"),
+        frame,
+        Some(forces),
+        Encoding::Binary,
+    )
+    .unwrap();
     let script = format!(
         "from paraview.simple import *\n\
          from paraview import servermanager as sm\n\

@@ -28,10 +28,19 @@ pub struct Args {
     /// Output file: .vtp (one frame) or .pvd (series).
     #[arg(short, long)]
     output: PathBuf,
+    /// Write the arrays as ASCII text instead of appended raw binary (larger,
+    /// readable in a text editor).
+    #[arg(long)]
+    ascii: bool,
 }
 
 pub fn run(args: Args) -> Result<()> {
     let Format::Vtk = args.format;
+    let encoding = if args.ascii {
+        vtk::Encoding::Ascii
+    } else {
+        vtk::Encoding::Binary
+    };
     let frames = scene::read_sequence(&args.scene)?;
     let forces = match &args.forces {
         Some(path) => {
@@ -58,7 +67,7 @@ pub fn run(args: Args) -> Result<()> {
                 frames.len()
             )));
         }
-        let files = vtk::write_series(&args.output, &frames, forces.as_deref())?;
+        let files = vtk::write_series(&args.output, &frames, forces.as_deref(), encoding)?;
         println!(
             "wrote {} and {} frame file pairs",
             args.output.display(),
@@ -69,6 +78,7 @@ pub fn run(args: Args) -> Result<()> {
             &args.output,
             &frames[0],
             forces.as_ref().map(|f| f[0].as_slice()),
+            encoding,
         )?;
         println!(
             "wrote {} and {}",
