@@ -62,12 +62,15 @@ fn knee_of_l_shaped_fronts() {
 #[test]
 fn knee_of_degenerate_fronts() {
     assert_eq!(knee(&[]), None);
-    assert!(knee(&front(&[(1.0, 1.0)])).is_some());
-    assert!(knee(&front(&[(1.0, 1.0), (2.0, 0.5)])).is_some());
-    let flat = front(&[(1.0, 1.0); 12]);
-    assert!(knee(&flat).unwrap() < 12);
-    let zeros = front(&[(0.0, 0.0); 5]);
-    assert!(knee(&zeros).unwrap() < 5);
+    // Too few points for a curvature, or a front without a corner: the
+    // middle point.
+    assert_eq!(knee(&front(&[(1.0, 1.0)])), Some(0));
+    assert_eq!(knee(&front(&[(1.0, 1.0), (2.0, 0.5)])), Some(1));
+    assert_eq!(knee(&front(&[(1.0, 1.0); 12])), Some(6));
+    assert_eq!(knee(&front(&[(0.0, 0.0); 5])), Some(2));
+    // A straight line in log-log has no corner either.
+    let line: Vec<(f64, f64)> = (0..9).map(|i| (10f64.powi(i), 10f64.powi(-i))).collect();
+    assert_eq!(knee(&front(&line)), Some(4));
 }
 
 /// A 2D packing whose forces are out of balance: each grain accelerates as

@@ -330,6 +330,7 @@ fn extreme_row_weights_stay_finite_and_feasible() {
     // error), and exact feasibility whenever it converged. Forward accuracy of x
     // is NOT guaranteed here (known limit of the normal-equations floor).
     let mut rng = ChaCha8Rng::seed_from_u64(11);
+    let (mut solved, mut converged) = (0, 0);
     for case in 0..8 {
         let (a, c, x_true) = badly_scaled_case(&mut rng, 6.0);
         let (b, d) = (a.mul(&x_true), c.mul(&x_true));
@@ -346,6 +347,8 @@ fn extreme_row_weights_stay_finite_and_feasible() {
             Err(e) => panic!("unexpected error {e}"),
         };
         assert!(sol.x.iter().all(|v| v.is_finite()), "case {case}");
+        solved += 1;
+        converged += usize::from(sol.converged);
         eprintln!(
             "case {case}: converged {} kkt {:.1e} steps {} forward error {:.1e}",
             sol.converged,
@@ -371,6 +374,11 @@ fn extreme_row_weights_stay_finite_and_feasible() {
             }
         }
     }
+    // The checks above must have had answers to check (8 and 5 today).
+    assert!(
+        solved >= 6 && converged >= 4,
+        "solved {solved}, converged {converged} of 8"
+    );
 }
 
 /// Rows projected orthogonally to w, so w ∈ N(A) ∩ N(C).
