@@ -111,18 +111,6 @@ impl System {
             .collect()
     }
 
-    /// Dimensionless unknowns of physical forces given in scene contact order.
-    pub fn unknowns_of(&self, forces: &[Vec3]) -> Vec<f64> {
-        let mut x = vec![0.0; self.n];
-        for u in &self.unknowns {
-            let f = forces[u.contact];
-            for j in 0..u.count(self.dim) {
-                x[u.offset + j] = scene::dot(f, u.directions[j]) / self.scales.force;
-            }
-        }
-        x
-    }
-
     pub fn stress_rows_per_grain(&self) -> usize {
         stress_rows(self.dim)
     }
@@ -173,22 +161,6 @@ pub struct Assembly {
     pub loaded_rattlers: Vec<usize>,
     /// Number of contacts modelled by each friction kind: frictionless, Coulomb, normal-only.
     pub friction_counts: [usize; 3],
-}
-
-impl Assembly {
-    /// Every contact that has a result (modelled or pruned to zero), in scene order.
-    pub fn contacts_with_result(&self, scene: &Scene) -> Vec<bool> {
-        let mut mask = vec![false; scene.contacts.len()];
-        for s in &self.systems {
-            for u in &s.unknowns {
-                mask[u.contact] = true;
-            }
-        }
-        for &c in &self.zero_contacts {
-            mask[c] = true;
-        }
-        mask
-    }
 }
 
 fn friction_of(scene: &Scene, c: &scene::Contact, opts: &AssembleOptions) -> Friction {

@@ -242,9 +242,6 @@ impl Scene {
     }
 }
 
-/// Contact forces keyed by contact order: `forces[c]` is the force on grain `a` by `b`.
-pub type ContactForces = Vec<Vec3>;
-
 pub fn dot(a: Vec3, b: Vec3) -> f64 {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }

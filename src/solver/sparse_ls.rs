@@ -501,11 +501,6 @@ impl EqualityLeastSquares {
         self.bordering = bordering;
     }
 
-    /// Parallelism used by the numeric factorisation and triangular solves.
-    pub fn set_parallelism(&mut self, par: Par) {
-        self.par = par;
-    }
-
     /// Stop refinement at this relative KKT residual instead of round-off
     /// (≥ round-off; a value above [`CONVERGED_TOL`] leaves solutions unconverged).
     /// Iterative callers that only need [`CONVERGED_TOL`] save solves.
