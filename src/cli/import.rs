@@ -154,6 +154,15 @@ pub fn run(args: Args) -> Result<()> {
             ""
         }
     );
+    for w in &imported.warnings {
+        eprintln!("warning: {w}");
+    }
+    if let Some(u) = imported.gravity_like_load() {
+        eprintln!(
+            "warning: {}",
+            grainforce::import::gravity_like_warning(u, imported.frames[0].dim)
+        );
+    }
     if let Some(r) = imported.momentum_residual() {
         if r > 1e-3 {
             eprintln!(

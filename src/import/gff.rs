@@ -342,6 +342,7 @@ pub fn import(gff_path: &Path, contacts_path: &Path, options: &Options) -> Resul
         contacts_path.display()
     ));
     Ok(ImportedScene {
+        warnings: Vec::new(),
         frames: vec![s],
         forces: None,
     })

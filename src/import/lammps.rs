@@ -447,6 +447,7 @@ pub fn import(atoms: &Path, local: &Path, options: &Options) -> Result<ImportedS
         }
     }
     Ok(ImportedScene {
+        warnings: Vec::new(),
         frames,
         forces: Some(forces),
     })
