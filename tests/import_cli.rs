@@ -35,16 +35,36 @@ fn import_stats_export() {
     assert!(ok, "{err}");
     assert!(out.contains("2 frame(s), 80 grains"), "{out}");
     assert!(!err.contains("warning"), "{err}");
-    // Without gravity the importer warns that forces do not balance.
-    let (ok, _, err) = grainforce(&[
+    // Without --gravity, the `fix gravity` of in.settle beside the dumps is read.
+    let (ok, out, err) = grainforce(&[
         "import",
         "lammps",
         &s(&fx.join("atoms.dump")),
         &s(&fx.join("pairs.dump")),
         "-o",
+        &s(&dir.path().join("script")),
+    ]);
+    assert!(ok && !err.contains("warning"), "{err}");
+    assert!(
+        out.contains("gravity 0,-9.81,0 from `fix gravity`"),
+        "{out}"
+    );
+    // Without any gravity the importer warns: forces do not balance, and the
+    // settled bed looks gravity-loaded.
+    let alone = dir.path().join("alone");
+    std::fs::create_dir(&alone).unwrap();
+    for f in ["atoms.dump", "pairs.dump"] {
+        std::fs::copy(fx.join(f), alone.join(f)).unwrap();
+    }
+    let (ok, _, err) = grainforce(&[
+        "import",
+        "lammps",
+        &s(&alone.join("atoms.dump")),
+        &s(&alone.join("pairs.dump")),
+        "-o",
         &s(&dir.path().join("nog")),
     ]);
-    assert!(ok && err.contains("warning"), "{err}");
+    assert!(ok && err.contains("do not balance"), "{err}");
 
     let forces = scene.join("forces.csv");
     let json = dir.path().join("stats.json");

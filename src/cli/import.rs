@@ -2,7 +2,7 @@
 
 use grainforce::import::{gff, lammps, liggghts, yade, ImportedScene};
 use grainforce::{Error, Result};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 #[derive(Clone, Copy, clap::ValueEnum)]
 pub enum Format {
@@ -35,6 +35,10 @@ pub struct Args {
     /// Gravity of the run, e.g. 0,-9.81,0 (written to scene.json).
     #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
     gravity: Option<Vec<f64>>,
+    /// lammps/liggghts: input script whose `fix … gravity` gives the gravity when
+    /// --gravity is not given; default: the one `in.*` file beside ATOMS.dump, if any.
+    #[arg(long)]
+    input_script: Option<PathBuf>,
     /// Force the dimension (2 or 3); default: 2 when all z are equal.
     #[arg(long)]
     dim: Option<usize>,
@@ -70,6 +74,55 @@ fn unit(text: &str, table: &[(&str, f64)], what: &str) -> Result<f64> {
     }
 }
 
+/// Gravity from the run's input script: the one given, else the single `in.*`
+/// file beside the atoms dump.
+fn script_gravity(atoms: &Path, given: Option<&Path>) -> Result<Option<[f64; 3]>> {
+    let script = match given {
+        Some(p) => Some(p.to_owned()),
+        None => {
+            let dir = match atoms.parent() {
+                Some(d) if !d.as_os_str().is_empty() => d.to_owned(),
+                _ => PathBuf::from("."),
+            };
+            let mut found: Vec<PathBuf> = std::fs::read_dir(&dir)
+                .map(|entries| {
+                    entries
+                        .filter_map(|e| e.ok().map(|e| e.path()))
+                        .filter(|p| {
+                            p.is_file()
+                                && p.file_name()
+                                    .and_then(|n| n.to_str())
+                                    .is_some_and(|n| n.starts_with("in."))
+                        })
+                        .collect()
+                })
+                .unwrap_or_default();
+            if found.len() == 1 {
+                found.pop()
+            } else {
+                None
+            }
+        }
+    };
+    let Some(script) = script else {
+        return Ok(None);
+    };
+    let (g, notes) = lammps::gravity_from_script(&script)?;
+    for n in notes {
+        eprintln!("note: {n}");
+    }
+    if let Some(g) = g {
+        println!(
+            "gravity {},{},{} from `fix gravity` in {}",
+            g[0],
+            g[1],
+            g[2],
+            script.display()
+        );
+    }
+    Ok(g)
+}
+
 pub fn run(args: Args) -> Result<()> {
     let gravity = match &args.gravity {
         Some(g) if !(2..=3).contains(&g.len()) => {
@@ -86,6 +139,12 @@ pub fn run(args: Args) -> Result<()> {
         None => None,
     };
     let (first, second) = (&args.inputs[0], &args.inputs[1]);
+    let gravity = match args.format {
+        Format::Lammps | Format::Liggghts if gravity.is_none() => {
+            script_gravity(first, args.input_script.as_deref())?
+        }
+        _ => gravity,
+    };
     let imported: ImportedScene = match args.format {
         Format::Lammps => {
             let columns = match &args.columns {
