@@ -21,7 +21,8 @@ pub enum Format {
   grainforce import lammps atoms.dump pairs.dump -o scene --gravity 0,-9.81,0
   grainforce import liggghts atoms.dump pairs.dump -o scene --keywords pos,id,force
   grainforce import yade bodies.csv interactions.csv -o scene --gravity 0,0,-9.81
-  grainforce import gff grains.gff contacts.csv -o scene --stress-unit MPa --length-unit mm")]
+  grainforce import gff grains.gff contacts.csv -o scene --stress-unit MPa --length-unit mm
+  grainforce import gff strains.gff contacts.csv -o scene --stiffness quartz --errors strains_errors.gff")]
 pub struct Args {
     /// Source format.
     #[arg(value_enum)]
@@ -62,6 +63,14 @@ pub struct Args {
     /// gff: tomography grain table (CSV, SI: id,volume[,x,y,z]) overriding gff volumes.
     #[arg(long)]
     tomography_grains: Option<PathBuf>,
+    /// gff: stress from the strain columns by this crystal's stiffness (GPa):
+    /// quartz, zirconium, cubic:C11,C12,C44, hexagonal:C11,C12,C13,C33,C44,
+    /// trigonal:C11,C12,C13,C14,C33,C44, or a file with the 6×6 Voigt matrix.
+    #[arg(long)]
+    stiffness: Option<String>,
+    /// gff: FitAllB's standard-error file (…_errors.gff) → sd_s_* columns.
+    #[arg(long)]
+    errors: Option<PathBuf>,
 }
 
 fn unit(text: &str, table: &[(&str, f64)], what: &str) -> Result<f64> {
@@ -194,6 +203,11 @@ pub fn run(args: Args) -> Result<()> {
                     "length",
                 )?,
                 tomography_grains: args.tomography_grains.clone(),
+                stiffness: match &args.stiffness {
+                    Some(spec) => Some(gff::Stiffness::parse(spec)?),
+                    None => None,
+                },
+                errors: args.errors.clone(),
             },
         )?,
     };

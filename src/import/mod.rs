@@ -15,6 +15,7 @@ pub mod dump;
 pub mod gff;
 pub mod lammps;
 pub mod liggghts;
+pub mod stiffness;
 pub mod yade;
 
 use crate::error::{Error, Result};
