@@ -238,11 +238,14 @@ pub fn run(args: Args) -> Result<()> {
     }
     if let Some(r) = imported.momentum_residual() {
         if r > 1e-3 {
+            let cause = if imported.frames[0].settings.gravity.is_some() {
+                "the source lacks some contacts (e.g. walls) or has other loads"
+            } else {
+                "give the run's --gravity, or the source lacks some contacts (e.g. walls)"
+            };
             eprintln!(
                 "warning: the contact forces do not balance m (a - g) on some grains (largest \
-                 residual {:.3} of the mean contact force): give the run's --gravity, or the source \
-                 lacks some contacts (e.g. walls)",
-                r
+                 residual {r:.3} of the mean contact force): {cause}"
             );
         }
     }
