@@ -35,16 +35,36 @@ fn import_stats_export() {
     assert!(ok, "{err}");
     assert!(out.contains("2 frame(s), 80 grains"), "{out}");
     assert!(!err.contains("warning"), "{err}");
-    // Without gravity the importer warns that forces do not balance.
-    let (ok, _, err) = grainforce(&[
+    // Without --gravity, the `fix gravity` of in.settle beside the dumps is read.
+    let (ok, out, err) = grainforce(&[
         "import",
         "lammps",
         &s(&fx.join("atoms.dump")),
         &s(&fx.join("pairs.dump")),
         "-o",
+        &s(&dir.path().join("script")),
+    ]);
+    assert!(ok && !err.contains("warning"), "{err}");
+    assert!(
+        out.contains("gravity 0,-9.81,0 from `fix gravity`"),
+        "{out}"
+    );
+    // Without any gravity the importer warns: forces do not balance, and the
+    // settled bed looks gravity-loaded.
+    let alone = dir.path().join("alone");
+    std::fs::create_dir(&alone).unwrap();
+    for f in ["atoms.dump", "pairs.dump"] {
+        std::fs::copy(fx.join(f), alone.join(f)).unwrap();
+    }
+    let (ok, _, err) = grainforce(&[
+        "import",
+        "lammps",
+        &s(&alone.join("atoms.dump")),
+        &s(&alone.join("pairs.dump")),
+        "-o",
         &s(&dir.path().join("nog")),
     ]);
-    assert!(ok && err.contains("warning"), "{err}");
+    assert!(ok && err.contains("do not balance"), "{err}");
 
     let forces = scene.join("forces.csv");
     let json = dir.path().join("stats.json");
@@ -95,4 +115,80 @@ fn import_stats_export() {
         &s(&scene),
     ]);
     assert!(!ok && err.contains("bad.dump, line 2"), "{err}");
+}
+
+/// The importers' warnings reach the command line: YADE without gravity,
+/// gff errors that were not fitted; --stiffness and --errors are wired.
+#[test]
+fn import_warnings_and_gff_options() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/import");
+    let dir = tempfile::tempdir().unwrap();
+    let s = |p: &Path| p.to_str().unwrap().to_owned();
+    let wall = root.join("yade/wall");
+    let (ok, out, err) = grainforce(&[
+        "import",
+        "yade",
+        &s(&wall.join("bodies.csv")),
+        &s(&wall.join("interactions.csv")),
+        "-o",
+        &s(&dir.path().join("wall")),
+    ]);
+    assert!(
+        ok && out.contains("27 grains") && !err.contains("warning"),
+        "{out}{err}"
+    );
+    let json = std::fs::read_to_string(dir.path().join("wall/scene.json")).unwrap();
+    assert!(json.contains("-9.81"), "gravity from the export: {json}");
+    // The same bodies without the gravity columns.
+    let text = std::fs::read_to_string(wall.join("bodies.csv")).unwrap();
+    let cut: Vec<String> = text
+        .lines()
+        .map(|l| l.split(',').take(13).collect::<Vec<_>>().join(","))
+        .collect();
+    let bodies = dir.path().join("bodies.csv");
+    std::fs::write(&bodies, cut.join("\n")).unwrap();
+    let (ok, _, err) = grainforce(&[
+        "import",
+        "yade",
+        &s(&bodies),
+        &s(&wall.join("interactions.csv")),
+        "-o",
+        &s(&dir.path().join("nog")),
+    ]);
+    assert!(ok && err.contains("pass --gravity 0,0,-9.81"), "{err}");
+
+    let strain = root.join("gff/strain");
+    let (ok, out, err) = grainforce(&[
+        "import",
+        "gff",
+        &s(&strain.join("quartz_strain.gff")),
+        &s(&strain.join("contacts.csv")),
+        "-o",
+        &s(&dir.path().join("quartz")),
+        "--stiffness",
+        "quartz",
+        "--errors",
+        &s(&strain.join("quartz_strain_errors.gff")),
+        "--tomography-grains",
+        &s(&strain.join("tomo_grains.csv")),
+    ]);
+    assert!(ok && out.contains("10 grains"), "{err}");
+    assert!(
+        err.contains("warning: 1 grain(s) have a zero standard error"),
+        "{err}"
+    );
+    let grains = std::fs::read_to_string(dir.path().join("quartz/grains.csv")).unwrap();
+    assert!(grains.lines().next().unwrap().contains("sd_s_zz"));
+    let (ok, _, err) = grainforce(&[
+        "import",
+        "gff",
+        &s(&strain.join("quartz_strain.gff")),
+        &s(&strain.join("contacts.csv")),
+        "-o",
+        &s(&dir.path().join("bad")),
+        "--stiffness",
+        "cubic:1,2",
+    ]);
+    assert!(!ok && err.contains("needs 3 constants"), "{err}");
+    assert!(!dir.path().join("bad").exists());
 }

@@ -287,3 +287,50 @@ fn contact_moments_balance_the_dumped_torque() {
         "moment residual {worst} (scale {scale})"
     );
 }
+
+/// `fix gravity` read from input scripts, as LAMMPS's FixGravity computes it.
+#[test]
+fn gravity_is_read_from_the_input_script() {
+    use grainforce::import::lammps::gravity_from_script;
+    let (g, notes) = gravity_from_script(&fixture("in.settle")).unwrap();
+    assert_eq!(g, Some([0.0, -9.81, 0.0]));
+    assert!(notes.is_empty());
+    let dir = tempfile::tempdir().unwrap();
+    let script = |text: &str| {
+        let p = dir.path().join("in.test");
+        std::fs::write(&p, text).unwrap();
+        gravity_from_script(&p)
+    };
+    let close = |a: [f64; 3], b: [f64; 3]| (0..3).all(|k| (a[k] - b[k]).abs() < 1e-12);
+    // 3D chute of 30°: g = 9.81 (sin 30°, 0, −cos 30°).
+    let (g, _) = script("fix g all gravity 9.81 chute 30.0\n").unwrap();
+    let s = 30f64.to_radians();
+    assert!(
+        close(g.unwrap(), [9.81 * s.sin(), 0.0, -9.81 * s.cos()]),
+        "{g:?}"
+    );
+    // spherical φ = 90°, θ = 180°: straight down; vector is normalised; `&`
+    // continues a line; `unfix` drops a fix; comments are ignored.
+    let (g, _) = script(
+        "fix a all gravity 2.0 spherical 90.0 180.0 # down\n\
+         fix b all gravity 1.0 vector &\n 3 0 4\nunfix a\n",
+    )
+    .unwrap();
+    assert!(close(g.unwrap(), [0.6, 0.0, 0.8]), "{g:?}");
+    let (g, _) = script("dimension 2\nfix b all gravity 1.0 vector 3 4 5\n").unwrap();
+    assert!(close(g.unwrap(), [0.6, 0.8, 0.0]), "{g:?}");
+    // Not read, and said so.
+    let (g, notes) =
+        script("fix a all gravity v_g vector 0 0 -1\nfix b grains gravity 9.81 vector 0 0 -1\n")
+            .unwrap();
+    assert_eq!(g, None);
+    assert!(
+        notes[0].contains("variable") && notes[0].contains("line 1"),
+        "{notes:?}"
+    );
+    assert!(notes[1].contains("group `grains`"), "{notes:?}");
+    let e = script("fix a all gravity 9.81 vector 0 0 zero\n")
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("in.test, line 1") && e.contains("zero"), "{e}");
+}

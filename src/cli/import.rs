@@ -2,7 +2,7 @@
 
 use grainforce::import::{gff, lammps, liggghts, yade, ImportedScene};
 use grainforce::{Error, Result};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 #[derive(Clone, Copy, clap::ValueEnum)]
 pub enum Format {
@@ -21,7 +21,8 @@ pub enum Format {
   grainforce import lammps atoms.dump pairs.dump -o scene --gravity 0,-9.81,0
   grainforce import liggghts atoms.dump pairs.dump -o scene --keywords pos,id,force
   grainforce import yade bodies.csv interactions.csv -o scene --gravity 0,0,-9.81
-  grainforce import gff grains.gff contacts.csv -o scene --stress-unit MPa --length-unit mm")]
+  grainforce import gff grains.gff contacts.csv -o scene --stress-unit MPa --length-unit mm
+  grainforce import gff strains.gff contacts.csv -o scene --stiffness quartz --errors strains_errors.gff")]
 pub struct Args {
     /// Source format.
     #[arg(value_enum)]
@@ -35,6 +36,10 @@ pub struct Args {
     /// Gravity of the run, e.g. 0,-9.81,0 (written to scene.json).
     #[arg(long, value_delimiter = ',', allow_hyphen_values = true)]
     gravity: Option<Vec<f64>>,
+    /// lammps/liggghts: input script whose `fix … gravity` gives the gravity when
+    /// --gravity is not given; default: the one `in.*` file beside ATOMS.dump, if any.
+    #[arg(long)]
+    input_script: Option<PathBuf>,
     /// Force the dimension (2 or 3); default: 2 when all z are equal.
     #[arg(long)]
     dim: Option<usize>,
@@ -58,6 +63,14 @@ pub struct Args {
     /// gff: tomography grain table (CSV, SI: id,volume[,x,y,z]) overriding gff volumes.
     #[arg(long)]
     tomography_grains: Option<PathBuf>,
+    /// gff: stress from the strain columns by this crystal's stiffness (GPa):
+    /// quartz, zirconium, cubic:C11,C12,C44, hexagonal:C11,C12,C13,C33,C44,
+    /// trigonal:C11,C12,C13,C14,C33,C44, or a file with the 6×6 Voigt matrix.
+    #[arg(long)]
+    stiffness: Option<String>,
+    /// gff: FitAllB's standard-error file (…_errors.gff) → sd_s_* columns.
+    #[arg(long)]
+    errors: Option<PathBuf>,
 }
 
 fn unit(text: &str, table: &[(&str, f64)], what: &str) -> Result<f64> {
@@ -68,6 +81,55 @@ fn unit(text: &str, table: &[(&str, f64)], what: &str) -> Result<f64> {
         Ok(v) if v > 0.0 && v.is_finite() => Ok(v),
         _ => Err(Error::Invalid(format!("unknown {what} unit `{text}`"))),
     }
+}
+
+/// Gravity from the run's input script: the one given, else the single `in.*`
+/// file beside the atoms dump.
+fn script_gravity(atoms: &Path, given: Option<&Path>) -> Result<Option<[f64; 3]>> {
+    let script = match given {
+        Some(p) => Some(p.to_owned()),
+        None => {
+            let dir = match atoms.parent() {
+                Some(d) if !d.as_os_str().is_empty() => d.to_owned(),
+                _ => PathBuf::from("."),
+            };
+            let mut found: Vec<PathBuf> = std::fs::read_dir(&dir)
+                .map(|entries| {
+                    entries
+                        .filter_map(|e| e.ok().map(|e| e.path()))
+                        .filter(|p| {
+                            p.is_file()
+                                && p.file_name()
+                                    .and_then(|n| n.to_str())
+                                    .is_some_and(|n| n.starts_with("in."))
+                        })
+                        .collect()
+                })
+                .unwrap_or_default();
+            if found.len() == 1 {
+                found.pop()
+            } else {
+                None
+            }
+        }
+    };
+    let Some(script) = script else {
+        return Ok(None);
+    };
+    let (g, notes) = lammps::gravity_from_script(&script)?;
+    for n in notes {
+        eprintln!("note: {n}");
+    }
+    if let Some(g) = g {
+        println!(
+            "gravity {},{},{} from `fix gravity` in {}",
+            g[0],
+            g[1],
+            g[2],
+            script.display()
+        );
+    }
+    Ok(g)
 }
 
 pub fn run(args: Args) -> Result<()> {
@@ -86,6 +148,12 @@ pub fn run(args: Args) -> Result<()> {
         None => None,
     };
     let (first, second) = (&args.inputs[0], &args.inputs[1]);
+    let gravity = match args.format {
+        Format::Lammps | Format::Liggghts if gravity.is_none() => {
+            script_gravity(first, args.input_script.as_deref())?
+        }
+        _ => gravity,
+    };
     let imported: ImportedScene = match args.format {
         Format::Lammps => {
             let columns = match &args.columns {
@@ -135,6 +203,11 @@ pub fn run(args: Args) -> Result<()> {
                     "length",
                 )?,
                 tomography_grains: args.tomography_grains.clone(),
+                stiffness: match &args.stiffness {
+                    Some(spec) => Some(gff::Stiffness::parse(spec)?),
+                    None => None,
+                },
+                errors: args.errors.clone(),
             },
         )?,
     };
@@ -154,13 +227,25 @@ pub fn run(args: Args) -> Result<()> {
             ""
         }
     );
+    for w in &imported.warnings {
+        eprintln!("warning: {w}");
+    }
+    if let Some(u) = imported.gravity_like_load() {
+        eprintln!(
+            "warning: {}",
+            grainforce::import::gravity_like_warning(u, imported.frames[0].dim)
+        );
+    }
     if let Some(r) = imported.momentum_residual() {
         if r > 1e-3 {
+            let cause = if imported.frames[0].settings.gravity.is_some() {
+                "the source lacks some contacts (e.g. walls) or has other loads"
+            } else {
+                "give the run's --gravity, or the source lacks some contacts (e.g. walls)"
+            };
             eprintln!(
                 "warning: the contact forces do not balance m (a - g) on some grains (largest \
-                 residual {:.3} of the mean contact force): give the run's --gravity, or the source \
-                 lacks some contacts (e.g. walls)",
-                r
+                 residual {r:.3} of the mean contact force): {cause}"
             );
         }
     }

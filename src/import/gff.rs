@@ -2,24 +2,38 @@
 //! list from tomography: the route to measured 3D data.
 //!
 //! The `.gff` is a whitespace-separated table whose column names are on the last
-//! `#` line before the data (ImageD11 `columnfile`). Columns used:
+//! `#` line before the data (ImageD11 `columnfile`). FitAllB's columns
+//! (`write_output.write_values`) and the frame of each:
 //! - grain id: `grain_id`, `grainno` or `id` (else the 1-based row number);
-//! - centroid `x y z` in the file's length unit (ImageD11/FitAllB: mm);
+//! - centroid `x y z` (sample frame) in the file's length unit (FitAllB: mm);
 //! - volume: `grainvolume` in length unit³, unless a tomography grain table
 //!   gives it;
-//! - stress `sig11 sig22 sig33 sig23 sig13 sig12` → s_xx s_yy s_zz s_yz s_xz
-//!   s_xy, in the file's stress unit (FitAllB: MPa), tension positive as in
-//!   FitAllB (stress from strain by Hooke's law, expansion positive);
-//! - standard errors `sig11_s … sig12_s`, when present, → `sd_s_*` columns of
-//!   grains.csv ([`crate::scene::Grain::stress_sd`]) so inference can weight
-//!   rows by them.
+//! - `U11 … U33`: orientation, crystal (xfab's Cartesian, x ∥ a*, z ∥ c) →
+//!   sample, T_sample = U T_crystal Uᵀ;
+//! - `eps11 eps22 eps33 eps23 eps13 eps12`: strain in the **crystal** frame;
+//!   `eps11_s … eps12_s`: the same strain in the **sample** frame;
+//! - `sig11 … sig12`: stress in the crystal frame, `sig11_s … sig12_s`: in the
+//!   sample frame, in the file's stress unit (FitAllB: MPa), tension positive.
+//!   The `_s` suffix is the sample frame, not a standard error: FitAllB writes
+//!   the standard errors, under the same column names, to a separate
+//!   `…_errors.gff` (`write_output.write_errors`), read with
+//!   [`Options::errors`].
 //!
+//! The scene takes the sample-frame stress: `sig*_s`; else `sig*` rotated by U;
+//! with [`Options::stiffness`], Hooke's law on the strain (`eps*_s`, else
+//! `eps*`) through [`Stiffness::stress`]. Standard errors come from the errors
+//! file's matching columns, propagated linearly (strain → stress, or crystal →
+//! sample frame) assuming independent errors; a zero standard error (FitAllB's
+//! mark for "not fitted") makes the grain's error unknown, with a warning.
+
 //! The contact list (CSV, SI metres, in the same sample frame as the gff) has
 //! columns `a,b,x,y,z,n_x,n_y,n_z` and optionally `id`; `b` may name a wall.
 //! An optional tomography grain table (CSV, SI) `id,volume[,x,y,z]` overrides the
 //! gff volume (and centroid) of the grains it lists. No forces: this is data to
 //! infer them from.
 
+pub use super::stiffness::Stiffness;
+use super::stiffness::{self, Mat3};
 use super::{csv_cell, csv_number, read_csv, ImportedScene};
 use crate::error::{Error, Result};
 use crate::scene::{self, Sym};
@@ -34,6 +48,10 @@ pub struct Options {
     pub length_unit: f64,
     /// Tomography grain table overriding volumes (and centroids).
     pub tomography_grains: Option<PathBuf>,
+    /// Stress from strain by this crystal's Hooke's law (ignores sig columns).
+    pub stiffness: Option<Stiffness>,
+    /// FitAllB's `…_errors.gff`: standard errors under the value columns' names.
+    pub errors: Option<PathBuf>,
 }
 
 impl Default for Options {
@@ -42,19 +60,59 @@ impl Default for Options {
             stress_unit: 1e6,
             length_unit: 1e-3,
             tomography_grains: None,
+            stiffness: None,
+            errors: None,
         }
     }
 }
 
-/// gff stress columns and the [`Sym`] slot each fills.
-const STRESS: [(&str, usize); 6] = [
-    ("sig11", scene::sym::XX),
-    ("sig22", scene::sym::YY),
-    ("sig33", scene::sym::ZZ),
-    ("sig23", scene::sym::YZ),
-    ("sig13", scene::sym::XZ),
-    ("sig12", scene::sym::XY),
+/// FitAllB's tensor component suffixes and the [`Sym`] slot each fills.
+const COMPONENTS: [(&str, usize); 6] = [
+    ("11", scene::sym::XX),
+    ("22", scene::sym::YY),
+    ("33", scene::sym::ZZ),
+    ("23", scene::sym::YZ),
+    ("13", scene::sym::XZ),
+    ("12", scene::sym::XY),
 ];
+
+const ORIENTATION: [&str; 9] = [
+    "U11", "U12", "U13", "U21", "U22", "U23", "U31", "U32", "U33",
+];
+
+/// Where a grain's sample-frame stress comes from.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Source {
+    /// `sig*_s` as written.
+    SampleStress,
+    /// `sig*` rotated by U.
+    CrystalStress,
+    /// Hooke's law on `eps*_s`.
+    SampleStrain,
+    /// Hooke's law on `eps*` rotated by U.
+    CrystalStrain,
+}
+
+impl Source {
+    /// Column prefix and suffix, e.g. ("sig", "_s").
+    fn columns(self) -> (&'static str, &'static str) {
+        match self {
+            Source::SampleStress => ("sig", "_s"),
+            Source::CrystalStress => ("sig", ""),
+            Source::SampleStrain => ("eps", "_s"),
+            Source::CrystalStrain => ("eps", ""),
+        }
+    }
+
+    fn names(self) -> [String; 6] {
+        let (p, s) = self.columns();
+        COMPONENTS.map(|(c, _)| format!("{p}{c}{s}"))
+    }
+
+    fn needs_orientation(self) -> bool {
+        self != Source::SampleStress
+    }
+}
 
 struct Gff {
     columns: HashMap<String, usize>,
@@ -131,6 +189,46 @@ fn read_gff(path: &Path) -> Result<Gff> {
 }
 
 impl Gff {
+    fn has_any(&self, names: &[String]) -> bool {
+        names.iter().any(|n| self.columns.contains_key(n))
+    }
+
+    fn symmetric(&self, path: &Path, line: usize, cells: &[String], source: Source) -> Result<Sym> {
+        let mut t: Sym = [0.0; 6];
+        for (name, (_, k)) in source.names().iter().zip(COMPONENTS) {
+            t[k] = self.number(path, line, cells, name)?;
+        }
+        Ok(t)
+    }
+
+    /// U of a row; rows must hold a rotation (|UᵀU − I| ≤ 1e-4, FitAllB
+    /// writes 12 decimals).
+    fn orientation(&self, path: &Path, line: usize, cells: &[String]) -> Result<Mat3> {
+        let mut u = [[0.0; 3]; 3];
+        for (k, name) in ORIENTATION.iter().enumerate() {
+            u[k / 3][k % 3] = self.number(path, line, cells, name)?;
+        }
+        let mut worst: f64 = 0.0;
+        for i in 0..3 {
+            for j in 0..3 {
+                let d: f64 = (0..3).map(|k| u[k][i] * u[k][j]).sum();
+                worst = worst.max((d - if i == j { 1.0 } else { 0.0 }).abs());
+            }
+        }
+        let det = u[0][0] * (u[1][1] * u[2][2] - u[1][2] * u[2][1])
+            - u[0][1] * (u[1][0] * u[2][2] - u[1][2] * u[2][0])
+            + u[0][2] * (u[1][0] * u[2][1] - u[1][1] * u[2][0]);
+        if worst > 1e-4 || det < 0.0 {
+            return Err(Error::data(
+                path,
+                Some(line),
+                Some("U11"),
+                format!("U11…U33 is not a rotation (|UᵀU − I| = {worst:.1e}, det = {det:.4})"),
+            ));
+        }
+        Ok(u)
+    }
+
     fn require(&self, path: &Path, name: &str) -> Result<usize> {
         self.columns.get(name).copied().ok_or_else(|| {
             Error::data(
@@ -167,9 +265,34 @@ pub fn import(gff_path: &Path, contacts_path: &Path, options: &Options) -> Resul
     let id_col = ["grain_id", "grainno", "id"]
         .iter()
         .find_map(|c| gff.columns.get(*c).copied());
-    let has_sd = STRESS
-        .iter()
-        .any(|(c, _)| gff.columns.contains_key(&format!("{c}_s")));
+    let source = choose_source(&gff, gff_path, options.stiffness.is_some())?;
+    let has_orientation = gff.has_any(&ORIENTATION.map(str::to_owned));
+    if source.needs_orientation() {
+        for name in ORIENTATION {
+            gff.require(gff_path, name).map_err(|_| {
+                Error::data(
+                    gff_path,
+                    Some(gff.header_line),
+                    Some(name),
+                    format!(
+                        "column `{name}` is missing: `{}` are in the crystal frame (FitAllB's \
+                         convention) and need U11…U33 to reach the sample frame",
+                        source.names().join(" ")
+                    ),
+                )
+            })?;
+        }
+    }
+    // sig*_s should be sig* rotated by U; when it is not, the file follows
+    // another convention (e.g. `_s` = standard error).
+    let cross_check = source == Source::SampleStress
+        && has_orientation
+        && gff.has_any(&Source::CrystalStress.names());
+    let errors = match &options.errors {
+        Some(p) => Some(Errors::read(p)?),
+        None => None,
+    };
+    let mut notes = Notes::default();
     let tomo = match &options.tomography_grains {
         Some(p) => Some((p.clone(), read_csv(p)?)),
         None => None,
@@ -195,9 +318,41 @@ pub fn import(gff_path: &Path, contacts_path: &Path, options: &Options) -> Resul
         for (k, c) in ["x", "y", "z"].iter().enumerate() {
             position[k] = gff.number(gff_path, line, cells, c)? * l;
         }
-        let mut stress: Sym = [0.0; 6];
-        for (c, k) in STRESS {
-            stress[k] = gff.number(gff_path, line, cells, c)? * options.stress_unit;
+        let u = if source.needs_orientation() || cross_check {
+            Some(gff.orientation(gff_path, line, cells)?)
+        } else {
+            None
+        };
+        let values = gff.symmetric(gff_path, line, cells, source)?;
+        if values.iter().all(|x| *x == 0.0) {
+            notes.all_zero += 1;
+        }
+        // The linear map from the read columns to the sample-frame stress (Pa).
+        let unit = options.stress_unit;
+        let map = |v: &Sym| -> Sym {
+            match (source, &u, &options.stiffness) {
+                (Source::SampleStress, ..) => v.map(|x| x * unit),
+                (Source::CrystalStress, Some(u), _) => crystal_to_sample(u, v).map(|x| x * unit),
+                (Source::SampleStrain, Some(u), Some(c)) => c.stress(u, v),
+                (Source::CrystalStrain, Some(u), Some(c)) => c.stress(u, &crystal_to_sample(u, v)),
+                _ => unreachable!("orientation and stiffness checked above"),
+            }
+        };
+        let stress = map(&values);
+        if cross_check {
+            let crystal = gff.symmetric(gff_path, line, cells, Source::CrystalStress)?;
+            let rotated = crystal_to_sample(u.as_ref().expect("read for the check"), &crystal);
+            let size = values
+                .iter()
+                .chain(&rotated)
+                .fold(0.0_f64, |a, x| a.max(x.abs()));
+            if values
+                .iter()
+                .zip(&rotated)
+                .any(|(a, b)| (a - b).abs() > 1e-3 * size)
+            {
+                notes.inconsistent.push(line);
+            }
         }
         let mut volume = None;
         if let Some((tline, record)) = tomo_rows.get(&id) {
@@ -240,21 +395,8 @@ pub fn import(gff_path: &Path, contacts_path: &Path, options: &Options) -> Resul
             ));
         }
         let mut g = scene::Grain::new(id.clone(), position, volume, stress);
-        if has_sd {
-            let mut sd: Sym = [0.0; 6];
-            for (c, k) in STRESS {
-                let x = gff.number(gff_path, line, cells, &format!("{c}_s"))?;
-                if x < 0.0 {
-                    return Err(Error::data(
-                        gff_path,
-                        Some(line),
-                        Some(&format!("{c}_s")),
-                        "a standard error cannot be negative",
-                    ));
-                }
-                sd[k] = x * options.stress_unit;
-            }
-            g.stress_sd = Some(sd);
+        if let Some(errors) = &errors {
+            g.stress_sd = errors.stress_sd(&id, source, &map, options.stress_unit, &mut notes)?;
         }
         if index.insert(id.clone(), s.grains.len()).is_some() {
             return Err(Error::data(
@@ -341,8 +483,189 @@ pub fn import(gff_path: &Path, contacts_path: &Path, options: &Options) -> Resul
         gff_path.display(),
         contacts_path.display()
     ));
+    let warnings = notes.warnings(gff_path, options.errors.as_deref(), source);
     Ok(ImportedScene {
+        warnings,
         frames: vec![s],
         forces: None,
     })
+}
+
+/// Which columns give the stress (see the module documentation).
+fn choose_source(gff: &Gff, path: &Path, with_stiffness: bool) -> Result<Source> {
+    let has = |s: Source| gff.has_any(&s.names());
+    let missing = |s: Source, why: &str| {
+        let name = &s.names()[0];
+        Error::data(
+            path,
+            Some(gff.header_line),
+            Some(name),
+            format!("column `{name}` is missing from the header: {why}"),
+        )
+    };
+    if with_stiffness {
+        return if has(Source::SampleStrain) {
+            Ok(Source::SampleStrain)
+        } else if has(Source::CrystalStrain) {
+            Ok(Source::CrystalStrain)
+        } else {
+            Err(missing(
+                Source::CrystalStrain,
+                "--stiffness needs strains (eps11… crystal frame or eps11_s… sample frame)",
+            ))
+        };
+    }
+    if has(Source::SampleStress) {
+        Ok(Source::SampleStress)
+    } else if has(Source::CrystalStress) {
+        Ok(Source::CrystalStress)
+    } else if has(Source::CrystalStrain) || has(Source::SampleStrain) {
+        Err(missing(
+            Source::SampleStress,
+            "the file has strains but no stresses; give the crystal's stiffness with \
+             --stiffness SPEC (e.g. quartz, zirconium, cubic:C11,C12,C44) to compute them",
+        ))
+    } else {
+        Err(missing(
+            Source::SampleStress,
+            "no stress (sig11_s… sample frame, sig11… crystal frame) or strain (eps11…) columns",
+        ))
+    }
+}
+
+/// U T Uᵀ of a crystal-frame [`Sym`].
+fn crystal_to_sample(u: &Mat3, t: &Sym) -> Sym {
+    stiffness::from_tensor(&stiffness::rotate_out_of(u, &stiffness::tensor(t)))
+}
+
+/// What the import noticed, for the warnings.
+#[derive(Default)]
+struct Notes {
+    all_zero: usize,
+    inconsistent: Vec<usize>,
+    zero_sd_grains: usize,
+    zero_sd_columns: usize,
+    not_in_errors: usize,
+}
+
+impl Notes {
+    fn warnings(&self, gff: &Path, errors: Option<&Path>, source: Source) -> Vec<String> {
+        let mut w = Vec::new();
+        if self.all_zero > 0 {
+            w.push(format!(
+                "{} grain(s) of {} have all of {} equal to 0: FitAllB writes zeros where it did \
+                 not refine the strain, and their stress is read as 0",
+                self.all_zero,
+                gff.display(),
+                source.names().join(" ")
+            ));
+        }
+        if !self.inconsistent.is_empty() {
+            w.push(format!(
+                "in {} grain(s) of {} (first on line {}) sig*_s is not sig* rotated by U, as \
+                 FitAllB writes it; sig*_s was read as the sample-frame stress",
+                self.inconsistent.len(),
+                gff.display(),
+                self.inconsistent[0]
+            ));
+        }
+        let errors = errors.map(|p| p.display().to_string()).unwrap_or_default();
+        if self.zero_sd_grains > 0 {
+            w.push(format!(
+                "{} grain(s) have a zero standard error in {} column(s) of {}: FitAllB writes 0 \
+                 where it did not fit the errors, so their errors are unknown (no sd_s_* in \
+                 grains.csv for them)",
+                self.zero_sd_grains, self.zero_sd_columns, errors
+            ));
+        }
+        if self.not_in_errors > 0 {
+            w.push(format!(
+                "{} grain(s) are not in {}: their errors are unknown",
+                self.not_in_errors, errors
+            ));
+        }
+        w
+    }
+}
+
+/// FitAllB's `…_errors.gff`, rows by grain id.
+struct Errors {
+    path: PathBuf,
+    gff: Gff,
+    rows: HashMap<String, usize>,
+}
+
+impl Errors {
+    fn read(path: &Path) -> Result<Errors> {
+        let gff = read_gff(path)?;
+        let id_col = ["grain_id", "grainno", "id"]
+            .iter()
+            .find_map(|c| gff.columns.get(*c).copied());
+        let mut rows = HashMap::new();
+        for (n, (_, cells)) in gff.rows.iter().enumerate() {
+            let id = match id_col {
+                Some(c) => cells[c].trim_end_matches(".0").to_owned(),
+                None => (n + 1).to_string(),
+            };
+            rows.insert(id, n);
+        }
+        Ok(Errors {
+            path: path.to_owned(),
+            gff,
+            rows,
+        })
+    }
+
+    /// Standard errors of the sample-frame stress of grain `id`, propagated
+    /// through the linear `map` (columns read → stress) as independent errors:
+    /// var σ_i = Σ_k (∂σ_i/∂x_k)² sd_k². `None` when unknown (zero or absent).
+    fn stress_sd(
+        &self,
+        id: &str,
+        source: Source,
+        map: &dyn Fn(&Sym) -> Sym,
+        stress_unit: f64,
+        notes: &mut Notes,
+    ) -> Result<Option<Sym>> {
+        let Some(&row) = self.rows.get(id) else {
+            notes.not_in_errors += 1;
+            return Ok(None);
+        };
+        let (line, cells) = &self.gff.rows[row];
+        // FitAllB rotates the stress covariance itself: prefer its sig*_s.
+        let as_written = |v: &Sym| v.map(|x| x * stress_unit);
+        let (columns, map): (Source, &dyn Fn(&Sym) -> Sym) =
+            if source == Source::CrystalStress && self.gff.has_any(&Source::SampleStress.names()) {
+                (Source::SampleStress, &as_written)
+            } else {
+                (source, map)
+            };
+        let sd = self.gff.symmetric(&self.path, *line, cells, columns)?;
+        for (name, (_, k)) in columns.names().iter().zip(COMPONENTS) {
+            if sd[k] < 0.0 {
+                return Err(Error::data(
+                    &self.path,
+                    Some(*line),
+                    Some(name),
+                    "a standard error cannot be negative",
+                ));
+            }
+        }
+        let zeros = sd.iter().filter(|x| **x == 0.0).count();
+        if zeros > 0 {
+            notes.zero_sd_grains += 1;
+            notes.zero_sd_columns += zeros;
+            return Ok(None);
+        }
+        let mut var = [0.0; 6];
+        for k in 0..6 {
+            let mut unit = [0.0; 6];
+            unit[k] = 1.0;
+            let column = map(&unit);
+            for i in 0..6 {
+                var[i] += (column[i] * sd[k]).powi(2);
+            }
+        }
+        Ok(Some(var.map(f64::sqrt)))
+    }
 }

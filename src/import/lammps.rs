@@ -447,7 +447,142 @@ pub fn import(atoms: &Path, local: &Path, options: &Options) -> Result<ImportedS
         }
     }
     Ok(ImportedScene {
+        warnings: Vec::new(),
         frames,
         forces: Some(forces),
     })
+}
+
+/// Gravity set by `fix ID GROUP gravity MAG STYLE ARGS` in a LAMMPS (or
+/// LIGGGHTS) input script: the sum of the `gravity` fixes on group `all` still
+/// defined at the end of the script (`unfix` removes one). Styles `vector x y
+/// z`, `chute angle` and `spherical phi theta` are read as LAMMPS's
+/// `FixGravity::set_acceleration` does (in 2D, per `dimension 2`, the vector's z
+/// is dropped before normalising). A variable magnitude or direction, or a fix
+/// on another group, is not read and is reported in the returned notes.
+/// `None` when the script has no readable gravity fix.
+pub fn gravity_from_script(path: &Path) -> Result<(Option<Vec3>, Vec<String>)> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let mut dim = 3;
+    let mut fixes: Vec<(String, Vec3)> = Vec::new();
+    let mut notes = Vec::new();
+    let mut joined = String::new();
+    let mut start = 0;
+    for (i, raw) in text.lines().enumerate() {
+        let line = raw.split('#').next().unwrap_or("").trim_end();
+        if joined.is_empty() {
+            start = i + 1;
+        }
+        if let Some(head) = line.strip_suffix('&') {
+            joined.push_str(head);
+            joined.push(' ');
+            continue;
+        }
+        joined.push_str(line);
+        let words: Vec<String> = joined.split_whitespace().map(str::to_owned).collect();
+        joined.clear();
+        let number = |k: usize| -> Result<Option<f64>> {
+            let Some(w) = words.get(k) else {
+                return Err(Error::data(
+                    path,
+                    Some(start),
+                    None,
+                    "fix gravity: too few arguments",
+                ));
+            };
+            if w.starts_with("v_") {
+                return Ok(None);
+            }
+            w.parse::<f64>().map(Some).map_err(|_| {
+                Error::data(
+                    path,
+                    Some(start),
+                    None,
+                    format!("fix gravity: `{w}` is not a number"),
+                )
+            })
+        };
+        match words.first().map(String::as_str) {
+            Some("dimension") if words.get(1).map(String::as_str) == Some("2") => dim = 2,
+            Some("unfix") => {
+                if let Some(id) = words.get(1) {
+                    fixes.retain(|(f, _)| f != id);
+                }
+            }
+            Some("fix") if words.get(3).map(String::as_str) == Some("gravity") => {
+                let id = words[1].clone();
+                if words[2] != "all" {
+                    notes.push(format!(
+                        "{}, line {start}: fix {id} applies gravity to group `{}` only; not used",
+                        path.display(),
+                        words[2]
+                    ));
+                    continue;
+                }
+                let style = words.get(5).map(String::as_str).unwrap_or("");
+                let values: Vec<Option<f64>> = match style {
+                    "vector" => [4, 6, 7, 8]
+                        .into_iter()
+                        .map(number)
+                        .collect::<Result<_>>()?,
+                    "chute" => [4, 6].into_iter().map(number).collect::<Result<_>>()?,
+                    "spherical" => [4, 6, 7].into_iter().map(number).collect::<Result<_>>()?,
+                    _ => {
+                        notes.push(format!(
+                            "{}, line {start}: fix {id} gravity style `{style}` is not read",
+                            path.display()
+                        ));
+                        continue;
+                    }
+                };
+                let Some(values) = values.into_iter().collect::<Option<Vec<f64>>>() else {
+                    notes.push(format!(
+                        "{}, line {start}: fix {id} gravity uses a variable; not read",
+                        path.display()
+                    ));
+                    continue;
+                };
+                let magnitude = values[0];
+                let (theta, phi) = match style {
+                    "chute" => (180.0 - values[1], 0.0),
+                    "spherical" => (values[2], values[1]),
+                    _ => (0.0, 0.0),
+                };
+                let direction = if style == "vector" {
+                    let mut d = [values[1], values[2], values[3]];
+                    if dim == 2 {
+                        d[2] = 0.0;
+                    }
+                    let len = scene::norm(d);
+                    if len == 0.0 {
+                        return Err(Error::data(
+                            path,
+                            Some(start),
+                            None,
+                            "fix gravity: zero direction vector",
+                        ));
+                    }
+                    d.map(|x| x / len)
+                } else {
+                    let (t, p) = (theta.to_radians(), phi.to_radians());
+                    if dim == 3 {
+                        [t.sin() * p.cos(), t.sin() * p.sin(), t.cos()]
+                    } else {
+                        [t.sin(), t.cos(), 0.0]
+                    }
+                };
+                fixes.retain(|(f, _)| *f != id);
+                fixes.push((id, direction.map(|x| magnitude * x)));
+            }
+            _ => {}
+        }
+    }
+    if fixes.is_empty() {
+        return Ok((None, notes));
+    }
+    let mut g = [0.0; 3];
+    for (_, v) in &fixes {
+        (0..3).for_each(|k| g[k] += v[k]);
+    }
+    Ok((Some(g), notes))
 }

@@ -193,6 +193,7 @@ pub fn import(atoms: &Path, local: &Path, options: &Options) -> Result<ImportedS
         all_forces.push(forces);
     }
     Ok(ImportedScene {
+        warnings: Vec::new(),
         frames,
         forces: Some(all_forces),
     })

@@ -15,6 +15,7 @@ pub mod dump;
 pub mod gff;
 pub mod lammps;
 pub mod liggghts;
+pub mod stiffness;
 pub mod yade;
 
 use crate::error::{Error, Result};
@@ -22,11 +23,13 @@ use crate::scene::{self, Body, Scene, Vec3};
 use std::path::Path;
 
 /// What an importer produces: the frames and, when the source has them, the
-/// true forces per frame in contact order (force on grain `a` by `b`).
+/// true forces per frame in contact order (force on grain `a` by `b`), plus
+/// what the importer found doubtful in the source (printed by the CLI).
 #[derive(Debug, Clone, PartialEq)]
 pub struct ImportedScene {
     pub frames: Vec<Scene>,
     pub forces: Option<Vec<Vec<Vec3>>>,
+    pub warnings: Vec<String>,
 }
 
 impl ImportedScene {
@@ -71,6 +74,62 @@ impl ImportedScene {
         }
         worst
     }
+
+    /// When no gravity is known (scene.json has none) but the contacts carry a
+    /// uniform load per unit mass, the way a bed resting under gravity does:
+    /// returns that load u (≈ −g). Each grain's net contact force per unit mass
+    /// c = Σ f / m is compared with the component-wise median u over all grains
+    /// with a mass; the scene "looks gravity-loaded" when |u| > 0 and at least
+    /// 90 % of those grains (and at least 3) are within 25 % of |u| of it.
+    pub fn gravity_like_load(&self) -> Option<Vec3> {
+        let forces = self.forces.as_ref()?;
+        if self.frames.iter().any(|f| f.settings.gravity.is_some()) {
+            return None;
+        }
+        let mut per_mass = Vec::new();
+        for (scene, f) in self.frames.iter().zip(forces) {
+            for (g, n) in scene.grains.iter().zip(net_forces(scene, f)) {
+                if let Some(m) = g.mass {
+                    per_mass.push(n.map(|x| x / m));
+                }
+            }
+        }
+        if per_mass.len() < 3 {
+            return None;
+        }
+        let mut u = [0.0; 3];
+        for (k, uk) in u.iter_mut().enumerate() {
+            let mut column: Vec<f64> = per_mass.iter().map(|c| c[k]).collect();
+            column.sort_by(f64::total_cmp);
+            *uk = column[column.len() / 2];
+        }
+        let size = scene::norm(u);
+        if !(size > 0.0 && size.is_finite()) {
+            return None;
+        }
+        let close = per_mass
+            .iter()
+            .filter(|c| scene::norm(scene::sub(**c, u)) <= 0.25 * size)
+            .count();
+        (close as f64 >= 0.9 * per_mass.len() as f64).then_some(u)
+    }
+}
+
+/// The warning for [`ImportedScene::gravity_like_load`]: what it saw and what
+/// to pass.
+pub fn gravity_like_warning(u: Vec3, dim: usize) -> String {
+    // Rounded for the command line; `+ 0.0` turns −0 into 0.
+    let g: Vec<String> = u[..dim]
+        .iter()
+        .map(|x| format!("{}", (-x * 1e4).round() / 1e4 + 0.0))
+        .collect();
+    format!(
+        "no gravity was given, but the contacts push every grain with about the same force per \
+         unit mass (|Σf|/m ≈ {:.4}), as in a bed resting under gravity: the accelerations are then \
+         off by g. If the run had gravity, pass --gravity {}",
+        scene::norm(u),
+        g.join(",")
+    )
 }
 
 /// Net contact force on each grain (walls receive nothing here).
