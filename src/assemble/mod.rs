@@ -177,6 +177,7 @@ fn friction_of(scene: &Scene, c: &scene::Contact, opts: &AssembleOptions) -> Fri
 }
 
 pub fn assemble(scene: &Scene, opts: &AssembleOptions) -> Result<Assembly> {
+    scene.validate()?;
     let dim = scene.dim;
     let ng = scene.grains.len();
     let active = match &opts.active {

@@ -509,7 +509,14 @@ pub fn read_sequence(dir: &Path) -> Result<Vec<Scene>> {
                 .copied();
         }
     }
-    Ok(frames.into_values().collect())
+    let frames: Vec<Scene> = frames.into_values().collect();
+    // The rows were checked one by one above; this catches what spans rows.
+    for scene in &frames {
+        scene
+            .validate()
+            .map_err(|e| Error::Invalid(format!("{}: {e}", dir.display())))?;
+    }
+    Ok(frames)
 }
 
 fn parse_grain(t: &Table, record: &csv::StringRecord, line: usize, dim: usize) -> Result<Grain> {
@@ -702,6 +709,9 @@ pub fn write_sequence(dir: &Path, frames: &[Scene]) -> Result<()> {
     let Some(first) = frames.first() else {
         return Err(Error::Invalid("no frames to write".into()));
     };
+    for scene in frames {
+        scene.validate()?;
+    }
     std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
     let dim = first.dim;
     let framed = frames.iter().any(|s| s.frame.is_some());

@@ -4,6 +4,7 @@
 
 mod io;
 mod select;
+mod validate;
 
 pub use io::{
     body_name, read_forces, read_scene, read_sequence, write_file_atomically, write_forces,
@@ -166,8 +167,9 @@ pub struct Scene {
 }
 
 impl Scene {
+    /// An empty scene; [`Scene::validate`] (run by the readers and by
+    /// assembly) rejects a dimension other than 2 or 3.
     pub fn new(dim: usize) -> Self {
-        assert!(dim == 2 || dim == 3, "dimension must be 2 or 3");
         Scene {
             dim,
             frame: None,
