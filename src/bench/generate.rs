@@ -551,36 +551,13 @@ impl<'a> Projector<'a> {
 
 /// V σ = Σ sym(r ⊗ f) (tension positive) for every grain.
 pub fn set_stresses(scene: &mut Scene, forces: &[Vec3]) {
-    let mut acc = vec![[0.0; 6]; scene.grains.len()];
-    for (c, f) in scene.contacts.iter().zip(forces) {
-        let on_b = [-f[0], -f[1], -f[2]];
-        let mut add = |p: usize, fp: Vec3| {
-            let r = scene::sub(c.point, scene.grains[p].position);
-            let t = scene::sym_outer(r, fp);
-            for k in 0..6 {
-                acc[p][k] += t[k];
-            }
-        };
-        add(c.a, *f);
-        if let Body::Grain(b) = c.b {
-            add(b, on_b);
-        }
-    }
-    for (g, s) in scene.grains.iter_mut().zip(acc) {
-        g.stress = s.map(|v| v / g.volume);
-    }
+    scene.set_stresses_from(forces);
 }
 
 /// Each wall's measured load = the sum of its exact contact forces.
 pub fn set_wall_loads(scene: &mut Scene, forces: &[Vec3]) {
-    let mut totals = vec![[0.0; 3]; scene.walls.len()];
-    for (c, f) in scene.contacts.iter().zip(forces) {
-        if let Body::Wall(w) = c.b {
-            for k in 0..3 {
-                totals[w][k] += f[k];
-            }
-        }
-    }
+    let known: Vec<Option<Vec3>> = forces.iter().copied().map(Some).collect();
+    let totals = scene::wall_totals(scene, &known);
     for (w, t) in scene.walls.iter_mut().zip(totals) {
         w.measured_force = Some(t);
     }

@@ -111,21 +111,8 @@ pub struct BalanceResiduals {
 /// its centroid, relative to the mean contact force (and mean radius).
 pub fn balance_residuals(s: &Scene, forces: &[Vec3]) -> BalanceResiduals {
     let n = s.grains.len();
-    let mut net = vec![[0.0f64; 3]; n];
-    let mut moment = vec![[0.0f64; 3]; n];
-    let mut total = 0.0;
-    for (c, f) in s.contacts.iter().zip(forces) {
-        total += scene::norm(*f);
-        let ra = scene::sub(c.point, s.grains[c.a].position);
-        add3(&mut net[c.a], *f);
-        add3(&mut moment[c.a], scene::cross(ra, *f));
-        if let Body::Grain(b) = c.b {
-            let fb = [-f[0], -f[1], -f[2]];
-            let rb = scene::sub(c.point, s.grains[b].position);
-            add3(&mut net[b], fb);
-            add3(&mut moment[b], scene::cross(rb, fb));
-        }
-    }
+    let sums = scene::contact_sums(s, forces);
+    let total: f64 = forces.iter().map(|f| scene::norm(*f)).sum();
     let mean_f = if s.contacts.is_empty() {
         1.0
     } else {
@@ -143,8 +130,8 @@ pub fn balance_residuals(s: &Scene, forces: &[Vec3]) -> BalanceResiduals {
     };
     for (i, g) in s.grains.iter().enumerate() {
         let (target_f, target_m) = s.momentum_target(g);
-        let rf = scene::norm(scene::sub(net[i], target_f)) / mean_f;
-        let rm = scene::norm(scene::sub(moment[i], target_m)) / (mean_f * mean_r);
+        let rf = scene::norm(scene::sub(sums[i].force, target_f)) / mean_f;
+        let rm = scene::norm(scene::sub(sums[i].moment, target_m)) / (mean_f * mean_r);
         out.max_force = out.max_force.max(rf);
         out.max_moment = out.max_moment.max(rm);
         out.mean_force += rf / n as f64;
@@ -163,17 +150,8 @@ fn add3(a: &mut Vec3, b: Vec3) {
 /// mean contact force times the mean radius.
 pub fn stress_residual(s: &Scene, forces: &[Vec3]) -> f64 {
     let n = s.grains.len();
-    let mut m = vec![[0.0f64; 6]; n];
-    let mut total = 0.0;
-    for (c, f) in s.contacts.iter().zip(forces) {
-        total += scene::norm(*f);
-        let ra = scene::sub(c.point, s.grains[c.a].position);
-        add_sym(&mut m[c.a], scene::sym_outer(ra, *f));
-        if let Body::Grain(b) = c.b {
-            let rb = scene::sub(c.point, s.grains[b].position);
-            add_sym(&mut m[b], scene::sym_outer(rb, [-f[0], -f[1], -f[2]]));
-        }
-    }
+    let sums = scene::contact_sums(s, forces);
+    let total: f64 = forces.iter().map(|f| scene::norm(*f)).sum();
     let mean_f = total / s.contacts.len().max(1) as f64;
     let mean_r = s
         .grains
@@ -184,7 +162,7 @@ pub fn stress_residual(s: &Scene, forces: &[Vec3]) -> f64 {
     let mut worst: f64 = 0.0;
     for (i, g) in s.grains.iter().enumerate() {
         for k in 0..6 {
-            worst = worst.max((g.volume * g.stress[k] - m[i][k]).abs());
+            worst = worst.max((g.volume * g.stress[k] - sums[i].stress_moment[k]).abs());
         }
     }
     worst / (mean_f * mean_r).max(f64::MIN_POSITIVE)

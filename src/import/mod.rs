@@ -19,7 +19,7 @@ pub mod stiffness;
 pub mod yade;
 
 use crate::error::{Error, Result};
-use crate::scene::{self, Body, Scene, Vec3};
+use crate::scene::{self, Scene, Vec3};
 use std::path::Path;
 
 /// What an importer produces: the frames and, when the source has them, the
@@ -134,18 +134,10 @@ pub fn gravity_like_warning(u: Vec3, dim: usize) -> String {
 
 /// Net contact force on each grain (walls receive nothing here).
 pub fn net_forces(scene: &Scene, forces: &[Vec3]) -> Vec<Vec3> {
-    let mut net = vec![[0.0; 3]; scene.grains.len()];
-    for (c, f) in scene.contacts.iter().zip(forces) {
-        for k in 0..3 {
-            net[c.a][k] += f[k];
-        }
-        if let Body::Grain(b) = c.b {
-            for k in 0..3 {
-                net[b][k] -= f[k];
-            }
-        }
-    }
-    net
+    scene::contact_sums(scene, forces)
+        .iter()
+        .map(|s| s.force)
+        .collect()
 }
 
 /// Sets every grain's stress from the contact forces: V σ = Σ sym(r ⊗ f), with
@@ -153,27 +145,7 @@ pub fn net_forces(scene: &Scene, forces: &[Vec3]) -> Vec<Vec3> {
 /// grain (−f for grain `b`). Tension positive: a grain squeezed from both sides
 /// gets negative normal stress.
 pub fn stress_from_forces(scene: &mut Scene, forces: &[Vec3]) {
-    let mut sums = vec![[0.0; 6]; scene.grains.len()];
-    for (c, f) in scene.contacts.iter().zip(forces) {
-        let ra = scene::sub(c.point, scene.grains[c.a].position);
-        let t = scene::sym_outer(ra, *f);
-        for k in 0..6 {
-            sums[c.a][k] += t[k];
-        }
-        if let Body::Grain(b) = c.b {
-            let rb = scene::sub(c.point, scene.grains[b].position);
-            let t = scene::sym_outer(rb, *f);
-            for k in 0..6 {
-                sums[b][k] -= t[k];
-            }
-        }
-    }
-    let dim = scene.dim;
-    for (g, s) in scene.grains.iter_mut().zip(sums) {
-        for &k in scene::sym::components(dim) {
-            g.stress[k] = s[k] / g.volume;
-        }
-    }
+    scene.set_stresses_from(forces);
 }
 
 /// Contact point and unit normal (from `a` towards `b`) of two overlapping

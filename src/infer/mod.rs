@@ -24,7 +24,7 @@ pub use report::InferenceReport;
 
 use crate::assemble::{self, AssembleOptions, Assembly, Friction, System};
 use crate::error::{Error, Result};
-use crate::scene::{Body, Scene, Vec3};
+use crate::scene::{Scene, Vec3};
 use crate::solver::active_set;
 use crate::solver::conic::{self, Cone, ConicProblem, ConicSettings, Term};
 use crate::solver::sparse_ls::Ordering;
@@ -899,15 +899,4 @@ fn collect_forces(scene: &Scene, assembly: &Assembly, solutions: &[Vec<f64>]) ->
     forces
 }
 
-/// Total force each wall exerts on the grains, from per-contact forces.
-pub fn wall_totals(scene: &Scene, forces: &[Option<Vec3>]) -> Vec<Vec3> {
-    let mut totals = vec![[0.0; 3]; scene.walls.len()];
-    for (c, f) in scene.contacts.iter().zip(forces) {
-        if let (Body::Wall(w), Some(f)) = (c.b, f) {
-            for k in 0..3 {
-                totals[w][k] += f[k];
-            }
-        }
-    }
-    totals
-}
+pub use crate::scene::wall_totals;

@@ -4,6 +4,7 @@
 
 mod io;
 mod select;
+mod sums;
 mod validate;
 
 pub use io::{
@@ -13,6 +14,7 @@ pub use io::{
 /// The CSV reading every grainforce table shares (importers use it too).
 pub(crate) use io::{csv_cell, csv_number, read_csv};
 pub use select::{select_subassembly, Selection};
+pub use sums::{contact_sums, wall_totals, ContactSums};
 
 /// A point or vector; z is 0 in 2D.
 pub type Vec3 = [f64; 3];
