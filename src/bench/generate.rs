@@ -53,6 +53,11 @@ pub struct PackingSpec {
     pub mu: f64,
     /// Tangential part of the guess relative to the normal force.
     pub shear: f64,
+    /// Share of the frictional contacts put exactly at the Coulomb limit
+    /// (their μ becomes |f_t|/f_n of the truth), as in a sheared packing
+    /// where many contacts slide; 0 leaves μ at `mu` (raised where the truth
+    /// needs it).
+    pub sliding: f64,
     /// R₀ [m].
     pub radius: f64,
     /// Force scale [N] (N/m in 2D).
@@ -70,6 +75,7 @@ impl PackingSpec {
             coordination: 4.2,
             mu: 0.5,
             shear: 0.2,
+            sliding: 0.0,
             radius: 1e-3,
             force: 10.0,
             seed: 1,
@@ -84,6 +90,8 @@ pub struct Packing {
     pub truth: Vec<Vec3>,
     /// Contacts whose μ had to be raised above `spec.mu` to admit the exact forces.
     pub raised_mu: usize,
+    /// Contacts put exactly at the Coulomb limit (`spec.sliding`).
+    pub sliding: usize,
     /// Largest |K_eq f| of the truth relative to the mean contact force.
     pub equilibrium_residual: f64,
 }
@@ -102,6 +110,12 @@ pub fn generate(spec: &PackingSpec) -> Result<Packing> {
         return Err(Error::Invalid(format!(
             "size ratio must be ≥ 1, got {}",
             spec.size_ratio
+        )));
+    }
+    if !(0.0..=1.0).contains(&spec.sliding) {
+        return Err(Error::Invalid(format!(
+            "the sliding share must be in [0, 1], got {}",
+            spec.sliding
         )));
     }
     if !(0.0..0.25).contains(&spec.jitter) {
@@ -126,13 +140,18 @@ pub fn generate(spec: &PackingSpec) -> Result<Packing> {
         spec.seed
     ));
     let (truth, residual) = exact_forces(&scene, spec, &mut rng)?;
-    let mut raised_mu = 0;
+    let (mut raised_mu, mut sliding) = (0, 0);
     for (c, f) in scene.contacts.iter_mut().zip(&truth) {
         if c.mu == Some(0.0) {
             continue;
         }
         let (fn_, ft) = normal_tangential(c.normal, *f);
-        if ft > spec.mu * fn_ {
+        // Drawn only when asked for, so packings without sliding keep their
+        // random sequence.
+        if spec.sliding > 0.0 && rng.gen_bool(spec.sliding) && ft > 0.0 {
+            c.mu = Some(ft / fn_);
+            sliding += 1;
+        } else if ft > spec.mu * fn_ {
             c.mu = Some(1.25 * ft / fn_);
             raised_mu += 1;
         }
@@ -143,6 +162,7 @@ pub fn generate(spec: &PackingSpec) -> Result<Packing> {
         scene,
         truth,
         raised_mu,
+        sliding,
         equilibrium_residual: residual,
     })
 }

@@ -49,6 +49,11 @@ pub struct Args {
     /// Seed of the packings and the noise.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Share of the frictional contacts generated exactly at the Coulomb
+    /// limit (|f_t| = μ f_n), as in a sheared packing. Default: 0.3 in 3D
+    /// (so friction binds under noise, as on real sheared packings), 0 in 2D.
+    #[arg(long)]
+    pub sliding: Option<f64>,
     /// Wall-clock limit of one case in seconds; a slower case is killed and
     /// reported as a timeout.
     #[arg(long, default_value_t = 900.0)]
@@ -94,6 +99,11 @@ pub struct Args {
     #[arg(long, hide = true)]
     pub lambda: Option<f64>,
 }
+
+/// `--sliding` in 3D unless given: the share of contacts at the Coulomb
+/// limit that makes the `ls` answer violate friction by ≥ 0.05 of the mean
+/// normal force under stress noise, as real sheared packings do.
+const DEFAULT_SLIDING_3D: f64 = 0.3;
 
 fn parse_size(s: &str) -> Result<usize> {
     let v: f64 = s
@@ -189,13 +199,17 @@ pub fn run(args: Args) -> Result<()> {
         for &size in &sizes {
             let mut spec = PackingSpec::new(dim, size);
             spec.seed = args.seed;
+            spec.sliding = args
+                .sliding
+                .unwrap_or(if dim == 3 { DEFAULT_SLIDING_3D } else { 0.0 });
             let t = Instant::now();
             let packing = bench::generate(&spec)?;
             eprintln!(
-                "{dim}D {size}: generated {} grains, {} contacts in {:.1} s ({} contacts with raised μ, equilibrium residual {:.1e})",
+                "{dim}D {size}: generated {} grains, {} contacts in {:.1} s ({} contacts at the Coulomb limit, {} with raised μ, equilibrium residual {:.1e})",
                 packing.scene.grains.len(),
                 packing.scene.contacts.len(),
                 t.elapsed().as_secs_f64(),
+                packing.sliding,
                 packing.raised_mu,
                 packing.equilibrium_residual
             );
