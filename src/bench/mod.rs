@@ -6,6 +6,7 @@
 //! peak memory (VmHWM) is its own; this module only measures in-process.
 
 pub mod generate;
+pub mod measured;
 pub mod noise;
 
 pub use generate::{generate, Packing, PackingSpec};

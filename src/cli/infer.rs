@@ -199,6 +199,7 @@ pub enum MethodArg {
     Scaled,
     Ls,
     Dynamic,
+    Soft,
 }
 
 #[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -207,6 +208,7 @@ pub enum RuleArg {
     Knee,
     Hard,
     Fixed,
+    Variance,
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -275,6 +277,7 @@ pub fn options(args: &Args) -> Result<(InferOptions, Selection)> {
             MethodArg::Scaled => Method::Scaled,
             MethodArg::Ls => Method::Ls,
             MethodArg::Dynamic => Method::Dynamic,
+            MethodArg::Soft => Method::Soft,
         },
         cone: match args.cone {
             ConeArg::Exact => ConeModel::Exact,
@@ -344,6 +347,7 @@ pub fn options(args: &Args) -> Result<(InferOptions, Selection)> {
             momentum_sd: accel_sd,
         },
         RuleArg::Knee => LambdaRule::Knee,
+        RuleArg::Variance => LambdaRule::Variance,
         RuleArg::Hard => LambdaRule::Hard,
         RuleArg::Fixed => LambdaRule::Fixed(
             args.lambda

@@ -40,6 +40,9 @@ pub enum Method {
     Scaled,
     Ls,
     Dynamic,
+    /// Static data, momentum balance as a weighted penalty (data that do not
+    /// balance, e.g. photoelastic frames with missed contacts).
+    Soft,
 }
 
 impl std::fmt::Display for Method {
@@ -50,6 +53,7 @@ impl std::fmt::Display for Method {
             Method::Scaled => "scaled",
             Method::Ls => "ls",
             Method::Dynamic => "dynamic",
+            Method::Soft => "soft",
         })
     }
 }
@@ -146,11 +150,24 @@ impl Inference {
 
 pub fn infer(scene: &Scene, opts: &InferOptions) -> Result<Inference> {
     let start = Instant::now();
+    let soft_opts;
+    let opts = if opts.method == Method::Soft {
+        soft_opts = InferOptions {
+            dynamic: DynamicOptions {
+                rule: soft_rule(opts.dynamic.rule),
+                ..opts.dynamic.clone()
+            },
+            ..opts.clone()
+        };
+        &soft_opts
+    } else {
+        opts
+    };
     let mut assemble_opts = opts.assemble.clone();
     // Pruning relies on momentum being a hard constraint; `scaled` couples all
     // clusters through one scale factor.
     let hard_momentum = match opts.method {
-        Method::Dynamic => dynamic_lambda(opts).is_none(),
+        Method::Dynamic | Method::Soft => dynamic_lambda(opts).is_none(),
         _ => true,
     };
     assemble_opts.prune_single_contacts = hard_momentum && !opts.allow_infeasible;
@@ -189,7 +206,8 @@ pub fn infer(scene: &Scene, opts: &InferOptions) -> Result<Inference> {
             report.stress_scale = Some(s);
             (vec![x], None)
         }
-        Method::Dynamic => {
+        Method::Dynamic | Method::Soft => {
+            let mut soft_solution = None;
             if opts.dynamic_front && opts.dynamic.rule != LambdaRule::Knee {
                 report.pareto = Some(dynamic::sweep(&assembly, opts, &factors, &mut report)?);
             }
@@ -204,10 +222,18 @@ pub fn infer(scene: &Scene, opts: &InferOptions) -> Result<Inference> {
                     stress_sd,
                     momentum_sd,
                 } => dynamic::weight_from_noise(&assembly, stress_sd, momentum_sd),
+                LambdaRule::Variance => {
+                    let (lambda, xs, steps) =
+                        dynamic::variance_components(&assembly, opts, &factors, &mut report)?;
+                    soft_solution = Some(xs);
+                    report.variance_steps = steps;
+                    Some(lambda)
+                }
                 _ => dynamic_lambda(opts),
             };
             report.momentum_weight = lambda;
             match lambda {
+                Some(_) if soft_solution.is_some() => (soft_solution.unwrap_or_default(), None),
                 Some(l) => (
                     dynamic::solve_weighted(&assembly, opts, l, &factors, &mut report)?.0,
                     None,
@@ -285,13 +311,23 @@ pub fn infer_frames(
     results.into_iter().collect()
 }
 
+/// The rule of `soft`: the user's if it weights momentum, else variance
+/// components (momentum exact would defeat the method).
+fn soft_rule(rule: LambdaRule) -> LambdaRule {
+    match rule {
+        LambdaRule::Hard => LambdaRule::Variance,
+        LambdaRule::Weights { momentum_sd, .. } if momentum_sd <= 0.0 => LambdaRule::Variance,
+        r => r,
+    }
+}
+
 /// The momentum weight a dynamic rule fixes before any solve; `None` means
 /// hard momentum (or a weight the data decide later: knee, weights).
 fn dynamic_lambda(opts: &InferOptions) -> Option<f64> {
     match opts.dynamic.rule {
         LambdaRule::Hard => None,
         LambdaRule::Fixed(l) => Some(l),
-        LambdaRule::Knee => Some(1.0),
+        LambdaRule::Knee | LambdaRule::Variance => Some(1.0),
         LambdaRule::Weights { momentum_sd, .. } => (momentum_sd > 0.0).then_some(1.0),
     }
 }

@@ -42,6 +42,8 @@ pub struct InferenceReport {
     pub lambda_trace: Option<LambdaTrace>,
     /// Dimensionless weight of the momentum rows (method `dynamic`); None = hard.
     pub momentum_weight: Option<f64>,
+    /// The variance-component iteration that chose the momentum weight.
+    pub variance_steps: Vec<super::dynamic::VarianceStep>,
     /// The swept Pareto front (dynamic, rule knee).
     pub pareto: Option<super::Front>,
     /// Estimated global stress scale (method `scaled`): true ≈ s · measured.
@@ -110,6 +112,7 @@ impl InferenceReport {
                 .filter(|_| matches!(opts.method, Method::Tikhonov | Method::Ls)),
             lambda_trace: None,
             momentum_weight: None,
+            variance_steps: Vec::new(),
             pareto: None,
             stress_scale: None,
             unique: None,
@@ -270,7 +273,7 @@ impl std::fmt::Display for InferenceReport {
                 l / self.length_scale
             )?;
         }
-        if self.method == Method::Dynamic {
+        if matches!(self.method, Method::Dynamic | Method::Soft) {
             match self.momentum_weight {
                 Some(w) => writeln!(f, "momentum    weight λ = {w:.4e} (dimensionless)")?,
                 None => writeln!(f, "momentum    exact (hard constraint)")?,
