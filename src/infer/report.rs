@@ -48,6 +48,8 @@ pub struct InferenceReport {
     pub pareto: Option<super::Front>,
     /// Estimated global stress scale (method `scaled`): true ≈ s · measured.
     pub stress_scale: Option<f64>,
+    /// The hard-balance answer collapsed (data out of balance): the diagnosis.
+    pub collapse: Option<super::Collapse>,
     /// Whether the forces are uniquely determined by the data (None: not checked).
     pub unique: Option<bool>,
     pub solver_status: String,
@@ -82,10 +84,27 @@ impl InferenceReport {
             .iter()
             .map(|&p| scene.grains[p].id.clone())
             .collect();
-        if !loaded_rattlers.is_empty() {
+        // A loaded "rattler" either has no contact in the file or lost its
+        // only one(s) to pruning (a grain with a single contact and nothing to
+        // balance must have a zero force there when balance is exact).
+        let pruned = assembly
+            .loaded_rattlers
+            .iter()
+            .filter(|&&p| {
+                scene.contacts.iter().any(|c| c.a == p || c.b == crate::scene::Body::Grain(p))
+            })
+            .count();
+        let bare = loaded_rattlers.len() - pruned;
+        if bare > 0 {
             warnings.push(format!(
-                "{} grains report load (stress or acceleration) but have no contacts; their data are ignored",
-                loaded_rattlers.len()
+                "{bare} grains report load (stress or acceleration) but have no contacts in the file; their data are ignored"
+            ));
+        }
+        if pruned > 0 {
+            warnings.push(format!(
+                "{pruned} grains report stress but their contacts were all fixed to zero by pruning (a grain left with \
+                 one contact and no load to balance carries no force when momentum balance is exact), so their \
+                 stresses are ignored: the data are missing contacts (detectors miss weak ones); --method soft uses them"
             ));
         }
         InferenceReport {
@@ -115,6 +134,7 @@ impl InferenceReport {
             variance_steps: Vec::new(),
             pareto: None,
             stress_scale: None,
+            collapse: None,
             unique: None,
             solver_status: "not run".into(),
             solver_attempts: Vec::new(),
@@ -285,7 +305,14 @@ impl std::fmt::Display for InferenceReport {
                 "stress      scale estimated from walls: {s:.5} (measured stresses × {s:.5})"
             )?;
         }
+        if let Some(c) = &self.collapse {
+            write!(f, "{c}")?;
+        }
         match self.unique {
+            Some(true) if self.collapse.is_some() && self.method != Method::Soft => writeln!(
+                f,
+                "unique      the equations have one solution, but it is the collapse above, not the forces"
+            )?,
             Some(true) => writeln!(f, "unique      yes: the data determine every force")?,
             Some(false) => writeln!(
                 f,
