@@ -171,9 +171,30 @@ pub fn infer(scene: &Scene, opts: &InferOptions) -> Result<Inference> {
         return first;
     }
     let (inference, collapsed, error) = match first {
-        Ok(inf) => match collapse::detected(scene, &inf) {
+        Ok(mut inf) => match collapse::detected(scene, &inf) {
             None => return Ok(inf),
-            Some(c) => (Some(inf), Some(c), None),
+            Some(c) => {
+                // A large Tikhonov λ shrinks balanced forces towards zero: a
+                // collapse only if momentum balance alone (qs) collapses too.
+                if opts.method == Method::Tikhonov {
+                    let qs = InferOptions {
+                        method: Method::Qs,
+                        ..opts.clone()
+                    };
+                    if infer_once(scene, &qs)
+                        .map(|q| collapse::detected(scene, &q).is_none())
+                        .unwrap_or(false)
+                    {
+                        inf.report.warnings.push(format!(
+                            "λ shrinks the forces to {:.1e} of the scale the stresses imply (stress residual {:.3}); \
+                             qs fits these data",
+                            c.1, c.0
+                        ));
+                        return Ok(inf);
+                    }
+                }
+                (Some(inf), Some(c), None)
+            }
         },
         // The cone-collapse error of the solve: soft equilibrium answers it too.
         Err(Error::Infeasible(msg)) if opts.on_collapse == OnCollapse::Switch => {
