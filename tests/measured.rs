@@ -11,7 +11,9 @@ use std::path::Path;
 use std::process::Command;
 
 fn fixture(name: &str, cfg: &MeasuredConfig) -> MeasuredFrame {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures").join(name);
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("fixtures")
+        .join(name);
     let scene = read_scene(&dir).unwrap();
     let truth = read_forces(&dir.join("forces.csv"))
         .unwrap()
@@ -68,7 +70,10 @@ fn hard_balance_collapses_and_is_flagged_never_silent() {
     assert!(c.stress_residual > 0.8 && c.force_ratio < 0.1, "{c:?}");
     assert!((0.05..1.0).contains(&c.imbalance_median), "{c:?}");
     assert!(!c.worst_grains.is_empty());
-    assert!(c.causes.iter().any(|s| s.contains("missing contacts")), "{c:?}");
+    assert!(
+        c.causes.iter().any(|s| s.contains("missing contacts")),
+        "{c:?}"
+    );
     // Grains whose contacts were pruned are not called contact-less: the
     // warning counts only the loaded grains the file gives no contact.
     let w = inf.report.warnings.join("\n");
@@ -76,21 +81,31 @@ fn hard_balance_collapses_and_is_flagged_never_silent() {
     let bare = (0..f.scene.grains.len())
         .filter(|&p| {
             f.scene.grains[p].stress.iter().any(|&s| s != 0.0)
-                && !f.scene.contacts.iter().any(|c| {
-                    c.a == p || c.b == grainforce::scene::Body::Grain(p)
-                })
+                && !f
+                    .scene
+                    .contacts
+                    .iter()
+                    .any(|c| c.a == p || c.b == grainforce::scene::Body::Grain(p))
         })
         .count();
     assert!(
-        w.contains(&format!("{bare} grains report load (stress or acceleration) but have no contacts in the file")),
+        w.contains(&format!(
+            "{bare} grains report load (stress or acceleration) but have no contacts in the file"
+        )),
         "{bare}: {w}"
     );
     // Asked for explicitly without accepting: an error with the diagnosis.
     match infer(&f.scene, &with(Method::Qs, OnCollapse::Fail)) {
         Err(Error::Infeasible(msg)) => {
-            assert!(msg.contains("do not balance") && msg.contains("worst grains"), "{msg}")
+            assert!(
+                msg.contains("do not balance") && msg.contains("worst grains"),
+                "{msg}"
+            )
         }
-        other => panic!("expected a collapse error, got {:?}", other.map(|i| i.report.method)),
+        other => panic!(
+            "expected a collapse error, got {:?}",
+            other.map(|i| i.report.method)
+        ),
     }
 }
 
@@ -110,7 +125,10 @@ fn default_switches_to_soft_equilibrium_and_meets_the_targets_2d() {
     knee.dynamic.rule = LambdaRule::Knee;
     let (knee_relerr, _, _) = errors(&f, &knee);
     eprintln!("knee relerr {knee_relerr:.4}");
-    assert!(relerr < 0.5 * knee_relerr, "variance {relerr} vs knee {knee_relerr}");
+    assert!(
+        relerr < 0.5 * knee_relerr,
+        "variance {relerr} vs knee {knee_relerr}"
+    );
 }
 
 #[test]
@@ -154,9 +172,11 @@ fn cli_switches_by_default_and_fails_on_explicit_qs() {
     let out = grainforce(&["infer", s, "-o", o, "--report", r]);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{stderr}");
-    assert!(stderr.contains("COLLAPSE") && stderr.contains("switched to soft"), "{stderr}");
-    let json: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+    assert!(
+        stderr.contains("COLLAPSE") && stderr.contains("switched to soft"),
+        "{stderr}"
+    );
+    let json: serde_json::Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
     assert_eq!(json["method"], "soft");
     assert!(json["collapse"]["imbalance_median"].as_f64().unwrap() > 0.0);
 
@@ -164,11 +184,17 @@ fn cli_switches_by_default_and_fails_on_explicit_qs() {
     let out = grainforce(&["infer", s, "-o", o, "--method", "qs"]);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success());
-    assert!(stderr.contains("do not balance") && !stderr.contains("panicked"), "{stderr}");
+    assert!(
+        stderr.contains("do not balance") && !stderr.contains("panicked"),
+        "{stderr}"
+    );
     assert!(!forces.exists(), "no forces written on failure");
 
     let out = grainforce(&["infer", s, "-o", o, "--method", "qs", "--accept-degenerate"]);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "{stderr}");
-    assert!(stderr.contains("COLLAPSE") && stderr.contains("accepted"), "{stderr}");
+    assert!(
+        stderr.contains("COLLAPSE") && stderr.contains("accepted"),
+        "{stderr}"
+    );
 }

@@ -11,7 +11,9 @@ use rand_distr::{Distribution, StandardNormal};
 use std::path::Path;
 
 fn fixture(name: &str) -> (Scene, Vec<Vec3>) {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures").join(name);
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("fixtures")
+        .join(name);
     let scene = read_scene(&dir).unwrap();
     let truth = read_forces(&dir.join("forces.csv"))
         .unwrap()
@@ -45,8 +47,18 @@ fn eq_2_16(name: &str) -> (f64, f64) {
         )
         .unwrap()
         .remove(0);
-        abs.push(relerr(&noisy, &truth, Method::Scaled, StressNoise::Absolute));
-        rel.push(relerr(&noisy, &truth, Method::Scaled, StressNoise::Relative));
+        abs.push(relerr(
+            &noisy,
+            &truth,
+            Method::Scaled,
+            StressNoise::Absolute,
+        ));
+        rel.push(relerr(
+            &noisy,
+            &truth,
+            Method::Scaled,
+            StressNoise::Relative,
+        ));
     }
     (median(abs), median(rel))
 }

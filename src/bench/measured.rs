@@ -66,9 +66,10 @@ pub fn measured_frame(
             scene.contacts.len()
         )));
     }
-    if !(0.0..1.0).contains(&cfg.drop_weakest)
-        || !(cfg.force_noise >= 0.0 && cfg.force_noise.is_finite())
-    {
+    let valid = (0.0..1.0).contains(&cfg.drop_weakest)
+        && cfg.force_noise >= 0.0
+        && cfg.force_noise.is_finite();
+    if !valid {
         return Err(Error::Invalid(format!(
             "drop fraction must lie in [0, 1) and force noise be ≥ 0, got {} and {}",
             cfg.drop_weakest, cfg.force_noise

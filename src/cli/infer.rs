@@ -7,8 +7,7 @@ use grainforce::infer::uncertainty::{
     force_uncertainty, NoiseEstimate, Uncertainty, UncertaintyOptions,
 };
 use grainforce::infer::{
-    self, ConeModel, ConstrainedSolver, InferOptions, LambdaRule, Method, OnCollapse,
-    StressNoise,
+    self, ConeModel, ConstrainedSolver, InferOptions, LambdaRule, Method, OnCollapse, StressNoise,
 };
 use grainforce::scene::{self, Forces, Selection};
 use grainforce::solver::sparse_ls::Ordering;

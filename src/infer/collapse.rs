@@ -201,7 +201,8 @@ pub(crate) fn diagnose(
     };
     if opts.method != Method::Ls {
         if let Ok(ls) = super::infer_once(scene, &ls_opts) {
-            if ls.report.stress_residual < 0.5 * COLLAPSE_RESIDUAL && detected(scene, &ls).is_none() {
+            if ls.report.stress_residual < 0.5 * COLLAPSE_RESIDUAL && detected(scene, &ls).is_none()
+            {
                 causes.push(format!(
                     "friction too low: without the friction cones balance fits the stresses to {:.3}; check μ (--mu)",
                     ls.report.stress_residual

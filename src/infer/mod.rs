@@ -21,9 +21,9 @@ pub mod uncertainty;
 
 pub use crate::solver::active_set::ActiveSetSettings;
 pub use collapse::{Collapse, OnCollapse};
-pub use noise::StressNoise;
 pub use dynamic::{DynamicOptions, Front, LambdaRule};
 pub use lambda::{LambdaSearch, LambdaTrace};
+pub use noise::StressNoise;
 pub use report::InferenceReport;
 
 use crate::assemble::{self, AssembleOptions, Assembly, Friction, System};
@@ -205,7 +205,8 @@ pub fn infer(scene: &Scene, opts: &InferOptions) -> Result<Inference> {
     let (mut diagnosis, soft) = collapse::diagnose(scene, opts, collapsed, error.as_deref())?;
     match (opts.on_collapse, inference) {
         (OnCollapse::Accept, Some(mut inf)) => {
-            diagnosis.action = "accepted (--accept-degenerate): the forces above are not an answer".into();
+            diagnosis.action =
+                "accepted (--accept-degenerate): the forces above are not an answer".into();
             inf.report.warnings.push(format!(
                 "the forces collapsed (stress residual {:.3}): the data do not balance; --method soft fits them",
                 diagnosis.stress_residual
@@ -308,10 +309,7 @@ fn solve_method(
     report: &mut InferenceReport,
 ) -> Result<(Vec<Vec<f64>>, Option<LambdaTrace>)> {
     let solved = match opts.method {
-        Method::Qs => (
-            solve_all(assembly, opts, 0.0, factors, report)?,
-            None,
-        ),
+        Method::Qs => (solve_all(assembly, opts, 0.0, factors, report)?, None),
         Method::Tikhonov if opts.lambda.is_none() => {
             let (lam, trace) = lambda::search(scene, assembly, opts, factors, report)?;
             report.lambda = Some(lam * assembly.scales.length);
@@ -368,10 +366,7 @@ fn solve_method(
                     dynamic::solve_weighted(assembly, opts, l, factors, report)?.0,
                     None,
                 ),
-                None => (
-                    solve_all(assembly, opts, 0.0, factors, report)?,
-                    None,
-                ),
+                None => (solve_all(assembly, opts, 0.0, factors, report)?, None),
             }
         }
     };

@@ -51,7 +51,10 @@ pub fn relative_weights(assembly: &Assembly, solutions: &[Vec<f64>]) -> Vec<Vec<
         .zip(solutions)
         .map(|(s, x)| s.stress.mul(x))
         .collect();
-    let (sq, n) = fitted.iter().flatten().fold((0.0, 0usize), |(s, n), v| (s + v * v, n + 1));
+    let (sq, n) = fitted
+        .iter()
+        .flatten()
+        .fold((0.0, 0usize), |(s, n), v| (s + v * v, n + 1));
     let rms = (sq / n.max(1) as f64).sqrt();
     let floor = (RELATIVE_FLOOR * rms).max(f64::MIN_POSITIVE);
     let weights = fitted
@@ -97,7 +100,10 @@ pub fn column_weights(scene: &Scene, assembly: &Assembly) -> Result<Vec<Vec<f64>
 }
 
 fn normalise(mut weights: Vec<Vec<f64>>) -> Vec<Vec<f64>> {
-    let (sq, n) = weights.iter().flatten().fold((0.0, 0usize), |(s, n), v| (s + v * v, n + 1));
+    let (sq, n) = weights
+        .iter()
+        .flatten()
+        .fold((0.0, 0usize), |(s, n), v| (s + v * v, n + 1));
     let rms = (sq / n.max(1) as f64).sqrt();
     if rms > 0.0 && rms.is_finite() {
         for w in weights.iter_mut().flatten() {

@@ -91,7 +91,10 @@ impl InferenceReport {
             .loaded_rattlers
             .iter()
             .filter(|&&p| {
-                scene.contacts.iter().any(|c| c.a == p || c.b == crate::scene::Body::Grain(p))
+                scene
+                    .contacts
+                    .iter()
+                    .any(|c| c.a == p || c.b == crate::scene::Body::Grain(p))
             })
             .count();
         let bare = loaded_rattlers.len() - pruned;
