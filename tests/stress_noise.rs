@@ -157,3 +157,19 @@ fn under_absolute_noise_the_absolute_model_stays_the_right_choice() {
     assert!(abs <= 0.05, "absolute {abs}");
     assert!(rel > 1.5 * abs, "relative {rel} vs absolute {abs}");
 }
+
+#[test]
+fn relative_model_on_eq_2_16_noise_dem_box_600_disks() {
+    let (abs, rel) = eq_2_16("measured/box2d600_mu03");
+    eprintln!("2D box 600, scaled: absolute {abs:.4}, relative {rel:.4}");
+    assert!(rel <= 0.02, "relative {rel}");
+    assert!(rel < 0.5 * abs, "relative {rel} vs absolute {abs}");
+}
+
+#[test]
+fn relative_model_on_eq_2_16_noise_dem_box_300_spheres() {
+    let (abs, rel) = eq_2_16("measured/box3d300");
+    eprintln!("3D box 300, scaled: absolute {abs:.4}, relative {rel:.4}");
+    assert!(rel <= 0.02, "relative {rel}");
+    assert!(rel < 0.5 * abs, "relative {rel} vs absolute {abs}");
+}
