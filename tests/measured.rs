@@ -198,3 +198,25 @@ fn cli_switches_by_default_and_fails_on_explicit_qs() {
         "{stderr}"
     );
 }
+
+#[test]
+fn variance_rule_lands_near_the_best_momentum_weight() {
+    // The best λ of a sweep needs the truth; the variance rule does not.
+    for name in ["oedometer", "regression/oedometer3d_seed1"] {
+        let f = fixture(name, &photoelastic());
+        let (chosen, _, inf) = errors(&f, &with(Method::Soft, OnCollapse::Fail));
+        let best = (0..=20)
+            .map(|i| {
+                let mut o = with(Method::Soft, OnCollapse::Fail);
+                o.dynamic.rule = LambdaRule::Fixed(10f64.powf(-4.0 + 0.5 * i as f64));
+                errors(&f, &o).0
+            })
+            .fold(f64::INFINITY, f64::min);
+        eprintln!(
+            "{name}: variance λ {:.3e} relerr {chosen:.4}, best of sweep {best:.4}",
+            inf.report.momentum_weight.unwrap()
+        );
+        assert!(!inf.report.variance_steps.is_empty());
+        assert!(chosen <= 1.15 * best, "{name}: {chosen} vs best {best}");
+    }
+}

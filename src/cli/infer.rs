@@ -389,7 +389,9 @@ pub fn options(args: &Args) -> Result<(InferOptions, Selection)> {
                 .ok_or_else(|| Error::Invalid("--lambda-rule fixed needs --lambda".into()))?,
         ),
     };
-    if args.pareto.is_some() && args.lambda_rule != RuleArg::Knee && opts.method == Method::Dynamic
+    if args.pareto.is_some()
+        && args.lambda_rule != RuleArg::Knee
+        && matches!(opts.method, Method::Dynamic | Method::Soft)
     {
         // The front is still wanted: sweep it, but keep the chosen rule's λ.
         opts.dynamic_front = true;
@@ -705,7 +707,7 @@ pub fn run(args: Args) -> Result<()> {
         let front = results
             .first()
             .and_then(|r| r.report.pareto.as_ref())
-            .ok_or_else(|| Error::Invalid("--pareto needs --method dynamic".into()))?;
+            .ok_or_else(|| Error::Invalid("--pareto needs --method dynamic or soft".into()))?;
         if results.len() > 1 {
             eprintln!("note: --pareto writes the front of the first frame");
         }
