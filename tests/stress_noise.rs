@@ -173,3 +173,68 @@ fn relative_model_on_eq_2_16_noise_dem_box_300_spheres() {
     assert!(rel <= 0.02, "relative {rel}");
     assert!(rel < 0.5 * abs, "relative {rel} vs absolute {abs}");
 }
+
+/// Fraction of true force components within ±1 sd of the inferred ones.
+fn coverage(scene: &Scene, truth: &[Vec3], opts: &InferOptions) -> f64 {
+    use grainforce::infer::uncertainty::{force_uncertainty, NoiseEstimate, UncertaintyOptions};
+    let inf = infer(scene, opts).unwrap();
+    let noise = if opts.stress_noise == StressNoise::Columns {
+        NoiseEstimate::Relative(0.0)
+    } else {
+        NoiseEstimate::FromResidual
+    };
+    let u = force_uncertainty(
+        scene,
+        opts,
+        &inf,
+        &UncertaintyOptions {
+            draws: 40,
+            seed: 3,
+            noise,
+        },
+    )
+    .unwrap();
+    let (mut inside, mut total) = (0usize, 0usize);
+    for c in 0..truth.len() {
+        let (Some(f), Some(sd)) = (inf.forces[c], u.sd[c]) else {
+            continue;
+        };
+        for k in 0..scene.dim {
+            total += 1;
+            inside += usize::from((f[k] - truth[c][k]).abs() <= sd[k]);
+        }
+    }
+    inside as f64 / total as f64
+}
+
+#[test]
+fn coverage_at_one_sd_under_the_relative_and_columns_models() {
+    let (scene, truth) = fixture("regression/oedometer3d_seed1");
+    let (mut rel, mut col) = (vec![], vec![]);
+    for seed in 1..=3 {
+        let noisy = perturb(
+            std::slice::from_ref(&scene),
+            &PerturbConfig {
+                stress_noise: 0.1,
+                seed,
+                ..Default::default()
+            },
+        )
+        .unwrap()
+        .remove(0);
+        let o = InferOptions {
+            stress_noise: StressNoise::Relative,
+            ..InferOptions::default()
+        };
+        rel.push(coverage(&noisy, &truth, &o));
+        let o = InferOptions {
+            stress_noise: StressNoise::Columns,
+            ..InferOptions::default()
+        };
+        col.push(coverage(&heteroscedastic(&scene, seed), &truth, &o));
+    }
+    let (rel, col) = (median(rel), median(col));
+    eprintln!("coverage at ±1 sd: relative {rel:.3}, columns {col:.3}");
+    assert!((0.58..0.78).contains(&rel), "relative {rel}");
+    assert!((0.58..0.78).contains(&col), "columns {col}");
+}

@@ -285,6 +285,7 @@ pub(crate) fn infer_once(scene: &Scene, opts: &InferOptions) -> Result<Inference
                 let weighted = noise::weight_stress_rows(&assembly, &weights);
                 solved = solve_method(scene, &weighted, opts, &factors, &mut report)?;
             }
+            report.relative_stress_residual = Some(noise::relative_residual(&assembly, &solved.0));
             solved
         }
     };

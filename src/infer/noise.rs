@@ -112,3 +112,27 @@ fn normalise(mut weights: Vec<Vec<f64>>) -> Vec<Vec<f64>> {
     }
     weights
 }
+
+/// rms of the relative stress residual, (K_st f − b)/(|K_st f| + floor·rms):
+/// the relative noise level the answer implies (before the degrees-of-freedom
+/// correction the uncertainty applies).
+pub fn relative_residual(assembly: &Assembly, solutions: &[Vec<f64>]) -> f64 {
+    let fitted: Vec<Vec<f64>> = assembly
+        .systems
+        .iter()
+        .zip(solutions)
+        .map(|(s, x)| s.stress.mul(x))
+        .collect();
+    let (sq, n) = fitted
+        .iter()
+        .flatten()
+        .fold((0.0, 0usize), |(s, n), v| (s + v * v, n + 1));
+    let floor = (RELATIVE_FLOOR * (sq / n.max(1) as f64).sqrt()).max(f64::MIN_POSITIVE);
+    let mut total = 0.0;
+    for (system, kx) in assembly.systems.iter().zip(&fitted) {
+        for (k, b) in kx.iter().zip(&system.stress_rhs) {
+            total += ((k - b) / (k.abs() + floor)).powi(2);
+        }
+    }
+    (total / n.max(1) as f64).sqrt()
+}

@@ -33,6 +33,9 @@ pub struct InferenceReport {
     pub length_scale: f64,
     /// ‖K_st f − b_st‖ / ‖b_st‖ over all modelled grains.
     pub stress_residual: f64,
+    /// `--stress-noise relative`: rms of (K_st f − b)/(|K_st f| + floor), the
+    /// relative noise level the answer implies.
+    pub relative_stress_residual: Option<f64>,
     /// Largest momentum-row residual relative to the mean contact force.
     pub momentum_residual: f64,
     /// Largest (|f_t| − μ f_n)₊ relative to the mean contact force.
@@ -127,6 +130,7 @@ impl InferenceReport {
             force_scale: assembly.scales.force,
             length_scale: assembly.scales.length,
             stress_residual: 0.0,
+            relative_stress_residual: None,
             momentum_residual: 0.0,
             coulomb_violation: 0.0,
             lambda: opts
