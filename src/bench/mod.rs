@@ -6,6 +6,7 @@
 //! peak memory (VmHWM) is its own; this module only measures in-process.
 
 pub mod generate;
+pub mod measured;
 pub mod noise;
 
 pub use generate::{generate, Packing, PackingSpec};
@@ -34,9 +35,11 @@ pub struct MethodSpec {
 /// and in 3D `qs-pyr4`, `qs-pyr8`, `qs-pyr16` (any `qs-pyrK`, `K` ≥ 3). `qs`
 /// and `tikhonov` use the active-set solver, `-ip` the interior point (clarabel,
 /// tolerance 1e-8), `-relaxed` the interior point at tolerance 1e-4; any name
-/// may end in `-nocheck` to skip the identifiability (uniqueness) check.
+/// may end in `-nocheck` to skip the identifiability (uniqueness) check, and
+/// (before that) in `-relative` to weight the stress rows by the relative
+/// noise model (`--stress-noise relative`); `soft` is momentum as a penalty.
 pub const METHOD_NAMES: &str =
-    "ls, qs, qs-ip, qs-relaxed, tikhonov, tikhonov-ip, tikhonov-relaxed, tikhonov-search, scaled, qs-pyrK (3D: K facets, e.g. qs-pyr8), each optionally with -nocheck";
+    "ls, qs, qs-ip, qs-relaxed, tikhonov, tikhonov-ip, tikhonov-relaxed, tikhonov-search, scaled, qs-pyrK (3D: K facets, e.g. qs-pyr8), soft, each optionally with -relative and then -nocheck";
 
 /// The default matrix: the floor, the constrained formulations by active set
 /// and by interior point at both tolerances and, in 3D, pyramids of 4, 8 and 16 facets.
@@ -67,6 +70,11 @@ pub fn method_spec(name: &str, lambda: f64) -> Result<MethodSpec> {
         base = b;
         name_rest = b;
     }
+    if let Some(b) = base.strip_suffix("-relative") {
+        o.stress_noise = crate::infer::StressNoise::Relative;
+        base = b;
+        name_rest = b;
+    }
     if let Some(b) = base.strip_suffix("-relaxed") {
         // A tolerance is a knob of the interior point only.
         o.conic.tolerance = RELAXED_TOLERANCE;
@@ -85,6 +93,7 @@ pub fn method_spec(name: &str, lambda: f64) -> Result<MethodSpec> {
         }
         "tikhonov-search" if base == name_rest => o.method = Method::Tikhonov,
         "scaled" if base == name_rest => o.method = Method::Scaled,
+        "soft" if base == name_rest => o.method = Method::Soft,
         _ => {
             let facets = base
                 .strip_prefix("qs-pyr")

@@ -6,7 +6,9 @@ use grainforce::infer::time_fit;
 use grainforce::infer::uncertainty::{
     force_uncertainty, NoiseEstimate, Uncertainty, UncertaintyOptions,
 };
-use grainforce::infer::{self, ConeModel, ConstrainedSolver, InferOptions, LambdaRule, Method};
+use grainforce::infer::{
+    self, ConeModel, ConstrainedSolver, InferOptions, LambdaRule, Method, OnCollapse, StressNoise,
+};
 use grainforce::scene::{self, Forces, Selection};
 use grainforce::solver::sparse_ls::Ordering;
 use std::path::PathBuf;
@@ -22,9 +24,23 @@ pub struct Args {
     /// tikhonov (adds λ²‖f‖², λ from --lambda or matched to walls.csv);
     /// scaled (estimates a global stress scale from walls.csv);
     /// ls (equalities only, no friction: the fast floor);
-    /// dynamic (stress and momentum rows weighted by λ, see --lambda-rule).
-    #[arg(short, long, value_enum, default_value_t = MethodArg::Qs)]
-    pub method: MethodArg,
+    /// dynamic (stress and momentum rows weighted by λ, see --lambda-rule);
+    /// soft (static data that do not balance: momentum as a penalty, λ by
+    /// variance components unless --lambda-rule knee/fixed).
+    /// Default: qs, switching to soft (and saying so) when the forces collapse
+    /// because the data do not balance; an explicit hard-balance method fails
+    /// instead unless --accept-degenerate.
+    #[arg(short, long, value_enum)]
+    pub method: Option<MethodArg>,
+    /// Noise model of the stresses, i.e. how the stress rows are weighted:
+    /// absolute (every component the same sd), relative (sd ∝ the component,
+    /// as photoelastic and strain-gauge stresses and eq. 2.16; iteratively
+    /// reweighted), columns (the sd_s_* columns of grains.csv).
+    #[arg(long, value_enum, default_value_t = StressNoiseArg::Absolute)]
+    pub stress_noise: StressNoiseArg,
+    /// Keep a collapsed hard-balance answer (flagged in the report) instead of failing.
+    #[arg(long)]
+    pub accept_degenerate: bool,
     /// Friction coefficient for contacts without a `mu` column value (overrides
     /// scene.json). Without any μ only f_n ≥ 0 is imposed.
     #[arg(long, allow_negative_numbers = true)]
@@ -79,7 +95,9 @@ pub struct Args {
     /// Dynamic: how the momentum weight λ is chosen. weights: λ = (σ_s/σ_m)²
     /// from --stress-sd and --accel-sd (momentum exact when --accel-sd is 0);
     /// knee: maximum curvature of the Pareto front (the original study's rule);
-    /// hard: momentum as an exact constraint; fixed: --lambda (dimensionless).
+    /// hard: momentum as an exact constraint; fixed: --lambda (dimensionless);
+    /// variance: λ = σ̂_s²/σ̂_m² estimated from the residuals (variance
+    /// components; the rule of --method soft, which treats weights and hard as it).
     #[arg(long, value_enum, default_value_t = RuleArg::Weights)]
     pub lambda_rule: RuleArg,
     /// Dynamic, rule weights: relative noise of the stresses.
@@ -199,6 +217,14 @@ pub enum MethodArg {
     Scaled,
     Ls,
     Dynamic,
+    Soft,
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum StressNoiseArg {
+    Absolute,
+    Relative,
+    Columns,
 }
 
 #[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -207,6 +233,7 @@ pub enum RuleArg {
     Knee,
     Hard,
     Fixed,
+    Variance,
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -269,12 +296,13 @@ pub fn range(flag: &str, text: &str) -> Result<(f64, f64)> {
 
 pub fn options(args: &Args) -> Result<(InferOptions, Selection)> {
     let mut opts = InferOptions {
-        method: match args.method {
+        method: match args.method.unwrap_or(MethodArg::Qs) {
             MethodArg::Qs => Method::Qs,
             MethodArg::Tikhonov => Method::Tikhonov,
             MethodArg::Scaled => Method::Scaled,
             MethodArg::Ls => Method::Ls,
             MethodArg::Dynamic => Method::Dynamic,
+            MethodArg::Soft => Method::Soft,
         },
         cone: match args.cone {
             ConeArg::Exact => ConeModel::Exact,
@@ -285,6 +313,16 @@ pub fn options(args: &Args) -> Result<(InferOptions, Selection)> {
         lambda: args.lambda,
         allow_infeasible: args.allow_infeasible,
         wall_weight: args.wall_weight,
+        stress_noise: match args.stress_noise {
+            StressNoiseArg::Absolute => StressNoise::Absolute,
+            StressNoiseArg::Relative => StressNoise::Relative,
+            StressNoiseArg::Columns => StressNoise::Columns,
+        },
+        on_collapse: match (args.method, args.accept_degenerate) {
+            (_, true) => OnCollapse::Accept,
+            (None, false) => OnCollapse::Switch,
+            (Some(_), false) => OnCollapse::Fail,
+        },
         ..InferOptions::default()
     };
     if let Some(l) = args.lambda {
@@ -344,13 +382,16 @@ pub fn options(args: &Args) -> Result<(InferOptions, Selection)> {
             momentum_sd: accel_sd,
         },
         RuleArg::Knee => LambdaRule::Knee,
+        RuleArg::Variance => LambdaRule::Variance,
         RuleArg::Hard => LambdaRule::Hard,
         RuleArg::Fixed => LambdaRule::Fixed(
             args.lambda
                 .ok_or_else(|| Error::Invalid("--lambda-rule fixed needs --lambda".into()))?,
         ),
     };
-    if args.pareto.is_some() && args.lambda_rule != RuleArg::Knee && opts.method == Method::Dynamic
+    if args.pareto.is_some()
+        && args.lambda_rule != RuleArg::Knee
+        && matches!(opts.method, Method::Dynamic | Method::Soft)
     {
         // The front is still wanted: sweep it, but keep the chosen rule's λ.
         opts.dynamic_front = true;
@@ -666,7 +707,7 @@ pub fn run(args: Args) -> Result<()> {
         let front = results
             .first()
             .and_then(|r| r.report.pareto.as_ref())
-            .ok_or_else(|| Error::Invalid("--pareto needs --method dynamic".into()))?;
+            .ok_or_else(|| Error::Invalid("--pareto needs --method dynamic or soft".into()))?;
         if results.len() > 1 {
             eprintln!("note: --pareto writes the front of the first frame");
         }

@@ -9,17 +9,21 @@
 //! - `ls`: the equality-constrained least squares without inequalities: the fast floor.
 //! - `dynamic` (eq. 3.18): ‖K_s f − b_s‖² + λ‖K_m f − b_m‖², λ by a rule (see [`dynamic`]).
 
+pub mod collapse;
 pub mod dynamic;
 pub mod kinematics;
 mod lambda;
+pub mod noise;
 mod polish;
 mod report;
 pub mod time_fit;
 pub mod uncertainty;
 
 pub use crate::solver::active_set::ActiveSetSettings;
+pub use collapse::{Collapse, OnCollapse};
 pub use dynamic::{DynamicOptions, Front, LambdaRule};
 pub use lambda::{LambdaSearch, LambdaTrace};
+pub use noise::StressNoise;
 pub use report::InferenceReport;
 
 use crate::assemble::{self, AssembleOptions, Assembly, Friction, System};
@@ -40,6 +44,9 @@ pub enum Method {
     Scaled,
     Ls,
     Dynamic,
+    /// Static data, momentum balance as a weighted penalty (data that do not
+    /// balance, e.g. photoelastic frames with missed contacts).
+    Soft,
 }
 
 impl std::fmt::Display for Method {
@@ -50,6 +57,7 @@ impl std::fmt::Display for Method {
             Method::Scaled => "scaled",
             Method::Ls => "ls",
             Method::Dynamic => "dynamic",
+            Method::Soft => "soft",
         })
     }
 }
@@ -103,6 +111,11 @@ pub struct InferOptions {
     /// Fill-reducing ordering of the sparse factorisation; `None` picks by
     /// dimension ([`Ordering::for_dim`]). The answer is the same either way.
     pub ordering: Option<Ordering>,
+    /// What a hard-balance method does when its forces collapse (data out of
+    /// balance): fail, switch to `soft`, or accept (flagged in the report).
+    pub on_collapse: OnCollapse,
+    /// Noise model of the stress rows (how they are weighted).
+    pub stress_noise: StressNoise,
 }
 
 impl Default for InferOptions {
@@ -124,6 +137,8 @@ impl Default for InferOptions {
             solver: ConstrainedSolver::ActiveSet,
             active_set: ActiveSetSettings::default(),
             ordering: None,
+            on_collapse: OnCollapse::Fail,
+            stress_noise: StressNoise::Absolute,
         }
     }
 }
@@ -144,13 +159,109 @@ impl Inference {
     }
 }
 
+/// Infers one scene. A hard-balance answer that collapses (data out of
+/// balance) is never returned silently: see [`InferOptions::on_collapse`].
 pub fn infer(scene: &Scene, opts: &InferOptions) -> Result<Inference> {
+    let hard = matches!(
+        opts.method,
+        Method::Qs | Method::Tikhonov | Method::Ls | Method::Scaled
+    ) && !opts.allow_infeasible;
+    let first = infer_once(scene, opts);
+    if !hard {
+        return first;
+    }
+    let (inference, collapsed, error) = match first {
+        Ok(mut inf) => match collapse::detected(scene, &inf) {
+            None => return Ok(inf),
+            Some(c) => {
+                // A large Tikhonov λ shrinks balanced forces towards zero: a
+                // collapse only if momentum balance alone (qs) collapses too.
+                if opts.method == Method::Tikhonov {
+                    let qs = InferOptions {
+                        method: Method::Qs,
+                        ..opts.clone()
+                    };
+                    if infer_once(scene, &qs)
+                        .map(|q| collapse::detected(scene, &q).is_none())
+                        .unwrap_or(false)
+                    {
+                        inf.report.warnings.push(format!(
+                            "λ shrinks the forces to {:.1e} of the scale the stresses imply (stress residual {:.3}); \
+                             qs fits these data",
+                            c.1, c.0
+                        ));
+                        return Ok(inf);
+                    }
+                }
+                (Some(inf), Some(c), None)
+            }
+        },
+        // The cone-collapse error of the solve: soft equilibrium answers it too.
+        Err(Error::Infeasible(msg)) if opts.on_collapse == OnCollapse::Switch => {
+            (None, None, Some(msg))
+        }
+        Err(e) => return Err(e),
+    };
+    let (mut diagnosis, soft) = collapse::diagnose(scene, opts, collapsed, error.as_deref())?;
+    match (opts.on_collapse, inference) {
+        (OnCollapse::Accept, Some(mut inf)) => {
+            diagnosis.action =
+                "accepted (--accept-degenerate): the forces above are not an answer".into();
+            inf.report.warnings.push(format!(
+                "the forces collapsed (stress residual {:.3}): the data do not balance; --method soft fits them",
+                diagnosis.stress_residual
+            ));
+            inf.report.collapse = Some(diagnosis);
+            Ok(inf)
+        }
+        (OnCollapse::Fail, _) => {
+            diagnosis.action = "failed".into();
+            Err(Error::Infeasible(format!(
+                "the data do not balance.\n{diagnosis}            use --method soft (momentum balance as a penalty), or \
+                 --accept-degenerate to keep the collapsed answer"
+            )))
+        }
+        (_, _) => {
+            let mut soft = soft;
+            diagnosis.action = format!(
+                "switched to soft equilibrium (momentum weight λ = {:.3e}); stress residual {:.3}",
+                soft.report.momentum_weight.unwrap_or(f64::NAN),
+                soft.report.stress_residual
+            );
+            soft.report.warnings.insert(
+                0,
+                format!(
+                    "{} collapsed on data out of balance: the soft-equilibrium answer is returned instead",
+                    opts.method
+                ),
+            );
+            soft.report.collapse = Some(diagnosis);
+            Ok(soft)
+        }
+    }
+}
+
+/// One inference with the given method, no collapse handling.
+pub(crate) fn infer_once(scene: &Scene, opts: &InferOptions) -> Result<Inference> {
     let start = Instant::now();
+    let soft_opts;
+    let opts = if opts.method == Method::Soft {
+        soft_opts = InferOptions {
+            dynamic: DynamicOptions {
+                rule: soft_rule(opts.dynamic.rule),
+                ..opts.dynamic.clone()
+            },
+            ..opts.clone()
+        };
+        &soft_opts
+    } else {
+        opts
+    };
     let mut assemble_opts = opts.assemble.clone();
     // Pruning relies on momentum being a hard constraint; `scaled` couples all
     // clusters through one scale factor.
     let hard_momentum = match opts.method {
-        Method::Dynamic => dynamic_lambda(opts).is_none(),
+        Method::Dynamic | Method::Soft => dynamic_lambda(opts).is_none(),
         _ => true,
     };
     assemble_opts.prune_single_contacts = hard_momentum && !opts.allow_infeasible;
@@ -161,63 +272,22 @@ pub fn infer(scene: &Scene, opts: &InferOptions) -> Result<Inference> {
         check_identifiability(&assembly, opts.identifiability_limit)?;
     let factors = FactorCache::new(&assembly);
 
-    let (solutions, lambda_trace) = match opts.method {
-        Method::Qs => (
-            solve_all(&assembly, opts, 0.0, &factors, &mut report)?,
-            None,
-        ),
-        Method::Tikhonov if opts.lambda.is_none() => {
-            let (lam, trace) = lambda::search(scene, &assembly, opts, &factors, &mut report)?;
-            report.lambda = Some(lam * assembly.scales.length);
-            (
-                solve_all(&assembly, opts, lam, &factors, &mut report)?,
-                Some(trace),
-            )
+    let (solutions, lambda_trace) = match opts.stress_noise {
+        StressNoise::Absolute => solve_method(scene, &assembly, opts, &factors, &mut report)?,
+        StressNoise::Columns => {
+            let weights = noise::column_weights(scene, &assembly)?;
+            let weighted = noise::weight_stress_rows(&assembly, &weights);
+            solve_method(scene, &weighted, opts, &factors, &mut report)?
         }
-        // `ls` (λ given or 0) and Tikhonov at a given λ.
-        Method::Ls | Method::Tikhonov => (
-            solve_all(
-                &assembly,
-                opts,
-                scaled_lambda(opts, &assembly),
-                &factors,
-                &mut report,
-            )?,
-            None,
-        ),
-        Method::Scaled => {
-            let (x, s) = solve_scaled(scene, &assembly, opts, &mut report)?;
-            report.stress_scale = Some(s);
-            (vec![x], None)
-        }
-        Method::Dynamic => {
-            if opts.dynamic_front && opts.dynamic.rule != LambdaRule::Knee {
-                report.pareto = Some(dynamic::sweep(&assembly, opts, &factors, &mut report)?);
+        StressNoise::Relative => {
+            let mut solved = solve_method(scene, &assembly, opts, &factors, &mut report)?;
+            for _ in 0..noise::IRLS_STEPS {
+                let weights = noise::relative_weights(&assembly, &solved.0);
+                let weighted = noise::weight_stress_rows(&assembly, &weights);
+                solved = solve_method(scene, &weighted, opts, &factors, &mut report)?;
             }
-            let lambda = match opts.dynamic.rule {
-                LambdaRule::Knee => {
-                    let front = dynamic::sweep(&assembly, opts, &factors, &mut report)?;
-                    let lambda = front.knee.map(|k| front.points[k].lambda);
-                    report.pareto = Some(front);
-                    lambda
-                }
-                LambdaRule::Weights {
-                    stress_sd,
-                    momentum_sd,
-                } => dynamic::weight_from_noise(&assembly, stress_sd, momentum_sd),
-                _ => dynamic_lambda(opts),
-            };
-            report.momentum_weight = lambda;
-            match lambda {
-                Some(l) => (
-                    dynamic::solve_weighted(&assembly, opts, l, &factors, &mut report)?.0,
-                    None,
-                ),
-                None => (
-                    solve_all(&assembly, opts, 0.0, &factors, &mut report)?,
-                    None,
-                ),
-            }
+            report.relative_stress_residual = Some(noise::relative_residual(&assembly, &solved.0));
+            solved
         }
     };
     let forces = collect_forces(scene, &assembly, &solutions);
@@ -230,6 +300,79 @@ pub fn infer(scene: &Scene, opts: &InferOptions) -> Result<Inference> {
         start.elapsed().as_secs_f64(),
     );
     Ok(Inference { forces, report })
+}
+
+/// The chosen method's solve on an assembly (its stress rows possibly weighted).
+fn solve_method(
+    scene: &Scene,
+    assembly: &Assembly,
+    opts: &InferOptions,
+    factors: &FactorCache,
+    report: &mut InferenceReport,
+) -> Result<(Vec<Vec<f64>>, Option<LambdaTrace>)> {
+    let solved = match opts.method {
+        Method::Qs => (solve_all(assembly, opts, 0.0, factors, report)?, None),
+        Method::Tikhonov if opts.lambda.is_none() => {
+            let (lam, trace) = lambda::search(scene, assembly, opts, factors, report)?;
+            report.lambda = Some(lam * assembly.scales.length);
+            (
+                solve_all(assembly, opts, lam, factors, report)?,
+                Some(trace),
+            )
+        }
+        // `ls` (λ given or 0) and Tikhonov at a given λ.
+        Method::Ls | Method::Tikhonov => (
+            solve_all(
+                assembly,
+                opts,
+                scaled_lambda(opts, assembly),
+                factors,
+                report,
+            )?,
+            None,
+        ),
+        Method::Scaled => {
+            let (x, s) = solve_scaled(scene, assembly, opts, report)?;
+            report.stress_scale = Some(s);
+            (vec![x], None)
+        }
+        Method::Dynamic | Method::Soft => {
+            let mut soft_solution = None;
+            if opts.dynamic_front && opts.dynamic.rule != LambdaRule::Knee {
+                report.pareto = Some(dynamic::sweep(assembly, opts, factors, report)?);
+            }
+            let lambda = match opts.dynamic.rule {
+                LambdaRule::Knee => {
+                    let front = dynamic::sweep(assembly, opts, factors, report)?;
+                    let lambda = front.knee.map(|k| front.points[k].lambda);
+                    report.pareto = Some(front);
+                    lambda
+                }
+                LambdaRule::Weights {
+                    stress_sd,
+                    momentum_sd,
+                } => dynamic::weight_from_noise(assembly, stress_sd, momentum_sd),
+                LambdaRule::Variance => {
+                    let (lambda, xs, steps) =
+                        dynamic::variance_components(assembly, opts, factors, report)?;
+                    soft_solution = Some(xs);
+                    report.variance_steps = steps;
+                    Some(lambda)
+                }
+                _ => dynamic_lambda(opts),
+            };
+            report.momentum_weight = lambda;
+            match lambda {
+                Some(_) if soft_solution.is_some() => (soft_solution.unwrap_or_default(), None),
+                Some(l) => (
+                    dynamic::solve_weighted(assembly, opts, l, factors, report)?.0,
+                    None,
+                ),
+                None => (solve_all(assembly, opts, 0.0, factors, report)?, None),
+            }
+        }
+    };
+    Ok(solved)
 }
 
 /// Infers every frame of a sequence, frames in parallel.
@@ -286,13 +429,23 @@ pub fn infer_frames(
     results.into_iter().collect()
 }
 
+/// The rule of `soft`: the user's if it weights momentum, else variance
+/// components (momentum exact would defeat the method).
+fn soft_rule(rule: LambdaRule) -> LambdaRule {
+    match rule {
+        LambdaRule::Hard => LambdaRule::Variance,
+        LambdaRule::Weights { momentum_sd, .. } if momentum_sd <= 0.0 => LambdaRule::Variance,
+        r => r,
+    }
+}
+
 /// The momentum weight a dynamic rule fixes before any solve; `None` means
 /// hard momentum (or a weight the data decide later: knee, weights).
 fn dynamic_lambda(opts: &InferOptions) -> Option<f64> {
     match opts.dynamic.rule {
         LambdaRule::Hard => None,
         LambdaRule::Fixed(l) => Some(l),
-        LambdaRule::Knee => Some(1.0),
+        LambdaRule::Knee | LambdaRule::Variance => Some(1.0),
         LambdaRule::Weights { momentum_sd, .. } => (momentum_sd > 0.0).then_some(1.0),
     }
 }

@@ -33,6 +33,9 @@ pub struct InferenceReport {
     pub length_scale: f64,
     /// ‖K_st f − b_st‖ / ‖b_st‖ over all modelled grains.
     pub stress_residual: f64,
+    /// `--stress-noise relative`: rms of (K_st f − b)/(|K_st f| + floor), the
+    /// relative noise level the answer implies.
+    pub relative_stress_residual: Option<f64>,
     /// Largest momentum-row residual relative to the mean contact force.
     pub momentum_residual: f64,
     /// Largest (|f_t| − μ f_n)₊ relative to the mean contact force.
@@ -42,10 +45,14 @@ pub struct InferenceReport {
     pub lambda_trace: Option<LambdaTrace>,
     /// Dimensionless weight of the momentum rows (method `dynamic`); None = hard.
     pub momentum_weight: Option<f64>,
+    /// The variance-component iteration that chose the momentum weight.
+    pub variance_steps: Vec<super::dynamic::VarianceStep>,
     /// The swept Pareto front (dynamic, rule knee).
     pub pareto: Option<super::Front>,
     /// Estimated global stress scale (method `scaled`): true ≈ s · measured.
     pub stress_scale: Option<f64>,
+    /// The hard-balance answer collapsed (data out of balance): the diagnosis.
+    pub collapse: Option<super::Collapse>,
     /// Whether the forces are uniquely determined by the data (None: not checked).
     pub unique: Option<bool>,
     /// Estimate of σ_min/σ_max of the equilibrated [K_st; K_eq] (smallest
@@ -84,10 +91,30 @@ impl InferenceReport {
             .iter()
             .map(|&p| scene.grains[p].id.clone())
             .collect();
-        if !loaded_rattlers.is_empty() {
+        // A loaded "rattler" either has no contact in the file or lost its
+        // only one(s) to pruning (a grain with a single contact and nothing to
+        // balance must have a zero force there when balance is exact).
+        let pruned = assembly
+            .loaded_rattlers
+            .iter()
+            .filter(|&&p| {
+                scene
+                    .contacts
+                    .iter()
+                    .any(|c| c.a == p || c.b == crate::scene::Body::Grain(p))
+            })
+            .count();
+        let bare = loaded_rattlers.len() - pruned;
+        if bare > 0 {
             warnings.push(format!(
-                "{} grains report load (stress or acceleration) but have no contacts; their data are ignored",
-                loaded_rattlers.len()
+                "{bare} grains report load (stress or acceleration) but have no contacts in the file; their data are ignored"
+            ));
+        }
+        if pruned > 0 {
+            warnings.push(format!(
+                "{pruned} grains report stress but their contacts were all fixed to zero by pruning (a grain left with \
+                 one contact and no load to balance carries no force when momentum balance is exact), so their \
+                 stresses are ignored: the data are missing contacts (detectors miss weak ones); --method soft uses them"
             ));
         }
         InferenceReport {
@@ -107,6 +134,7 @@ impl InferenceReport {
             force_scale: assembly.scales.force,
             length_scale: assembly.scales.length,
             stress_residual: 0.0,
+            relative_stress_residual: None,
             momentum_residual: 0.0,
             coulomb_violation: 0.0,
             lambda: opts
@@ -114,8 +142,10 @@ impl InferenceReport {
                 .filter(|_| matches!(opts.method, Method::Tikhonov | Method::Ls)),
             lambda_trace: None,
             momentum_weight: None,
+            variance_steps: Vec::new(),
             pareto: None,
             stress_scale: None,
+            collapse: None,
             unique: None,
             conditioning: None,
             solver_status: "not run".into(),
@@ -275,7 +305,7 @@ impl std::fmt::Display for InferenceReport {
                 l / self.length_scale
             )?;
         }
-        if self.method == Method::Dynamic {
+        if matches!(self.method, Method::Dynamic | Method::Soft) {
             match self.momentum_weight {
                 Some(w) => writeln!(f, "momentum    weight λ = {w:.4e} (dimensionless)")?,
                 None => writeln!(f, "momentum    exact (hard constraint)")?,
@@ -287,6 +317,9 @@ impl std::fmt::Display for InferenceReport {
                 "stress      scale estimated from walls: {s:.5} (measured stresses × {s:.5})"
             )?;
         }
+        if let Some(c) = &self.collapse {
+            write!(f, "{c}")?;
+        }
         let conditioning = match self.conditioning {
             Some(c) => format!(
                 " (σ_min/σ_max {c:.1e}: errors in the data are amplified at most ~{:.1}×)",
@@ -295,6 +328,10 @@ impl std::fmt::Display for InferenceReport {
             None => String::new(),
         };
         match self.unique {
+            Some(true) if self.collapse.is_some() && self.method != Method::Soft => writeln!(
+                f,
+                "unique      the equations have one solution, but it is the collapse above, not the forces"
+            )?,
             Some(true) => writeln!(f, "unique      yes: the data determine every force{conditioning}")?,
             Some(false) => writeln!(
                 f,

@@ -12,13 +12,16 @@
 //! perturbs it by the noise model, infers again with the same options, and the
 //! per-component standard deviation over the draws is reported.
 //!
+//! Under `--stress-noise columns` each draw perturbs the fitted stresses by
+//! the stated per-component sds (`sd_s_*`) instead.
+//!
 //! Assumptions (see docs/uncertainty.md): noise independent between components
 //! and grains; positions, normals, accelerations and wall loads exact; the
 //! residual contains noise only (model error inflates σ, which is conservative);
 //! and a *global* bias of the stresses is invisible to the bootstrap — it moves
 //! every draw alike.
 
-use super::{infer, InferOptions, Inference, InferenceReport};
+use super::{infer, InferOptions, Inference, InferenceReport, StressNoise};
 use crate::error::{Error, Result};
 use crate::scene::{self, Body, Scene, Sym, Vec3};
 use rand::SeedableRng;
@@ -83,12 +86,17 @@ pub fn residual_noise_level(report: &InferenceReport) -> Option<f64> {
     let p = report
         .unknowns
         .saturating_sub(grains * momentum_rows_per_grain) as f64;
-    if m - p < 1.0 || !report.stress_residual.is_finite() {
+    // Under the relative model its own residual measures the level (the plain
+    // residual of a weighted answer overstates it).
+    let residual = report
+        .relative_stress_residual
+        .unwrap_or(report.stress_residual);
+    if m - p < 1.0 || !residual.is_finite() {
         return None;
     }
     // Fewer than a tenth of the rows left: the estimate would be mostly noise.
     let ratio = ((m - p) / m).max(0.1);
-    Some(report.stress_residual / ratio.sqrt())
+    Some(residual / ratio.sqrt())
 }
 
 /// The stresses the inferred forces reproduce: V σ̂ = Σ sym(r ⊗ f) over each
@@ -188,9 +196,16 @@ pub fn force_uncertainty(
         );
         let mut noisy = scene.clone();
         for (g, s) in noisy.grains.iter_mut().zip(&fitted) {
+            // Under `--stress-noise columns` the stated sds are the noise.
+            let stated = g
+                .stress_sd
+                .filter(|_| opts.stress_noise == StressNoise::Columns);
             for &k in components {
                 let e: f64 = StandardNormal.sample(&mut rng);
-                g.stress[k] = s[k] * (1.0 + noise_level * e);
+                g.stress[k] = match stated {
+                    Some(sd) => s[k] + sd[k] * e,
+                    None => s[k] * (1.0 + noise_level * e),
+                };
             }
         }
         Ok(infer(&noisy, &draw_opts)?.forces)
