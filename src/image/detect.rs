@@ -48,6 +48,10 @@ pub struct DetectOptions {
     pub min_visible: f64,
     /// Candidate centres: accumulator maxima above this fraction of the largest.
     pub vote_threshold: f64,
+    /// Smallest intensity step across the edge: two grey levels of an 8-bit
+    /// image. Fainter "disks" are echoes of edges in another colour channel
+    /// (JPEG's subsampled chroma) or quantisation, not disks.
+    pub min_contrast: f64,
 }
 
 impl DetectOptions {
@@ -62,6 +66,7 @@ impl DetectOptions {
             min_support_confirmed: 0.3,
             min_visible: 0.3,
             vote_threshold: 0.04,
+            min_contrast: 2.0 / 255.0,
         }
     }
 
@@ -769,7 +774,7 @@ fn refine(
     }
     // The step across the edge, measured outside the smoothing's reach.
     let contrast = edge_contrast(img, c, r, sign, sigma);
-    if contrast <= 0.0 {
+    if contrast <= o.min_contrast.max(0.0) {
         return None;
     }
     let rms = (residuals.iter().map(|v| v * v).sum::<f64>() / residuals.len() as f64).sqrt();

@@ -16,6 +16,7 @@ pub mod elastic;
 mod font;
 pub mod io;
 pub mod overlay;
+pub mod photoelastic;
 pub mod render;
 pub mod strain;
 pub mod synthetic;
@@ -31,7 +32,7 @@ pub type FloatImage = ::image::ImageBuffer<::image::Luma<f32>, Vec<f32>>;
 pub use contacts::{find_contacts, ContactBody, PixelContact, WallLine};
 pub use detect::{detect_disks, DetectOptions, Disk, Polarity};
 pub use elastic::{Elasticity, PlaneCondition};
-pub use io::{load_gray, load_gray_sequence, save_gray};
+pub use io::{load_channel, load_gray, load_gray_sequence, save_gray, Channel};
 pub use render::{render_scene, render_sequence, RenderOptions, RenderedPair, RenderedSequence};
 pub use strain::{measure_stresses, StrainOptions, StrainReport};
 pub use track::{track_sequence, TrackOptions, Tracker};
@@ -192,6 +193,8 @@ pub struct DetectSettings {
     /// Out-of-plane thickness [m], recorded in scene.json.
     pub thickness: Option<f64>,
     pub track: TrackOptions,
+    /// The channel of a colour image that is analysed.
+    pub channel: Channel,
 }
 
 impl DetectSettings {
@@ -204,6 +207,7 @@ impl DetectSettings {
             frame: None,
             thickness: None,
             track: TrackOptions::new(radius_min),
+            channel: Channel::default(),
         }
     }
 }
@@ -255,7 +259,7 @@ pub fn detect_images(
     let mut pixel_frame = None;
     let mut walls = Vec::new();
     for (k, path) in paths.iter().enumerate() {
-        let image = load_gray(path)?;
+        let image = load_channel(path, settings.channel)?;
         match &first {
             Some(f) => io::check_same_size(f, &paths[0], &image, path)?,
             None => {
