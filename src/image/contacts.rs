@@ -319,7 +319,9 @@ pub fn measure_rims(image: &FloatImage, disks: &[Disk]) -> Vec<Option<Rim>> {
             let neighbours: Vec<&Disk> = disks
                 .iter()
                 .enumerate()
-                .filter(|(j, e)| *j != k && (e.x - d.x).hypot(e.y - d.y) < d.r + e.r + reach + 2.0)
+                .filter(|(j, e)| {
+                    *j != k && (e.x - d.x).hypot(e.y - d.y) < d.r + 1.25 * e.r + reach + 4.0
+                })
                 .map(|(_, e)| e)
                 .collect();
             let mut profile = vec![0.0; n];
@@ -332,7 +334,7 @@ pub fn measure_rims(image: &FloatImage, disks: &[Disk]) -> Vec<Option<Rim>> {
                     if rho > d.r
                         && neighbours
                             .iter()
-                            .any(|e| (x - e.x).hypot(y - e.y) < e.r + 2.0)
+                            .any(|e| (x - e.x).hypot(y - e.y) < e.r + (0.25 * e.r).max(4.0))
                     {
                         continue 'ray;
                     }
@@ -361,9 +363,9 @@ pub fn measure_rims(image: &FloatImage, disks: &[Disk]) -> Vec<Option<Rim>> {
             let dark_at = dark_at + first_out.saturating_sub(4);
             let tail = &mean[search_end..];
             let background = tail.iter().sum::<f64>() / tail.len() as f64;
-            let inside = mean[0];
-            // A rim must be clearly darker than the background on both sides.
-            if background - dark < (0.02f64).max(0.15 * (inside - dark)) {
+            // A rim must be clearly darker than the background (five grey
+            // levels of an 8-bit image; the mean over the rays is smooth).
+            if background - dark < 0.02 {
                 return None;
             }
             let half = 0.5 * (dark + background);
@@ -488,17 +490,21 @@ pub fn find_image_contacts(
                     let known: Vec<Rim> = [ra, rb].into_iter().flatten().collect();
                     let level = known.iter().map(|r| r.level).sum::<f64>() / known.len() as f64;
                     let bg = known.iter().map(|r| r.background).sum::<f64>() / known.len() as f64;
-                    // From inside one rim to inside the other: the disks'
-                    // bright interiors must not leak into the samples.
-                    let into = |r: Option<Rim>| r.map_or(1.0, |r| (0.5 * r.width).clamp(1.0, 2.0));
-                    let from = da.r - ra.map_or(0.0, |r| r.width) + into(ra);
-                    let to = dist - db.r + rb.map_or(0.0, |r| r.width) - into(rb);
+                    // Background would show around the middle of the gap
+                    // between the outer edges (or of their overlap); farther
+                    // out, the bright interiors leak into the rims.
+                    let middle = da.r + 0.5 * gap;
+                    let half = 0.5 * gap.max(0.0) + 0.75;
+                    let (from, to) = (middle - half, middle + half);
                     Some(brightest_between(image, [da.x, da.y], n, from, to) > 0.5 * (level + bg))
                 }
             };
             let g2 = [g2_near(a, n), g2_near(b, [-n[0], -n[1]])];
             let evidence = loaded(g2[0].min(g2[1]));
-            let confidence = if background_between == Some(true) {
+            // Where the outer edges overlap, light between them is leakage
+            // (blur, compression) from the bright interiors, not a gap.
+            let open = background_between == Some(true) && gap > 0.0;
+            let confidence = if open {
                 0.1 * evidence
             } else if gap <= tolerance {
                 // Edges meet and nothing shows between them; G² adds certainty.
@@ -606,7 +612,7 @@ fn brightest_between(image: &FloatImage, c: [f64; 2], n: [f64; 2], from: f64, to
         if !values.is_empty() {
             best = best.max(values.iter().sum::<f64>() / values.len() as f64);
         }
-        rho += 0.5;
+        rho += 0.25;
     }
     best
 }

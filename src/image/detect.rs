@@ -197,8 +197,20 @@ pub fn detect_disks(image: &FloatImage, options: &DetectOptions) -> Result<Vec<D
             None => None,
         })
         .collect();
-    kept.sort_by(|a, b| a.y.total_cmp(&b.y).then(a.x.total_cmp(&b.x)));
-    Ok(kept)
+    // Disks do not overlap: of two circles that cross by more than a few
+    // pixels, the better supported stays (the other is fitted to fringes or to
+    // the space between disks).
+    kept.sort_by(|a, b| score(b).total_cmp(&score(a)));
+    let mut solid: Vec<Disk> = Vec::with_capacity(kept.len());
+    for d in kept {
+        let crosses =
+            |k: &Disk| (k.x - d.x).hypot(k.y - d.y) < k.r + d.r - (3.0f64).max(0.15 * k.r.min(d.r));
+        if !solid.iter().any(crosses) {
+            solid.push(d);
+        }
+    }
+    solid.sort_by(|a, b| a.y.total_cmp(&b.y).then(a.x.total_cmp(&b.x)));
+    Ok(solid)
 }
 
 /// Final sub-pixel fit of a disk model to the raw pixels of a ring around the
