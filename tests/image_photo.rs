@@ -268,3 +268,131 @@ fn bidisperse_photographs_at_default_settings() {
     assert!(total.median_centre_over_r <= 0.035);
     assert!(total.contact_recall() >= 0.9 && total.contact_precision() >= 0.9);
 }
+
+/// Disks of radius 25, 31 and 36 px: with the classes 20..27 and 33..40 the
+/// middle size (fitted inside its rim at ≈ 29 px) is left out, and every disk
+/// of the two classes is found; one wide range finds all three sizes.
+#[test]
+fn radius_classes_find_only_their_sizes() {
+    let scene = touching_disks_of_sizes(
+        &PackingSpec {
+            width: 0.40,
+            height: 0.37,
+            radius_min: 0.025,
+            radius_max: 0.036,
+            count: 24,
+            min_gap: 0.003,
+            seed: 7,
+        },
+        &[0.025, 0.031, 0.036],
+    )
+    .unwrap();
+    let mut options = PhotoelasticOptions::new(PX_PER_M, 600.0);
+    options.rim_px = 2.0;
+    options.uneven_lighting = 0.4;
+    options.blur_px = 0.7;
+    options.noise = 0.02;
+    let (image, frame) = render_photoelastic(&scene, &forces(&scene, 7), &options).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("three-sizes.jpg");
+    save_jpeg(&path, &image, 90).unwrap();
+    let middle = |g: usize| (scene.grains[g].radius.unwrap() - 0.031).abs() < 1e-9;
+    let found_grains = |settings: &DetectSettings| {
+        let photo = Photo {
+            scene: scene.clone(),
+            path: path.clone(),
+            frame,
+        };
+        let found = detect(&photo, settings);
+        // Grain matched by each disk (within a quarter radius), if any.
+        let owners: Vec<Option<usize>> = found
+            .disks
+            .iter()
+            .map(|d| {
+                scene.grains.iter().position(|g| {
+                    let p = frame.to_pixel([g.position[0], g.position[1]]);
+                    (d.x - p[0]).hypot(d.y - p[1]) < 0.25 * g.radius.unwrap() * PX_PER_M
+                })
+            })
+            .collect();
+        owners
+    };
+    let n_middle = (0..scene.grains.len()).filter(|&g| middle(g)).count();
+    assert!(n_middle >= 4, "only {n_middle} disks of the middle size");
+
+    let wide = found_grains(&DetectSettings::new(20.0, 40.0, PX_PER_M));
+    assert_eq!(wide.len(), scene.grains.len(), "{wide:?}");
+    assert!(wide.iter().all(Option::is_some));
+
+    let mut settings = DetectSettings::new(20.0, 40.0, PX_PER_M);
+    settings.detect =
+        grainforce::image::DetectOptions::with_classes(&[[20.0, 27.0], [33.0, 40.0]]).unwrap();
+    let classes = found_grains(&settings);
+    let wanted = scene.grains.len() - n_middle;
+    println!(
+        "{} grains ({n_middle} of the middle size): one range finds {}, the classes {}",
+        scene.grains.len(),
+        wide.len(),
+        classes.len()
+    );
+    assert_eq!(classes.len(), wanted, "{classes:?}");
+    assert!(classes.iter().all(|o| o.is_some_and(|g| !middle(g))));
+}
+
+fn grainforce(args: &[&str]) -> (bool, String) {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_grainforce"))
+        .args(args)
+        .output()
+        .expect("the binary runs");
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn detect_writes_contact_evidence_and_names_bad_classes() {
+    let dir = tempfile::tempdir().unwrap();
+    let photo = photograph(dir.path(), 2, 3.0, 90);
+    let out = dir.path().join("found");
+    let (ok, err) = grainforce(&[
+        "detect",
+        photo.path.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--radius",
+        "20..28,31..40",
+    ]);
+    assert!(ok, "{err}");
+    let scene = grainforce::scene::read_scene(&out).unwrap();
+    assert_eq!(scene.grains.len(), photo.scene.grains.len());
+    let evidence = std::fs::read_to_string(out.join("contacts-evidence.csv")).unwrap();
+    let mut lines = evidence.lines();
+    assert_eq!(
+        lines.next().unwrap(),
+        "contact,a,b,outer_gap_px,tolerance_px,background_between,g2_a,g2_b,confidence,status"
+    );
+    // Every contact of contacts.csv is listed with its confidence.
+    let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+    let written = rows.iter().filter(|r| r[9] == "contact").count();
+    assert_eq!(written, scene.contacts.len());
+    for r in &rows {
+        let confidence: f64 = r[8].parse().unwrap();
+        assert!((0.0..=1.0).contains(&confidence));
+        assert_eq!(r[0].is_empty(), r[9] == "doubtful");
+    }
+
+    let (ok, err) = grainforce(&[
+        "detect",
+        photo.path.to_str().unwrap(),
+        "-o",
+        dir.path().join("never").to_str().unwrap(),
+        "--radius",
+        "20..33,31..40",
+    ]);
+    assert!(
+        !ok && err.contains("20..33,31..40") && err.contains("overlap"),
+        "{err}"
+    );
+    assert!(!dir.path().join("never").exists());
+}

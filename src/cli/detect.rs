@@ -1,8 +1,8 @@
 //! `grainforce detect`: photographs → scene folder.
 
 use grainforce::image::{
-    detect_images, overlay, Channel, ContactBody, DetectSettings, Detection, PixelFrame, Polarity,
-    WallLine, WallSource, FRAME_FILE,
+    detect_images, overlay, Channel, ContactBody, DetectOptions, DetectSettings, Detection,
+    PixelFrame, Polarity, WallLine, WallSource, FRAME_FILE,
 };
 use grainforce::scene::write_sequence;
 use grainforce::{Error, Result};
@@ -16,9 +16,11 @@ pub struct Args {
     /// Scene folder to write (grains.csv, contacts.csv, scene.json, image-frame.json).
     #[arg(short = 'o', long = "output")]
     output: PathBuf,
-    /// Radius range of the disks, in pixels: MIN..MAX.
-    #[arg(long, value_parser = parse_range)]
-    radius: (f64, f64),
+    /// Radius range of the disks, in pixels: MIN..MAX, or several classes
+    /// separated by commas (MIN..MAX,MIN..MAX, e.g. 45..55,70..80 for a
+    /// bidisperse packing: sizes between the classes are not searched).
+    #[arg(long, value_parser = parse_ranges)]
+    radius: RadiusClasses,
     /// Pixels per metre. Without it, lengths stay in pixels (1 px = 1 m).
     #[arg(long, conflicts_with = "frame")]
     scale: Option<f64>,
@@ -64,6 +66,17 @@ pub struct Args {
     /// frame, numbered (overlay-0000.png, …).
     #[arg(long)]
     overlay: Option<PathBuf>,
+}
+
+/// One or more radius classes, [min, max] px each.
+#[derive(Clone)]
+struct RadiusClasses(Vec<[f64; 2]>);
+
+fn parse_ranges(s: &str) -> std::result::Result<RadiusClasses, String> {
+    s.split(',')
+        .map(|r| parse_range(r.trim()).map(|(a, b)| [a, b]))
+        .collect::<std::result::Result<_, _>>()
+        .map(RadiusClasses)
 }
 
 fn parse_range(s: &str) -> std::result::Result<(f64, f64), String> {
@@ -177,7 +190,9 @@ pub fn run(args: Args) -> Result<()> {
             1.0
         }
     };
-    let mut settings = DetectSettings::new(args.radius.0, args.radius.1, px_per_m);
+    let classes = DetectOptions::with_classes(&args.radius.0)?;
+    let mut settings = DetectSettings::new(classes.radius_min, classes.radius_max, px_per_m);
+    settings.detect = classes;
     settings.frame = frame;
     settings.gap_px = args.gap;
     settings.keep_doubtful = args.keep_doubtful;

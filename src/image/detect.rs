@@ -52,6 +52,10 @@ pub struct DetectOptions {
     /// image. Fainter "disks" are echoes of edges in another colour channel
     /// (JPEG's subsampled chroma) or quantisation, not disks.
     pub min_contrast: f64,
+    /// Several size classes ([min, max] px each), e.g. a bidisperse packing:
+    /// each is searched on its own, so sizes between them are not found.
+    /// Empty: the one range `radius_min..radius_max`.
+    pub classes: Vec<[f64; 2]>,
 }
 
 impl DetectOptions {
@@ -67,7 +71,37 @@ impl DetectOptions {
             min_visible: 0.3,
             vote_threshold: 0.04,
             min_contrast: 2.0 / 255.0,
+            classes: Vec::new(),
         }
+    }
+
+    /// Options for several radius classes; `radius_min..radius_max` spans them.
+    pub fn with_classes(classes: &[[f64; 2]]) -> Result<Self> {
+        let bad = |why: &str| {
+            let list: Vec<String> = classes
+                .iter()
+                .map(|c| format!("{}..{}", c[0], c[1]))
+                .collect();
+            Error::Invalid(format!("radius classes {}: {why}", list.join(",")))
+        };
+        if classes.is_empty() {
+            return Err(bad("none given"));
+        }
+        let mut sorted = classes.to_vec();
+        sorted.sort_by(|a, b| a[0].total_cmp(&b[0]));
+        for c in &sorted {
+            if !(c[0].is_finite() && c[1].is_finite() && c[0] >= 2.0 && c[1] >= c[0]) {
+                return Err(bad("each must satisfy 2 ≤ MIN ≤ MAX pixels"));
+            }
+        }
+        if sorted.windows(2).any(|p| p[1][0] <= p[0][1]) {
+            return Err(bad("classes must not overlap"));
+        }
+        let mut o = DetectOptions::new(sorted[0][0], sorted[sorted.len() - 1][1]);
+        if sorted.len() > 1 {
+            o.classes = sorted;
+        }
+        Ok(o)
     }
 
     /// The smoothing actually used.
@@ -105,6 +139,15 @@ impl Disk {
 /// by row, then column. An image without disks gives an empty list (the caller
 /// decides whether that is an error).
 pub fn detect_disks(image: &FloatImage, options: &DetectOptions) -> Result<Vec<Disk>> {
+    if options.classes.len() > 1 {
+        let mut found = Vec::new();
+        for c in &options.classes {
+            let mut one = options.clone();
+            (one.radius_min, one.radius_max, one.classes) = (c[0], c[1], Vec::new());
+            found.extend(detect_disks(image, &one)?);
+        }
+        return Ok(without_overlaps(found));
+    }
     let o = options;
     if !(o.radius_min.is_finite() && o.radius_max.is_finite())
         || o.radius_min < 2.0
@@ -184,7 +227,7 @@ pub fn detect_disks(image: &FloatImage, options: &DetectOptions) -> Result<Vec<D
         }
     }
     let (typical_step, typical_width) = (median(&mut steps), median(&mut widths));
-    let mut kept: Vec<Disk> = kept
+    let kept: Vec<Disk> = kept
         .iter()
         .zip(fits)
         .filter_map(|(d, f)| match f {
@@ -197,9 +240,14 @@ pub fn detect_disks(image: &FloatImage, options: &DetectOptions) -> Result<Vec<D
             None => None,
         })
         .collect();
-    // Disks do not overlap: of two circles that cross by more than a few
-    // pixels, the better supported stays (the other is fitted to fringes or to
-    // the space between disks).
+    Ok(without_overlaps(kept))
+}
+
+/// Disks do not overlap: of two circles that cross by more than a few pixels,
+/// the better supported stays (the other is fitted to fringes or to the space
+/// between disks, or is a size class's echo of a disk of another). Sorted by
+/// row, then column.
+fn without_overlaps(mut kept: Vec<Disk>) -> Vec<Disk> {
     kept.sort_by(|a, b| score(b).total_cmp(&score(a)));
     let mut solid: Vec<Disk> = Vec::with_capacity(kept.len());
     for d in kept {
@@ -210,7 +258,7 @@ pub fn detect_disks(image: &FloatImage, options: &DetectOptions) -> Result<Vec<D
         }
     }
     solid.sort_by(|a, b| a.y.total_cmp(&b.y).then(a.x.total_cmp(&b.x)));
-    Ok(solid)
+    solid
 }
 
 /// Final sub-pixel fit of a disk model to the raw pixels of a ring around the
