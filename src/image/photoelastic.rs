@@ -102,12 +102,14 @@ pub fn render_photoelastic(
         )));
     }
     let positive = |v: f64| v.is_finite() && v > 0.0;
-    if !(positive(o.px_per_m) && positive(o.fringe_stress))
-        || !(o.rim_px >= 0.0 && o.blur_px >= 0.0 && o.noise >= 0.0 && o.margin_px >= 0.0)
-        || !(0.0..1.0).contains(&o.uneven_lighting)
-        || o.supersample == 0
-        || o.supersample > 16
-    {
+    let valid = positive(o.px_per_m)
+        && positive(o.fringe_stress)
+        && [o.rim_px, o.blur_px, o.noise, o.margin_px]
+            .iter()
+            .all(|v| *v >= 0.0)
+        && (0.0..1.0).contains(&o.uneven_lighting)
+        && (1..=16).contains(&o.supersample);
+    if !valid {
         return Err(Error::Invalid(
             "photoelastic rendering: scale and fringe stress must be positive, rim, blur, noise and margin not negative, lighting variation below 1, 1–16 samples per axis".into(),
         ));
