@@ -505,7 +505,9 @@ pub fn find_image_contacts(
             // (blur, compression) from the bright interiors, not a gap.
             let open = background_between == Some(true) && gap > 0.0;
             let confidence = if open {
-                0.1 * evidence
+                // Strong G² on both sides keeps it as a doubtful contact
+                // (flagged for a look), never a confident one.
+                0.35 * evidence
             } else if gap <= tolerance {
                 // Edges meet and nothing shows between them; G² adds certainty.
                 let base = if background_between.is_some() {
