@@ -436,3 +436,122 @@ fn detect_writes_contact_evidence_and_names_bad_classes() {
     );
     assert!(!dir.path().join("never").exists());
 }
+
+/// A row of disks (radius 25 and 36 px) resting on a floor, each touching its
+/// neighbours, the last one lifted 3 px and set 4 px apart: wall contacts
+/// through the rims, with the floor given as a line in pixels.
+#[test]
+fn floor_contacts_through_the_rims() {
+    use grainforce::image::{WallLine, WallSource};
+    use grainforce::scene::{Contact, Grain};
+    let floor_y = 0.03;
+    let radii: [f64; 7] = [0.025, 0.036, 0.025, 0.036, 0.025, 0.036, 0.025];
+    let mut scene = Scene::new(2);
+    let floor = scene.wall_or_insert("floor");
+    let mut x = 0.05;
+    for (k, &r) in radii.iter().enumerate() {
+        let last = k + 1 == radii.len();
+        if k > 0 {
+            let prev = radii[k - 1];
+            x += 2.0 * (prev * r).sqrt() + if last { 0.004 } else { 0.0 };
+        }
+        let lift = if last { 0.003 } else { 0.0 };
+        let mut g = Grain::new(
+            k.to_string(),
+            [x, floor_y + r + lift, 0.0],
+            std::f64::consts::PI * r * r,
+            [0.0; 6],
+        );
+        g.radius = Some(r);
+        scene.grains.push(g);
+    }
+    for k in 0..radii.len() - 1 {
+        scene.contacts.push(Contact {
+            id: scene.contacts.len().to_string(),
+            a: k,
+            b: Body::Wall(floor),
+            point: [scene.grains[k].position[0], floor_y, 0.0],
+            normal: [0.0, -1.0, 0.0],
+            mu: None,
+        });
+        if k + 2 < radii.len() {
+            let (pa, pb) = (scene.grains[k].position, scene.grains[k + 1].position);
+            let d = (pb[0] - pa[0]).hypot(pb[1] - pa[1]);
+            let n = [(pb[0] - pa[0]) / d, (pb[1] - pa[1]) / d];
+            scene.contacts.push(Contact {
+                id: scene.contacts.len().to_string(),
+                a: k,
+                b: Body::Grain(k + 1),
+                point: [pa[0] + radii[k] * n[0], pa[1] + radii[k] * n[1], 0.0],
+                normal: [n[0], n[1], 0.0],
+                mu: None,
+            });
+        }
+    }
+    let forces = forces(&scene, 9);
+    let mut options = PhotoelasticOptions::new(PX_PER_M, 600.0);
+    options.uneven_lighting = 0.4;
+    options.blur_px = 0.7;
+    options.noise = 0.02;
+    let (image, frame) = render_photoelastic(&scene, &forces, &options).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("row.jpg");
+    save_jpeg(&path, &image, 90).unwrap();
+    let y = frame.to_pixel([0.0, floor_y])[1];
+    let mut settings = DetectSettings::new(20.0, 40.0, PX_PER_M);
+    settings.walls = WallSource::Lines(vec![WallLine::new("floor", [0.0, y], [100.0, y]).unwrap()]);
+    let photo = Photo {
+        scene: scene.clone(),
+        path,
+        frame,
+    };
+    let found = detect(&photo, &settings);
+    assert_eq!(found.disks.len(), radii.len());
+    // Disks are listed by row, then column: match them to grains by x.
+    let grain_of = |k: usize| {
+        let d = &found.disks[k];
+        (0..radii.len())
+            .min_by(|&a, &b| {
+                let pa = frame.to_pixel([scene.grains[a].position[0], 0.0])[0];
+                let pb = frame.to_pixel([scene.grains[b].position[0], 0.0])[0];
+                (pa - d.x).abs().total_cmp(&(pb - d.x).abs())
+            })
+            .unwrap()
+    };
+    let mut on_floor: Vec<usize> = found
+        .contacts
+        .iter()
+        .filter(|c| c.b == ContactBody::Wall(0))
+        .map(|c| grain_of(c.a))
+        .collect();
+    on_floor.sort();
+    let mut pairs: Vec<(usize, usize)> = found
+        .contacts
+        .iter()
+        .filter_map(|c| match c.b {
+            ContactBody::Disk(b) => {
+                let (p, q) = (grain_of(c.a), grain_of(b));
+                Some((p.min(q), p.max(q)))
+            }
+            ContactBody::Wall(_) => None,
+        })
+        .collect();
+    pairs.sort();
+    println!("floor contacts {on_floor:?}, pairs {pairs:?}");
+    assert_eq!(on_floor, (0..radii.len() - 1).collect::<Vec<_>>());
+    // The fixed 2 px rule measures from the fitted circle, inside the rim.
+    let mut fixed = settings.clone();
+    fixed.gap_px = Some(2.0);
+    let old = detect(&photo, &fixed);
+    let old_floor = old
+        .contacts
+        .iter()
+        .filter(|c| c.b == ContactBody::Wall(0))
+        .count();
+    println!("fixed 2 px gap: {old_floor} floor contacts");
+    assert!(old_floor < radii.len() - 1);
+    assert_eq!(
+        pairs,
+        (0..radii.len() - 2).map(|k| (k, k + 1)).collect::<Vec<_>>()
+    );
+}
