@@ -402,8 +402,15 @@ fn detect_writes_contact_evidence_and_names_bad_classes() {
         out.to_str().unwrap(),
         "--radius",
         "20..28,31..40",
+        "--overlay",
+        dir.path().join("check.png").to_str().unwrap(),
     ]);
     assert!(ok, "{err}");
+    let overlay = image::open(dir.path().join("check.png")).unwrap();
+    assert_eq!(
+        (overlay.width(), overlay.height()),
+        (photo.frame.width, photo.frame.height)
+    );
     let scene = grainforce::scene::read_scene(&out).unwrap();
     assert_eq!(scene.grains.len(), photo.scene.grains.len());
     let evidence = std::fs::read_to_string(out.join("contacts-evidence.csv")).unwrap();

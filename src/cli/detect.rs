@@ -226,13 +226,22 @@ pub fn run(args: Args) -> Result<()> {
             }
         );
         if let Some(base) = &args.overlay {
-            let picture = overlay::draw_overlay(
+            let mut picture = overlay::draw_overlay(
                 image,
                 &found.disks,
                 &found.ids,
                 &found.contacts,
                 &walls_for_overlay,
             );
+            if !settings.keep_doubtful {
+                let doubtful: Vec<_> = found
+                    .candidates
+                    .iter()
+                    .filter(|c| c.doubtful)
+                    .map(|c| c.contact)
+                    .collect();
+                overlay::mark_doubtful(&mut picture, &found.disks, &doubtful);
+            }
             overlay::save_overlay(&overlay_path(base, k, count), &picture)?;
         }
         Ok(())
