@@ -462,6 +462,9 @@ pub fn find_image_contacts(
         let at = [d.x + (inner - reach) * n[0], d.y + (inner - reach) * n[1]];
         mean_g2(image, d, inner, at, reach) / floor
     };
+    let mut widths: Vec<f64> = rims.iter().flatten().map(|r| r.width).collect();
+    widths.sort_by(f64::total_cmp);
+    let typical = widths.get(widths.len() / 2).copied().unwrap_or(0.0);
     // Strong G²: four times the floor on a side counts as fully loaded.
     let loaded = |g: f64| ((g - 1.0) / 3.0).clamp(0.0, 1.0);
     let mut out = Vec::new();
@@ -490,13 +493,15 @@ pub fn find_image_contacts(
                     let known: Vec<Rim> = [ra, rb].into_iter().flatten().collect();
                     let level = known.iter().map(|r| r.level).sum::<f64>() / known.len() as f64;
                     let bg = known.iter().map(|r| r.background).sum::<f64>() / known.len() as f64;
-                    // Background would show around the middle of the gap
-                    // between the outer edges (or of their overlap); farther
-                    // out, the bright interiors leak into the rims.
-                    let middle = da.r + 0.5 * gap;
-                    let half = 0.5 * gap.max(0.0) + 0.75;
-                    let (from, to) = (middle - half, middle + half);
-                    Some(brightest_between(image, [da.x, da.y], n, from, to) > 0.5 * (level + bg))
+                    // Along the line of centres from inside one rim to inside
+                    // the other: an open gap shows as a bump of background
+                    // between the two rims' dark minima; touching rims make
+                    // one dark band.
+                    let width = |r: Option<Rim>| r.map_or(typical, |r| r.width);
+                    let from = da.r - width(ra) - 1.0;
+                    let to = dist - db.r + width(rb) + 1.0;
+                    bump_between(image, [da.x, da.y], n, from, to)
+                        .map(|(peak, dark)| peak > dark + 0.5 * (bg - level))
                 }
             };
             let g2 = [g2_near(a, n), g2_near(b, [-n[0], -n[1]])];
@@ -598,23 +603,51 @@ pub fn find_image_contacts(
     out
 }
 
-/// The brightest point between distances `from` and `to` from `c` along `n`,
-/// each point the mean of three samples across the line (±1 px), so a single
-/// noisy pixel does not open a gap. −∞ when the span is empty.
-fn brightest_between(image: &FloatImage, c: [f64; 2], n: [f64; 2], from: f64, to: f64) -> f64 {
+/// The profile along `n` from `c` between distances `from` and `to` (each
+/// point the mean of three samples across the line, ±1 px, so one noisy pixel
+/// does not open a gap): the darkest point of each half, and the brightest
+/// point between those two. Returns (brightest, mean of the two darkest);
+/// `None` when the span is too short to hold two rims.
+fn bump_between(
+    image: &FloatImage,
+    c: [f64; 2],
+    n: [f64; 2],
+    from: f64,
+    to: f64,
+) -> Option<(f64, f64)> {
     let t = [-n[1], n[0]];
-    let mut best = f64::NEG_INFINITY;
-    let mut rho = from;
-    while rho <= to {
-        let p = [c[0] + rho * n[0], c[1] + rho * n[1]];
-        let values: Vec<f64> = [-1.0, 0.0, 1.0]
-            .iter()
-            .filter_map(|&s| sample(image, p[0] + s * t[0], p[1] + s * t[1]))
-            .collect();
-        if !values.is_empty() {
-            best = best.max(values.iter().sum::<f64>() / values.len() as f64);
-        }
-        rho += 0.25;
+    let step = 0.25;
+    let count = ((to - from) / step).floor() as usize + 1;
+    if count < 8 {
+        return None;
     }
-    best
+    let profile: Vec<f64> = (0..count)
+        .map(|k| {
+            let rho = from + step * k as f64;
+            let p = [c[0] + rho * n[0], c[1] + rho * n[1]];
+            let values: Vec<f64> = [-1.0, 0.0, 1.0]
+                .iter()
+                .filter_map(|&s| sample(image, p[0] + s * t[0], p[1] + s * t[1]))
+                .collect();
+            if values.is_empty() {
+                f64::NAN
+            } else {
+                values.iter().sum::<f64>() / values.len() as f64
+            }
+        })
+        .collect();
+    if profile.iter().any(|v| v.is_nan()) {
+        return None;
+    }
+    let darkest = |range: std::ops::Range<usize>| {
+        range
+            .map(|k| (k, profile[k]))
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .expect("non-empty half")
+    };
+    let (first, second) = (darkest(0..count / 2), darkest(count / 2..count));
+    let peak = profile[first.0..=second.0]
+        .iter()
+        .fold(f64::NEG_INFINITY, |m, &v| m.max(v));
+    Some((peak, 0.5 * (first.1 + second.1)))
 }
