@@ -501,7 +501,7 @@ pub fn find_image_contacts(
                     let from = da.r - width(ra) - 1.0;
                     let to = dist - db.r + width(rb) + 1.0;
                     bump_between(image, [da.x, da.y], n, from, to)
-                        .map(|(peak, dark)| peak > dark + 0.5 * (bg - level))
+                        .map(|(peak, dark)| peak > dark + 0.5 * (bg - dark.min(level)))
                 }
             };
             let g2 = [g2_near(a, n), g2_near(b, [-n[0], -n[1]])];
@@ -604,8 +604,8 @@ pub fn find_image_contacts(
 }
 
 /// The profile along `n` from `c` between distances `from` and `to` (each
-/// point the mean of three samples across the line, ±1 px, so one noisy pixel
-/// does not open a gap): the darkest point of each half, and the brightest
+/// point the mean of three samples across the line, ±1 px, then of 1.25 px
+/// along it, so noise does not open a gap): the darkest point of each half, and the brightest
 /// point between those two. Returns (brightest, mean of the two darkest);
 /// `None` when the span is too short to hold two rims.
 fn bump_between(
@@ -639,6 +639,13 @@ fn bump_between(
     if profile.iter().any(|v| v.is_nan()) {
         return None;
     }
+    // A 1.25 px running mean along the line: noise must not make a bump.
+    let profile: Vec<f64> = (0..count)
+        .map(|k| {
+            let window = &profile[k.saturating_sub(2)..(k + 3).min(count)];
+            window.iter().sum::<f64>() / window.len() as f64
+        })
+        .collect();
     let darkest = |range: std::ops::Range<usize>| {
         range
             .map(|k| (k, profile[k]))
