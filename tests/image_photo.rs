@@ -59,10 +59,19 @@ struct Photo {
 
 /// Renders a packing as a camera would see it and writes it as a JPEG.
 fn photograph(dir: &Path, seed: u64, rim_px: f64, quality: u8) -> Photo {
+    photograph_lit(dir, seed, rim_px, quality, None)
+}
+
+/// As [`photograph`], with the unloaded disks' intensity given (the default
+/// 0.25 is above the background's 0.12; 0.08 is below it, as in a dark field).
+fn photograph_lit(dir: &Path, seed: u64, rim_px: f64, quality: u8, unloaded: Option<f32>) -> Photo {
     let scene = bidisperse(seed);
     let forces = forces(&scene, seed);
     let mut options = PhotoelasticOptions::new(PX_PER_M, 600.0);
     options.rim_px = rim_px;
+    if let Some(level) = unloaded {
+        options.unloaded = level;
+    }
     options.uneven_lighting = 0.4;
     options.blur_px = 0.7;
     options.noise = 0.02;
@@ -282,6 +291,28 @@ fn detect(photo: &Photo, settings: &DetectSettings) -> DetectedFrame {
     )
     .unwrap();
     detection.frames.into_iter().next().unwrap()
+}
+
+#[test]
+fn dim_disks_darker_than_the_background() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut total = Score::default();
+    for (seed, rim) in [(1u64, 2.0), (2, 3.0), (3, 4.0)] {
+        let photo = photograph_lit(dir.path(), seed, rim, 90, Some(0.08));
+        let found = detect(&photo, &DetectSettings::new(20.0, 40.0, PX_PER_M));
+        total.add(&score(&photo, &found));
+    }
+    println!(
+        "dim disks: disks recall {:.3} precision {:.3}, centre {:.4} R; contacts recall {:.3} precision {:.3}",
+        total.disk_recall(),
+        total.disk_precision(),
+        total.median_centre_over_r,
+        total.contact_recall(),
+        total.contact_precision()
+    );
+    assert!(total.disk_recall() >= 0.98 && total.disk_precision() >= 0.98);
+    assert!(total.median_centre_over_r <= 0.035);
+    assert!(total.contact_recall() >= 0.9 && total.contact_precision() >= 0.9);
 }
 
 #[test]

@@ -56,6 +56,9 @@ pub struct DetectOptions {
     /// each is searched on its own, so sizes between them are not found.
     /// Empty: the one range `radius_min..radius_max`.
     pub classes: Vec<[f64; 2]>,
+    /// Also look for disks outlined by a dark rim, whatever their interior
+    /// (dim photoelastic disks darker than the background); bright polarity only.
+    pub find_by_rims: bool,
 }
 
 impl DetectOptions {
@@ -72,6 +75,7 @@ impl DetectOptions {
             vote_threshold: 0.04,
             min_contrast: 2.0 / 255.0,
             classes: Vec::new(),
+            find_by_rims: true,
         }
     }
 
@@ -240,7 +244,99 @@ pub fn detect_disks(image: &FloatImage, options: &DetectOptions) -> Result<Vec<D
             None => None,
         })
         .collect();
-    Ok(without_overlaps(kept))
+    let kept = without_overlaps(kept);
+    if o.find_by_rims && o.polarity == Polarity::Bright {
+        return Ok(add_rim_enclosed(image, o, kept));
+    }
+    Ok(kept)
+}
+
+/// Adds the disks outlined by a dark rim that the intensity search missed:
+/// the rims (thin dark lines: the black top-hat of the lightly smoothed image,
+/// above the noise) are marked, the regions they enclose filled, and the
+/// filled picture searched for bright disks. A disk found both ways gives the
+/// offset between the two radii (the filled one reaches the rim's outer
+/// edge); new disks are brought to the intensity search's radius by its
+/// median, and kept only where they cross no disk already found.
+fn add_rim_enclosed(image: &FloatImage, o: &DetectOptions, found: Vec<Disk>) -> Vec<Disk> {
+    use ::image::{GrayImage, Luma};
+    use imageproc::morphology::{grayscale_close, Mask};
+    let (w, h) = (image.width() as usize, image.height() as usize);
+    let smooth = gaussian_blur(image, 1.0);
+    let gray = GrayImage::from_fn(w as u32, h as u32, |x, y| {
+        Luma([(smooth.get_pixel(x, y)[0].clamp(0.0, 1.0) * 255.0).round() as u8])
+    });
+    let closed = grayscale_close(&gray, &Mask::disk(4));
+    // Gaussian smoothing σ = 1 px divides white noise by 2√π.
+    let noise = noise_level(image) / (2.0 * std::f64::consts::PI.sqrt());
+    let threshold = (0.03f64).max(4.0 * noise) * 255.0;
+    let rim: Vec<bool> = closed
+        .as_raw()
+        .iter()
+        .zip(gray.as_raw())
+        .map(|(&c, &g)| (c as f64 - g as f64) > threshold)
+        .collect();
+    // Flood the background in from the border; whatever it cannot reach is
+    // a rim or lies inside one.
+    let mut reached = vec![false; w * h];
+    let mut stack: Vec<usize> = (0..w)
+        .flat_map(|x| [x, (h - 1) * w + x])
+        .chain((0..h).flat_map(|y| [y * w, y * w + w - 1]))
+        .filter(|&k| !rim[k])
+        .collect();
+    while let Some(k) = stack.pop() {
+        if reached[k] || rim[k] {
+            continue;
+        }
+        reached[k] = true;
+        let (x, y) = (k % w, k / w);
+        if x > 0 {
+            stack.push(k - 1);
+        }
+        if x + 1 < w {
+            stack.push(k + 1);
+        }
+        if y > 0 {
+            stack.push(k - w);
+        }
+        if y + 1 < h {
+            stack.push(k + w);
+        }
+    }
+    let filled = FloatImage::from_raw(
+        w as u32,
+        h as u32,
+        reached.iter().map(|&r| if r { 0.0 } else { 1.0 }).collect(),
+    )
+    .expect("sized");
+    let mut search = o.clone();
+    search.find_by_rims = false;
+    let Ok(enclosed) = detect_disks(&filled, &search) else {
+        return found;
+    };
+    let mut offsets: Vec<f64> = Vec::new();
+    let mut extra = Vec::new();
+    for e in enclosed {
+        match found
+            .iter()
+            .find(|d| (d.x - e.x).hypot(d.y - e.y) < 0.3 * d.r)
+        {
+            Some(d) => offsets.push(e.r - d.r),
+            None => extra.push(e),
+        }
+    }
+    let offset = median(&mut offsets);
+    let mut all = found;
+    for mut e in extra {
+        e.r -= offset;
+        let crosses =
+            |k: &Disk| (k.x - e.x).hypot(k.y - e.y) < k.r + e.r - (3.0f64).max(0.15 * k.r.min(e.r));
+        if e.r >= o.radius_min && e.r <= o.radius_max && !all.iter().any(crosses) {
+            all.push(e);
+        }
+    }
+    all.sort_by(|a, b| a.y.total_cmp(&b.y).then(a.x.total_cmp(&b.x)));
+    all
 }
 
 /// Disks do not overlap: of two circles that cross by more than a few pixels,
