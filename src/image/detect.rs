@@ -279,28 +279,37 @@ fn add_rim_enclosed(image: &FloatImage, o: &DetectOptions, found: Vec<Disk>) -> 
     // Flood the background in from the border; whatever it cannot reach is
     // a rim or lies inside one.
     let mut reached = vec![false; w * h];
-    let mut stack: Vec<usize> = (0..w)
-        .flat_map(|x| [x, (h - 1) * w + x])
-        .chain((0..h).flat_map(|y| [y * w, y * w + w - 1]))
-        .filter(|&k| !rim[k])
-        .collect();
-    while let Some(k) = stack.pop() {
-        if reached[k] || rim[k] {
-            continue;
+    // Each pixel is pushed at most once (marked when pushed): u32 indices
+    // keep the stack to 4 bytes a pixel at worst.
+    let mut stack: Vec<u32> = Vec::new();
+    let visit = |k: usize, stack: &mut Vec<u32>, reached: &mut [bool]| {
+        if !reached[k] && !rim[k] {
+            reached[k] = true;
+            stack.push(k as u32);
         }
-        reached[k] = true;
+    };
+    for x in 0..w {
+        visit(x, &mut stack, &mut reached);
+        visit((h - 1) * w + x, &mut stack, &mut reached);
+    }
+    for y in 0..h {
+        visit(y * w, &mut stack, &mut reached);
+        visit(y * w + w - 1, &mut stack, &mut reached);
+    }
+    while let Some(k) = stack.pop() {
+        let k = k as usize;
         let (x, y) = (k % w, k / w);
         if x > 0 {
-            stack.push(k - 1);
+            visit(k - 1, &mut stack, &mut reached);
         }
         if x + 1 < w {
-            stack.push(k + 1);
+            visit(k + 1, &mut stack, &mut reached);
         }
         if y > 0 {
-            stack.push(k - w);
+            visit(k - w, &mut stack, &mut reached);
         }
         if y + 1 < h {
-            stack.push(k + w);
+            visit(k + w, &mut stack, &mut reached);
         }
     }
     let filled = FloatImage::from_raw(
