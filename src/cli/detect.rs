@@ -1,7 +1,8 @@
 //! `grainforce detect`: photographs → scene folder.
 
 use grainforce::image::{
-    detect_images, overlay, DetectSettings, PixelFrame, Polarity, WallLine, WallSource, FRAME_FILE,
+    detect_images, overlay, Channel, ContactBody, DetectOptions, DetectSettings, Detection,
+    PixelFrame, Polarity, WallLine, WallSource, FRAME_FILE,
 };
 use grainforce::scene::write_sequence;
 use grainforce::{Error, Result};
@@ -9,15 +10,17 @@ use std::path::{Path, PathBuf};
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Images (grayscale or colour PNG, TIFF or BMP; 8- or 16-bit), one per frame.
+    /// Images (grayscale or colour PNG, TIFF, BMP or JPEG; 8- or 16-bit), one per frame.
     #[arg(required = true)]
     images: Vec<PathBuf>,
     /// Scene folder to write (grains.csv, contacts.csv, scene.json, image-frame.json).
     #[arg(short = 'o', long = "output")]
     output: PathBuf,
-    /// Radius range of the disks, in pixels: MIN..MAX.
-    #[arg(long, value_parser = parse_range)]
-    radius: (f64, f64),
+    /// Radius range of the disks, in pixels: MIN..MAX, or several classes
+    /// separated by commas (MIN..MAX,MIN..MAX, e.g. 45..55,70..80 for a
+    /// bidisperse packing: sizes between the classes are not searched).
+    #[arg(long, value_parser = parse_ranges)]
+    radius: RadiusClasses,
     /// Pixels per metre. Without it, lengths stay in pixels (1 px = 1 m).
     #[arg(long, conflicts_with = "frame")]
     scale: Option<f64>,
@@ -31,15 +34,31 @@ pub struct Args {
     /// Walls: `edges` for the image borders, or NAME=x0,y0,x1,y1 lines in pixels.
     #[arg(long, num_args = 1..)]
     walls: Vec<String>,
-    /// Largest gap between boundaries [px] that still counts as a contact.
-    #[arg(long, default_value_t = 2.0)]
-    gap: f64,
+    /// A fixed contact rule: the largest gap [px] between fitted circles that
+    /// counts as a contact. Without it, contacts are judged from the image:
+    /// each disk's dark rim is measured, the edges must meet within a
+    /// tolerance that grows with the radius, no background may show between
+    /// the rims, and the photoelastic signal (G²) near the contact adds
+    /// confidence (see contacts-evidence.csv).
+    #[arg(long)]
+    gap: Option<f64>,
+    /// Write doubtful contacts into contacts.csv too (they are always listed,
+    /// flagged, in contacts-evidence.csv).
+    #[arg(long, conflicts_with = "gap")]
+    keep_doubtful: bool,
     /// The disks are darker than their surroundings.
     #[arg(long, conflicts_with = "either_polarity")]
     dark_disks: bool,
     /// Find both bright and dark disks.
     #[arg(long)]
     either_polarity: bool,
+    /// The channel of a colour image to analyse: red, green, blue or luma.
+    /// Green by default: photoelastic analyses measure the fringe intensity in
+    /// green, and a camera's Bayer sensor has twice as many green sites (its
+    /// sharpest, least noisy channel). Red shows the fewest fringes, which can
+    /// help on heavily loaded disks. Gray images are read as they are.
+    #[arg(long, default_value = "green", value_parser = parse_channel)]
+    channel: Channel,
     /// Gaussian smoothing before voting [px] (default: from the radius).
     #[arg(long)]
     smoothing: Option<f64>,
@@ -47,6 +66,17 @@ pub struct Args {
     /// frame, numbered (overlay-0000.png, …).
     #[arg(long)]
     overlay: Option<PathBuf>,
+}
+
+/// One or more radius classes, [min, max] px each.
+#[derive(Clone)]
+struct RadiusClasses(Vec<[f64; 2]>);
+
+fn parse_ranges(s: &str) -> std::result::Result<RadiusClasses, String> {
+    s.split(',')
+        .map(|r| parse_range(r.trim()).map(|(a, b)| [a, b]))
+        .collect::<std::result::Result<_, _>>()
+        .map(RadiusClasses)
 }
 
 fn parse_range(s: &str) -> std::result::Result<(f64, f64), String> {
@@ -59,6 +89,64 @@ fn parse_range(s: &str) -> std::result::Result<(f64, f64), String> {
             .map_err(|_| format!("`{v}` is not a number"))
     };
     Ok((parse(a)?, parse(b)?))
+}
+
+/// Per-contact evidence and confidence, doubtful contacts flagged.
+const EVIDENCE_FILE: &str = "contacts-evidence.csv";
+
+/// One row per candidate contact: its id in contacts.csv (empty when only
+/// doubtful), the bodies, the gap between the rims' outer edges and its
+/// tolerance [px], whether background shows between the rims, G² near the
+/// contact on each side (over the packing's floor), the confidence and the
+/// status (`contact` or `doubtful`).
+fn write_evidence(path: &Path, detection: &Detection, keep_doubtful: bool) -> Result<()> {
+    let sequence = detection.frames.len() > 1;
+    let mut text = String::from(
+        "contact,a,b,outer_gap_px,tolerance_px,background_between,g2_a,g2_b,confidence,status",
+    );
+    text += if sequence { ",frame\n" } else { "\n" };
+    for (k, frame) in detection.frames.iter().enumerate() {
+        let mut id = 0usize;
+        for c in &frame.candidates {
+            let written = keep_doubtful || !c.doubtful;
+            let contact = if written {
+                id += 1;
+                (id - 1).to_string()
+            } else {
+                String::new()
+            };
+            let b = match c.contact.b {
+                ContactBody::Disk(b) => frame.ids[b].clone(),
+                ContactBody::Wall(w) => detection.walls[w].name.clone(),
+            };
+            let e = &c.evidence;
+            let background = match e.background_between {
+                Some(true) => "yes",
+                Some(false) => "no",
+                None => "unknown",
+            };
+            text += &format!(
+                "{contact},{},{b},{:.2},{:.2},{background},{:.2},{:.2},{:.3},{}",
+                frame.ids[c.contact.a],
+                e.outer_gap,
+                e.tolerance,
+                e.g2[0],
+                e.g2[1],
+                e.confidence,
+                if c.doubtful { "doubtful" } else { "contact" }
+            );
+            text += &if sequence {
+                format!(",{k}\n")
+            } else {
+                "\n".into()
+            };
+        }
+    }
+    std::fs::write(path, text).map_err(|e| Error::io(path, e))
+}
+
+fn parse_channel(s: &str) -> std::result::Result<Channel, String> {
+    Channel::parse(s).map_err(|e| e.to_string())
 }
 
 fn walls(specs: &[String]) -> Result<WallSource> {
@@ -102,10 +190,14 @@ pub fn run(args: Args) -> Result<()> {
             1.0
         }
     };
-    let mut settings = DetectSettings::new(args.radius.0, args.radius.1, px_per_m);
+    let classes = DetectOptions::with_classes(&args.radius.0)?;
+    let mut settings = DetectSettings::new(classes.radius_min, classes.radius_max, px_per_m);
+    settings.detect = classes;
     settings.frame = frame;
     settings.gap_px = args.gap;
+    settings.keep_doubtful = args.keep_doubtful;
     settings.thickness = args.thickness;
+    settings.channel = args.channel;
     settings.walls = walls(&args.walls)?;
     settings.detect.smoothing_px = args.smoothing;
     settings.detect.polarity = if args.dark_disks {
@@ -121,20 +213,35 @@ pub fn run(args: Args) -> Result<()> {
         _ => Vec::new(),
     };
     let detection = detect_images(&args.images, &settings, &mut |k, path, image, found| {
+        let doubtful = found.candidates.iter().filter(|c| c.doubtful).count();
         eprintln!(
-            "{}: {} disks, {} contacts",
+            "{}: {} disks, {} contacts{}",
             path.display(),
             found.disks.len(),
-            found.contacts.len()
+            found.contacts.len(),
+            if doubtful > 0 {
+                format!(" ({doubtful} doubtful, flagged in {EVIDENCE_FILE})")
+            } else {
+                String::new()
+            }
         );
         if let Some(base) = &args.overlay {
-            let picture = overlay::draw_overlay(
+            let mut picture = overlay::draw_overlay(
                 image,
                 &found.disks,
                 &found.ids,
                 &found.contacts,
                 &walls_for_overlay,
             );
+            if !settings.keep_doubtful {
+                let doubtful: Vec<_> = found
+                    .candidates
+                    .iter()
+                    .filter(|c| c.doubtful)
+                    .map(|c| c.contact)
+                    .collect();
+                overlay::mark_doubtful(&mut picture, &found.disks, &doubtful);
+            }
             overlay::save_overlay(&overlay_path(base, k, count), &picture)?;
         }
         Ok(())
@@ -142,6 +249,13 @@ pub fn run(args: Args) -> Result<()> {
     let scenes: Vec<_> = detection.frames.iter().map(|f| f.scene.clone()).collect();
     write_sequence(&args.output, &scenes)?;
     detection.frame.write(&args.output.join(FRAME_FILE))?;
+    if settings.gap_px.is_none() {
+        write_evidence(
+            &args.output.join(EVIDENCE_FILE),
+            &detection,
+            settings.keep_doubtful,
+        )?;
+    }
     eprintln!(
         "wrote {} ({} frame{})",
         args.output.display(),

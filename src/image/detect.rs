@@ -48,6 +48,17 @@ pub struct DetectOptions {
     pub min_visible: f64,
     /// Candidate centres: accumulator maxima above this fraction of the largest.
     pub vote_threshold: f64,
+    /// Smallest intensity step across the edge: two grey levels of an 8-bit
+    /// image. Fainter "disks" are echoes of edges in another colour channel
+    /// (JPEG's subsampled chroma) or quantisation, not disks.
+    pub min_contrast: f64,
+    /// Several size classes ([min, max] px each), e.g. a bidisperse packing:
+    /// each is searched on its own, so sizes between them are not found.
+    /// Empty: the one range `radius_min..radius_max`.
+    pub classes: Vec<[f64; 2]>,
+    /// Also look for disks outlined by a dark rim, whatever their interior
+    /// (dim photoelastic disks darker than the background); bright polarity only.
+    pub find_by_rims: bool,
 }
 
 impl DetectOptions {
@@ -62,7 +73,39 @@ impl DetectOptions {
             min_support_confirmed: 0.3,
             min_visible: 0.3,
             vote_threshold: 0.04,
+            min_contrast: 2.0 / 255.0,
+            classes: Vec::new(),
+            find_by_rims: true,
         }
+    }
+
+    /// Options for several radius classes; `radius_min..radius_max` spans them.
+    pub fn with_classes(classes: &[[f64; 2]]) -> Result<Self> {
+        let bad = |why: &str| {
+            let list: Vec<String> = classes
+                .iter()
+                .map(|c| format!("{}..{}", c[0], c[1]))
+                .collect();
+            Error::Invalid(format!("radius classes {}: {why}", list.join(",")))
+        };
+        if classes.is_empty() {
+            return Err(bad("none given"));
+        }
+        let mut sorted = classes.to_vec();
+        sorted.sort_by(|a, b| a[0].total_cmp(&b[0]));
+        for c in &sorted {
+            if !(c[0].is_finite() && c[1].is_finite() && c[0] >= 2.0 && c[1] >= c[0]) {
+                return Err(bad("each must satisfy 2 ≤ MIN ≤ MAX pixels"));
+            }
+        }
+        if sorted.windows(2).any(|p| p[1][0] <= p[0][1]) {
+            return Err(bad("classes must not overlap"));
+        }
+        let mut o = DetectOptions::new(sorted[0][0], sorted[sorted.len() - 1][1]);
+        if sorted.len() > 1 {
+            o.classes = sorted;
+        }
+        Ok(o)
     }
 
     /// The smoothing actually used.
@@ -100,6 +143,15 @@ impl Disk {
 /// by row, then column. An image without disks gives an empty list (the caller
 /// decides whether that is an error).
 pub fn detect_disks(image: &FloatImage, options: &DetectOptions) -> Result<Vec<Disk>> {
+    if options.classes.len() > 1 {
+        let mut found = Vec::new();
+        for c in &options.classes {
+            let mut one = options.clone();
+            (one.radius_min, one.radius_max, one.classes) = (c[0], c[1], Vec::new());
+            found.extend(detect_disks(image, &one)?);
+        }
+        return Ok(without_overlaps(found));
+    }
     let o = options;
     if !(o.radius_min.is_finite() && o.radius_max.is_finite())
         || o.radius_min < 2.0
@@ -179,7 +231,7 @@ pub fn detect_disks(image: &FloatImage, options: &DetectOptions) -> Result<Vec<D
         }
     }
     let (typical_step, typical_width) = (median(&mut steps), median(&mut widths));
-    let mut kept: Vec<Disk> = kept
+    let kept: Vec<Disk> = kept
         .iter()
         .zip(fits)
         .filter_map(|(d, f)| match f {
@@ -192,8 +244,126 @@ pub fn detect_disks(image: &FloatImage, options: &DetectOptions) -> Result<Vec<D
             None => None,
         })
         .collect();
-    kept.sort_by(|a, b| a.y.total_cmp(&b.y).then(a.x.total_cmp(&b.x)));
+    let kept = without_overlaps(kept);
+    if o.find_by_rims && o.polarity == Polarity::Bright {
+        return Ok(add_rim_enclosed(image, o, kept));
+    }
     Ok(kept)
+}
+
+/// Adds the disks outlined by a dark rim that the intensity search missed:
+/// the rims (thin dark lines: the black top-hat of the lightly smoothed image,
+/// above the noise) are marked, the regions they enclose filled, and the
+/// filled picture searched for bright disks. A disk found both ways gives the
+/// offset between the two radii (the filled one reaches the rim's outer
+/// edge); new disks are brought to the intensity search's radius by its
+/// median, and kept only where they cross no disk already found.
+fn add_rim_enclosed(image: &FloatImage, o: &DetectOptions, found: Vec<Disk>) -> Vec<Disk> {
+    use ::image::{GrayImage, Luma};
+    use imageproc::morphology::{grayscale_close, Mask};
+    let (w, h) = (image.width() as usize, image.height() as usize);
+    let smooth = gaussian_blur(image, 1.0);
+    let gray = GrayImage::from_fn(w as u32, h as u32, |x, y| {
+        Luma([(smooth.get_pixel(x, y)[0].clamp(0.0, 1.0) * 255.0).round() as u8])
+    });
+    let closed = grayscale_close(&gray, &Mask::disk(4));
+    // Gaussian smoothing σ = 1 px divides white noise by 2√π.
+    let noise = noise_level(image) / (2.0 * std::f64::consts::PI.sqrt());
+    let threshold = (0.03f64).max(4.0 * noise) * 255.0;
+    let rim: Vec<bool> = closed
+        .as_raw()
+        .iter()
+        .zip(gray.as_raw())
+        .map(|(&c, &g)| (c as f64 - g as f64) > threshold)
+        .collect();
+    // Flood the background in from the border; whatever it cannot reach is
+    // a rim or lies inside one.
+    let mut reached = vec![false; w * h];
+    // Each pixel is pushed at most once (marked when pushed): u32 indices
+    // keep the stack to 4 bytes a pixel at worst.
+    let mut stack: Vec<u32> = Vec::new();
+    let visit = |k: usize, stack: &mut Vec<u32>, reached: &mut [bool]| {
+        if !reached[k] && !rim[k] {
+            reached[k] = true;
+            stack.push(k as u32);
+        }
+    };
+    for x in 0..w {
+        visit(x, &mut stack, &mut reached);
+        visit((h - 1) * w + x, &mut stack, &mut reached);
+    }
+    for y in 0..h {
+        visit(y * w, &mut stack, &mut reached);
+        visit(y * w + w - 1, &mut stack, &mut reached);
+    }
+    while let Some(k) = stack.pop() {
+        let k = k as usize;
+        let (x, y) = (k % w, k / w);
+        if x > 0 {
+            visit(k - 1, &mut stack, &mut reached);
+        }
+        if x + 1 < w {
+            visit(k + 1, &mut stack, &mut reached);
+        }
+        if y > 0 {
+            visit(k - w, &mut stack, &mut reached);
+        }
+        if y + 1 < h {
+            visit(k + w, &mut stack, &mut reached);
+        }
+    }
+    let filled = FloatImage::from_raw(
+        w as u32,
+        h as u32,
+        reached.iter().map(|&r| if r { 0.0 } else { 1.0 }).collect(),
+    )
+    .expect("sized");
+    let mut search = o.clone();
+    search.find_by_rims = false;
+    let Ok(enclosed) = detect_disks(&filled, &search) else {
+        return found;
+    };
+    let mut offsets: Vec<f64> = Vec::new();
+    let mut extra = Vec::new();
+    for e in enclosed {
+        match found
+            .iter()
+            .find(|d| (d.x - e.x).hypot(d.y - e.y) < 0.3 * d.r)
+        {
+            Some(d) => offsets.push(e.r - d.r),
+            None => extra.push(e),
+        }
+    }
+    let offset = median(&mut offsets);
+    let mut all = found;
+    for mut e in extra {
+        e.r -= offset;
+        let crosses =
+            |k: &Disk| (k.x - e.x).hypot(k.y - e.y) < k.r + e.r - (3.0f64).max(0.15 * k.r.min(e.r));
+        if e.r >= o.radius_min && e.r <= o.radius_max && !all.iter().any(crosses) {
+            all.push(e);
+        }
+    }
+    all.sort_by(|a, b| a.y.total_cmp(&b.y).then(a.x.total_cmp(&b.x)));
+    all
+}
+
+/// Disks do not overlap: of two circles that cross by more than a few pixels,
+/// the better supported stays (the other is fitted to fringes or to the space
+/// between disks, or is a size class's echo of a disk of another). Sorted by
+/// row, then column.
+fn without_overlaps(mut kept: Vec<Disk>) -> Vec<Disk> {
+    kept.sort_by(|a, b| score(b).total_cmp(&score(a)));
+    let mut solid: Vec<Disk> = Vec::with_capacity(kept.len());
+    for d in kept {
+        let crosses =
+            |k: &Disk| (k.x - d.x).hypot(k.y - d.y) < k.r + d.r - (3.0f64).max(0.15 * k.r.min(d.r));
+        if !solid.iter().any(crosses) {
+            solid.push(d);
+        }
+    }
+    solid.sort_by(|a, b| a.y.total_cmp(&b.y).then(a.x.total_cmp(&b.x)));
+    solid
 }
 
 /// Final sub-pixel fit of a disk model to the raw pixels of a ring around the
@@ -769,7 +939,7 @@ fn refine(
     }
     // The step across the edge, measured outside the smoothing's reach.
     let contrast = edge_contrast(img, c, r, sign, sigma);
-    if contrast <= 0.0 {
+    if contrast <= o.min_contrast.max(0.0) {
         return None;
     }
     let rms = (residuals.iter().map(|v| v * v).sum::<f64>() / residuals.len() as f64).sqrt();

@@ -5,23 +5,87 @@ use crate::error::{Error, Result};
 use ::image::{DynamicImage, ImageBuffer, ImageError, ImageFormat, Luma};
 use std::path::{Path, PathBuf};
 
-/// Reads an image (PNG, TIFF or BMP; 8- or 16-bit, gray or colour) as
+/// Which part of a colour image becomes the intensity that is analysed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Channel {
+    Red,
+    /// The default for `detect`: photoelastic analyses measure the fringe
+    /// intensity in green (PeGS does), and a camera's Bayer sensor has twice as
+    /// many green sites, so green is its sharpest, least noisy channel.
+    #[default]
+    Green,
+    Blue,
+    /// Luma, as the `image` crate weighs it (Rec. 709: 0.2126 R + 0.7152 G + 0.0722 B).
+    Luma,
+}
+
+impl Channel {
+    pub fn parse(s: &str) -> Result<Self> {
+        match s.trim().to_ascii_lowercase().as_str() {
+            "red" | "r" => Ok(Channel::Red),
+            "green" | "g" => Ok(Channel::Green),
+            "blue" | "b" => Ok(Channel::Blue),
+            "luma" | "gray" | "grey" => Ok(Channel::Luma),
+            _ => Err(Error::Invalid(format!(
+                "channel `{s}`: expected red, green, blue or luma"
+            ))),
+        }
+    }
+}
+
+/// Reads an image (PNG, TIFF, BMP or JPEG; 8- or 16-bit, gray or colour) as
 /// intensities in [0, 1]. Colour images are converted to luma.
 pub fn load_gray(path: &Path) -> Result<FloatImage> {
+    load_channel(path, Channel::Luma)
+}
+
+/// Reads an image as intensities in [0, 1]; a colour image is reduced to one
+/// channel (gray images are read as they are, whatever the channel).
+pub fn load_channel(path: &Path, channel: Channel) -> Result<FloatImage> {
     let reader = ::image::ImageReader::open(path).map_err(|e| Error::io(path, e))?;
     let reader = reader
         .with_guessed_format()
         .map_err(|e| Error::io(path, e))?;
     let decoded = reader.decode().map_err(|e| image_error(path, e))?;
-    let image = match decoded {
-        DynamicImage::ImageLuma8(g) => to_float(&g, 255.0),
-        DynamicImage::ImageLuma16(g) => to_float(&g, 65535.0),
-        other => other.to_luma32f(),
+    let image = match (decoded, channel) {
+        (DynamicImage::ImageLuma8(g), _) => to_float(&g, 255.0),
+        (DynamicImage::ImageLuma16(g), _) => to_float(&g, 65535.0),
+        (other, Channel::Luma) => other.to_luma32f(),
+        (DynamicImage::ImageRgb8(c), _) => pick(c.as_raw(), c.dimensions(), channel, 255.0),
+        (DynamicImage::ImageRgb16(c), _) => pick(c.as_raw(), c.dimensions(), channel, 65535.0),
+        (other, _) => {
+            let c = other.to_rgb32f();
+            pick(c.as_raw(), c.dimensions(), channel, 1.0)
+        }
     };
     if image.width() == 0 || image.height() == 0 {
         return Err(Error::data(path, None, None, "the image is empty"));
     }
     Ok(image)
+}
+
+/// One channel (or the luma) of interleaved RGB samples, scaled to [0, 1],
+/// without an intermediate float copy of all three channels.
+fn pick<T: Copy + Into<f32>>(
+    raw: &[T],
+    (width, height): (u32, u32),
+    channel: Channel,
+    full_scale: f32,
+) -> FloatImage {
+    let data = raw
+        .chunks_exact(3)
+        .map(|p| {
+            let [r, g, b]: [f32; 3] = [p[0].into(), p[1].into(), p[2].into()];
+            let v = match channel {
+                Channel::Red => r,
+                Channel::Green => g,
+                Channel::Blue => b,
+                Channel::Luma => 0.2126 * r + 0.7152 * g + 0.0722 * b,
+            };
+            v / full_scale
+        })
+        .collect();
+    FloatImage::from_raw(width, height, data).expect("same dimensions")
 }
 
 fn to_float<T: ::image::Primitive + Into<f32>>(
@@ -39,7 +103,7 @@ fn image_error(path: &Path, e: ImageError) -> Error {
             path,
             None,
             None,
-            format!("unsupported image format ({u}); use PNG, TIFF or BMP"),
+            format!("unsupported image format ({u}); use PNG, TIFF, BMP or JPEG"),
         ),
         other => Error::data(path, None, None, format!("cannot decode image: {other}")),
     }

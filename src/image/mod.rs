@@ -16,6 +16,7 @@ pub mod elastic;
 mod font;
 pub mod io;
 pub mod overlay;
+pub mod photoelastic;
 pub mod render;
 pub mod strain;
 pub mod synthetic;
@@ -28,10 +29,13 @@ use std::path::Path;
 /// A grayscale image with intensities in [0, 1] (8- and 16-bit inputs are scaled).
 pub type FloatImage = ::image::ImageBuffer<::image::Luma<f32>, Vec<f32>>;
 
-pub use contacts::{find_contacts, ContactBody, PixelContact, WallLine};
+pub use contacts::{
+    find_contacts, find_image_contacts, ContactBody, ContactEvidence, ContactOptions, ImageContact,
+    PixelContact, Rim, WallLine,
+};
 pub use detect::{detect_disks, DetectOptions, Disk, Polarity};
 pub use elastic::{Elasticity, PlaneCondition};
-pub use io::{load_gray, load_gray_sequence, save_gray};
+pub use io::{load_channel, load_gray, load_gray_sequence, save_gray, Channel};
 pub use render::{render_scene, render_sequence, RenderOptions, RenderedPair, RenderedSequence};
 pub use strain::{measure_stresses, StrainOptions, StrainReport};
 pub use track::{track_sequence, TrackOptions, Tracker};
@@ -182,8 +186,14 @@ pub enum WallSource {
 #[derive(Debug, Clone)]
 pub struct DetectSettings {
     pub detect: DetectOptions,
-    /// Largest boundary gap [px] that still counts as a contact.
-    pub gap_px: f64,
+    /// Largest boundary gap [px] between the fitted circles that still counts
+    /// as a contact; `None` (the default): judged from the image (rims
+    /// measured, tolerance scaled with the radius, evidence; see
+    /// [`contacts::find_image_contacts`]).
+    pub gap_px: Option<f64>,
+    pub contacts: ContactOptions,
+    /// Write doubtful contacts as contacts too (they are always reported).
+    pub keep_doubtful: bool,
     pub walls: WallSource,
     pub px_per_m: f64,
     /// A known placement of the images in the scene (e.g. the one `render`
@@ -192,18 +202,23 @@ pub struct DetectSettings {
     /// Out-of-plane thickness [m], recorded in scene.json.
     pub thickness: Option<f64>,
     pub track: TrackOptions,
+    /// The channel of a colour image that is analysed.
+    pub channel: Channel,
 }
 
 impl DetectSettings {
     pub fn new(radius_min: f64, radius_max: f64, px_per_m: f64) -> Self {
         DetectSettings {
             detect: DetectOptions::new(radius_min, radius_max),
-            gap_px: 2.0,
+            gap_px: None,
+            contacts: ContactOptions::default(),
+            keep_doubtful: false,
             walls: WallSource::None,
             px_per_m,
             frame: None,
             thickness: None,
             track: TrackOptions::new(radius_min),
+            channel: Channel::default(),
         }
     }
 }
@@ -211,7 +226,14 @@ impl DetectSettings {
 /// What one image gave.
 #[derive(Debug, Clone)]
 pub struct DetectedFrame {
+    /// The disks; judged from the image, their circles reach the outer edge
+    /// of their rims.
     pub disks: Vec<Disk>,
+    /// Each disk's rim, where one shows (empty with a fixed `gap_px`).
+    pub rims: Vec<Option<Rim>>,
+    /// Every candidate contact with its evidence and confidence, doubtful ones
+    /// included (empty with a fixed `gap_px`).
+    pub candidates: Vec<ImageContact>,
     /// Grain ids, stable over the sequence.
     pub ids: Vec<String>,
     pub contacts: Vec<PixelContact>,
@@ -237,7 +259,7 @@ pub fn detect_images(
     if paths.is_empty() {
         return Err(Error::Invalid("no images given".into()));
     }
-    if !(settings.gap_px.is_finite()) {
+    if settings.gap_px.is_some_and(|g| !g.is_finite()) {
         return Err(Error::Invalid(
             "the contact gap must be a number of pixels".into(),
         ));
@@ -255,7 +277,7 @@ pub fn detect_images(
     let mut pixel_frame = None;
     let mut walls = Vec::new();
     for (k, path) in paths.iter().enumerate() {
-        let image = load_gray(path)?;
+        let image = load_channel(path, settings.channel)?;
         match &first {
             Some(f) => io::check_same_size(f, &paths[0], &image, path)?,
             None => {
@@ -301,8 +323,25 @@ pub fn detect_images(
                 ),
             ));
         }
+        let (disks, rims, candidates, contacts) = match settings.gap_px {
+            Some(gap) => {
+                let contacts = find_contacts(&disks, &walls, gap);
+                (disks, Vec::new(), Vec::new(), contacts)
+            }
+            None => {
+                let rims = contacts::measure_rims(&image, &disks);
+                let outer = contacts::outer_disks(&disks, &rims);
+                let candidates =
+                    find_image_contacts(&image, &outer, &rims, &walls, &settings.contacts);
+                let contacts = candidates
+                    .iter()
+                    .filter(|c| settings.keep_doubtful || !c.doubtful)
+                    .map(|c| c.contact)
+                    .collect();
+                (outer, rims, candidates, contacts)
+            }
+        };
         let ids: Vec<String> = tracker.assign(&disks).iter().map(u64::to_string).collect();
-        let contacts = find_contacts(&disks, &walls, settings.gap_px);
         let mut scene = scene_from_detection(&disks, &ids, &contacts, &walls, &frame)?;
         scene.settings.thickness = settings.thickness;
         scene.settings.description = Some(format!(
@@ -316,6 +355,8 @@ pub fn detect_images(
         }
         let detected = DetectedFrame {
             disks,
+            rims,
+            candidates,
             ids,
             contacts,
             scene,

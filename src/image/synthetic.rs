@@ -28,6 +28,30 @@ pub struct PackingSpec {
 /// pairs; each contact point is the tangency point and the normal points from
 /// `a` to `b`. Stresses are zero.
 pub fn touching_disks(spec: &PackingSpec) -> Result<Scene> {
+    grow(spec, &mut |rng| {
+        rng.gen_range(spec.radius_min..=spec.radius_max)
+    })
+}
+
+/// As [`touching_disks`], with each radius drawn from `sizes` (equally
+/// likely), e.g. a bidisperse packing; `spec`'s radius range must cover them.
+pub fn touching_disks_of_sizes(spec: &PackingSpec, sizes: &[f64]) -> Result<Scene> {
+    if sizes.is_empty()
+        || sizes
+            .iter()
+            .any(|&r| !(r >= spec.radius_min && r <= spec.radius_max))
+    {
+        return Err(Error::Invalid(
+            "the sizes must lie in the packing's radius range".into(),
+        ));
+    }
+    grow(spec, &mut |rng| sizes[rng.gen_range(0..sizes.len())])
+}
+
+fn grow(
+    spec: &PackingSpec,
+    radius: &mut dyn FnMut(&mut rand_chacha::ChaCha8Rng) -> f64,
+) -> Result<Scene> {
     if !(spec.radius_min > 0.0 && spec.radius_max >= spec.radius_min && spec.min_gap >= 0.0) {
         return Err(Error::Invalid("bad packing radii or gap".into()));
     }
@@ -39,8 +63,6 @@ pub fn touching_disks(spec: &PackingSpec) -> Result<Scene> {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(spec.seed);
     let mut disks: Vec<([f64; 2], f64)> = Vec::new();
     let mut touching: Vec<(usize, usize)> = Vec::new();
-    let radius =
-        |rng: &mut rand_chacha::ChaCha8Rng| rng.gen_range(spec.radius_min..=spec.radius_max);
     let r = radius(&mut rng);
     disks.push(([spec.width / 2.0, spec.height / 2.0], r));
     let attempts = 400 * spec.count.max(1);
