@@ -322,7 +322,7 @@ impl std::fmt::Display for InferenceReport {
         }
         let conditioning = match self.conditioning {
             Some(c) => format!(
-                " (σ_min/σ_max {c:.1e}: errors in the data are amplified at most ~{:.1}×)",
+                " (condition ≈ {:.1}: relative errors in the data can grow about that much in the forces)",
                 1.0 / c
             ),
             None => String::new(),
