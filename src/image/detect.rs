@@ -607,16 +607,16 @@ struct Accumulator {
 
 /// Sobel kernels (imageproc's) as f32, scaled to an intensity change per pixel.
 fn sobel(image: &FloatImage) -> (FloatImage, FloatImage) {
-    let kx: Vec<f32> = imageproc::gradients::HORIZONTAL_SOBEL
-        .iter()
-        .map(|&k| k as f32 / 8.0)
-        .collect();
-    let ky: Vec<f32> = imageproc::gradients::VERTICAL_SOBEL
-        .iter()
-        .map(|&k| k as f32 / 8.0)
-        .collect();
-    let gx: FloatImage = imageproc::filter::filter3x3::<_, f32, f32>(image, &kx);
-    let gy: FloatImage = imageproc::filter::filter3x3::<_, f32, f32>(image, &ky);
+    use imageproc::kernel::{Kernel, SOBEL_HORIZONTAL_3X3, SOBEL_VERTICAL_3X3};
+    let scaled = |k: Kernel<'static, i32>| -> Vec<f32> {
+        (0..3)
+            .flat_map(|y| (0..3).map(move |x| (x, y)))
+            .map(|(x, y)| k.get(x, y) as f32 / 8.0)
+            .collect()
+    };
+    let (kx, ky) = (scaled(SOBEL_HORIZONTAL_3X3), scaled(SOBEL_VERTICAL_3X3));
+    let gx: FloatImage = imageproc::filter::filter_clamped(image, Kernel::new(&kx, 3, 3));
+    let gy: FloatImage = imageproc::filter::filter_clamped(image, Kernel::new(&ky, 3, 3));
     (gx, gy)
 }
 
