@@ -1,5 +1,7 @@
 #![no_main]
 
+// Each target uses one of the shared readers.
+#[allow(dead_code)]
 #[path = "../readers.rs"]
 mod readers;
 #[path = "../scratch.rs"]
