@@ -177,7 +177,9 @@ pub fn read_dump(path: &Path, kind: DumpKind) -> Result<Vec<DumpFrame>> {
                     format!("`ITEM: {}` must come before the table", kind.count_item()),
                 ));
             };
-            let mut rows = Vec::with_capacity(n_rows);
+            // The count is data: a huge one must give "the file ends" below,
+            // not reserve memory for rows that are not there.
+            let mut rows = Vec::with_capacity(n_rows.min(lines.lines.len() - lines.next));
             for _ in 0..n_rows {
                 let (n, v) = lines.take("a table row")?;
                 let cells: Vec<&str> = v.split_whitespace().collect();
