@@ -560,7 +560,7 @@ impl<'a> Projector<'a> {
             }
             y = self.k.mul(x);
             let next = max_abs(&y);
-            if !(next < 0.5 * residual) {
+            if next.is_nan() || next >= 0.5 * residual {
                 break;
             }
             residual = next;
