@@ -76,7 +76,23 @@ def test_dataframes_in_and_out_match_the_cli(tmp_path, method, options, flags):
     assert result.report.keys() == report.keys()
     timings = {"time", "solver_time"}
     for key in report.keys() - timings:
-        assert result.report[key] == pytest.approx(report[key], rel=1e-12, abs=1e-300), key
+        assert_close(result.report[key], report[key], key)
+
+
+def assert_close(got, expected, where):
+    """Same structure, text and flags; numbers to 1e-12."""
+    if isinstance(expected, float) and not isinstance(expected, bool):
+        assert got == pytest.approx(expected, rel=1e-12, abs=1e-300), where
+    elif isinstance(expected, dict):
+        assert got.keys() == expected.keys(), where
+        for k in expected:
+            assert_close(got[k], expected[k], f"{where}.{k}")
+    elif isinstance(expected, list):
+        assert len(got) == len(expected), where
+        for k, (g, e) in enumerate(zip(got, expected)):
+            assert_close(g, e, f"{where}[{k}]")
+    else:
+        assert got == expected, where
 
 
 def test_dicts_of_arrays_without_pandas(monkeypatch):
