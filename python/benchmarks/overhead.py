@@ -58,12 +58,26 @@ def main():
         t_frames, _ = median_time(
             lambda: gf.infer(gf.Scene.from_frames(grains_df, contacts_df, walls_df)), repeats
         )
+        t_read, loaded = median_time(lambda: gf.read_scene(scene_dir), repeats)
+        t_build, _ = median_time(lambda: gf.Scene.from_frames(grains_df, contacts_df, walls_df), repeats)
+        infer_times = []
+
+        def infer_only():
+            result = gf.infer(loaded)
+            infer_times.append(result.report["time"])
+
+        t_infer, _ = median_time(infer_only, repeats)
         t_solve = statistics.median(solve_times)
+        t_solve_alone = statistics.median(infer_times)
     print(f"scene: {scene}")
     print(f"cli    {t_cli:8.3f} s  (process, CSV in and out)")
     print(f"python {t_py:8.3f} s  read_scene + infer -> DataFrame")
     print(f"frames {t_frames:8.3f} s  Scene.from_frames(DataFrames) + infer")
     print(f"solve  {t_solve:8.3f} s  the library's own time (report['time'])")
+    print(f"read   {t_read:8.3f} s  read_scene (CSV parse, as the CLI does)")
+    print(f"build  {t_build:8.3f} s  Scene.from_frames(DataFrames)")
+    print(f"infer  {t_infer:8.3f} s  gf.infer alone; its solve {t_solve_alone:.3f} s: "
+          f"binding overhead {100 * (t_infer - t_solve_alone) / t_solve_alone:.1f} %")
     print(f"overhead python vs solve: {100 * (t_py - t_solve) / t_solve:5.1f} %")
     print(f"overhead frames vs solve: {100 * (t_frames - t_solve) / t_solve:5.1f} %")
     print(f"python vs cli:            {100 * (t_py - t_cli) / t_cli:+5.1f} %")

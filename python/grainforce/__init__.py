@@ -62,38 +62,40 @@ def _table(columns: Mapping[str, Any]) -> Table:
     return columns
 
 
-def _cell(value: Any) -> str:
-    if isinstance(value, (float, np.floating)):
-        # repr is the shortest text that reads back to the same double.
-        return "" if math.isnan(value) else repr(float(value))
-    if isinstance(value, (bool, np.bool_)):
-        return str(int(value))
-    if isinstance(value, (int, np.integer)):
-        return str(int(value))
-    if value is None:
-        return ""
-    return str(value)
+def _column(name: str, values: Any) -> Any:
+    """A column as float64, int64 or text, the forms the native writer takes."""
+    array = np.asarray(values)
+    if array.ndim != 1:
+        raise ValueError(f"column `{name}`: expected one value per row, got shape {array.shape}")
+    if array.dtype.kind == "f":
+        return np.ascontiguousarray(array, dtype=np.float64)
+    if array.dtype.kind in "iub":
+        return np.ascontiguousarray(array, dtype=np.int64)
+    # Text, or mixed objects (e.g. grain ids and wall names in `b`).
+    return ["" if _missing(v) else str(v) for v in array.tolist()]
+
+
+def _missing(value: Any) -> bool:
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return True
+    return _pd is not None and value is _pd.NA
 
 
 def _write_table(path: str, name: str, table: Table) -> None:
     if _pd is not None and isinstance(table, _pd.DataFrame):
         if table.index.name is not None and table.index.name not in table.columns:
             table = table.reset_index()  # e.g. grains indexed by id
-        table.to_csv(path, index=False)
-        return
-    if not isinstance(table, Mapping):
+        columns = {str(k): table[k].to_numpy() for k in table.columns}
+    elif isinstance(table, Mapping):
+        columns = {str(k): np.atleast_1d(np.asarray(v)) for k, v in table.items()}
+    else:
         raise TypeError(
             f"{name}: expected a pandas DataFrame or a dict of arrays, got {type(table).__name__}"
         )
-    columns = {str(k): np.atleast_1d(np.asarray(v)) for k, v in table.items()}
     lengths = {k: len(v) for k, v in columns.items()}
     if len(set(lengths.values())) > 1:
         raise ValueError(f"{name}: columns of different lengths: {lengths}")
-    with open(path, "w", newline="") as out:
-        writer = csv.writer(out)
-        writer.writerow(columns)
-        for row in zip(*columns.values()):
-            writer.writerow([_cell(v) for v in row])
+    _native.write_table(path, list(columns), [_column(k, v) for k, v in columns.items()])
 
 
 def _read_table(path: str) -> Table:

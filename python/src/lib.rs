@@ -8,7 +8,7 @@ use grainforce::error::Error;
 use grainforce::infer::kinematics::{self, Smoother};
 use grainforce::infer::{self, InferOptions, Inference, LambdaRule, Method};
 use grainforce::scene::{self, ForceRow, Forces, Selection};
-use numpy::{PyArray1, PyReadonlyArray2};
+use numpy::{PyArray1, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::create_exception;
 use pyo3::exceptions::{PyFileNotFoundError, PyOSError, PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
@@ -119,6 +119,58 @@ fn read_scene(py: Python<'_>, path: PathBuf) -> PyResult<Scene> {
     Ok(Scene { frames })
 }
 
+/// One column of a table on its way to CSV.
+#[derive(FromPyObject)]
+enum Column<'py> {
+    Float(PyReadonlyArray1<'py, f64>),
+    Integer(PyReadonlyArray1<'py, i64>),
+    Text(Vec<String>),
+}
+
+impl Column<'_> {
+    fn len(&self) -> usize {
+        match self {
+            Column::Float(a) => a.len(),
+            Column::Integer(a) => a.len(),
+            Column::Text(v) => v.len(),
+        }
+    }
+
+    fn cell(&self, row: usize) -> String {
+        match self {
+            // Debug is the shortest text that reads back to the same double.
+            Column::Float(a) => match a.as_array()[row] {
+                x if x.is_nan() => String::new(),
+                x => format!("{x:?}"),
+            },
+            Column::Integer(a) => a.as_array()[row].to_string(),
+            Column::Text(v) => v[row].clone(),
+        }
+    }
+}
+
+/// Writes columns (float64 or int64 arrays, or lists of text; NaN is an
+/// empty cell) as a CSV table, for the library's reader to check and read.
+#[pyfunction]
+fn write_table(path: PathBuf, names: Vec<String>, columns: Vec<Column<'_>>) -> PyResult<()> {
+    let rows = columns.first().map_or(0, Column::len);
+    if names.len() != columns.len() || columns.iter().any(|c| c.len() != rows) {
+        return Err(PyValueError::new_err(format!(
+            "{}: every column needs a name and the same length",
+            path.display()
+        )));
+    }
+    let io = |e: csv::Error| PyOSError::new_err(format!("{}: {e}", path.display()));
+    let mut out = csv::Writer::from_path(&path).map_err(io)?;
+    out.write_record(&names).map_err(io)?;
+    for row in 0..rows {
+        out.write_record(columns.iter().map(|c| c.cell(row)))
+            .map_err(io)?;
+    }
+    out.flush()
+        .map_err(|e| PyOSError::new_err(format!("{}: {e}", path.display())))
+}
+
 /// `grainforce infer`'s arguments, without a program name.
 #[derive(Parser)]
 #[command(name = "infer", no_binary_name = true)]
@@ -146,10 +198,12 @@ const NOT_OFFERED: &[&str] = &[
     "help",
 ];
 
-/// The options `infer` takes: (flag, takes a value, value name, choices, help),
-/// read from the CLI's own definition.
+/// One option of `infer`: flag, takes a value, value name, choices, help.
+type Flag = (String, bool, Option<String>, Vec<String>, String);
+
+/// The options `infer` takes, read from the CLI's own definition.
 #[pyfunction]
-fn infer_flags() -> Vec<(String, bool, Option<String>, Vec<String>, String)> {
+fn infer_flags() -> Vec<Flag> {
     let command = InferCall::command();
     command
         .get_arguments()
@@ -540,6 +594,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(dem, m)?)?;
     m.add_function(wrap_pyfunction!(detect, m)?)?;
     m.add_function(wrap_pyfunction!(packing, m)?)?;
+    m.add_function(wrap_pyfunction!(write_table, m)?)?;
     m.add("InfeasibleError", m.py().get_type::<InfeasibleError>())?;
     m.add("SolverError", m.py().get_type::<SolverError>())?;
     Ok(())

@@ -257,3 +257,14 @@ def test_two_threads_solve_in_parallel_with_the_gil_released():
     assert longest_stall < 0.5 * alone, (longest_stall, alone)
     for forces in results:
         assert_same_forces(forces, expected, tolerance=0.0)
+
+
+def test_missing_cells_and_an_id_index():
+    grains, contacts, walls, meta = oedometer_tables()
+    expected = gf.infer(gf.read_scene(OEDOMETER)).forces
+    contacts.loc[[0, 5], "mu"] = np.nan  # empty cells: the scene's μ (0.5) applies
+    assert meta["mu"] == 0.5
+    scene = gf.Scene.from_frames(grains.set_index("id"), contacts, walls, **meta)
+    assert_same_forces(gf.infer(scene).forces, expected)
+    with pytest.raises(ValueError, match="`mu`"):
+        gf.Scene.from_frames(grains, contacts.assign(mu=-1.0), walls)
