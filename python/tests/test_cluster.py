@@ -26,15 +26,19 @@ def test_cli_shards_concatenate_to_one_run(tmp_path, sequence):
     whole = tmp_path / "all.csv"
     subprocess.run([cli(), "infer", str(folder), "-o", str(whole), "-m", "dynamic", "--quiet"], check=True)
     cuts = [frames[0], frames[len(frames) // 3], frames[2 * len(frames) // 3], frames[-1] + 1]
-    merged = b""
+    shards = tmp_path / "shards"
+    shards.mkdir()
     for k, (a, b) in enumerate(zip(cuts, cuts[1:])):
-        shard = tmp_path / f"shard{k}.csv"
         subprocess.run(
-            [cli(), "infer", str(folder), "-o", str(shard), "-m", "dynamic", "--frames", f"{a}..{b - 1}", "--quiet"],
+            [cli(), "infer", str(folder), "-o", str(shards / f"forces-{k:05d}.csv"), "-m", "dynamic",
+             "--frames", f"{a}..{b - 1}", "--quiet"],
             check=True,
         )
-        lines = shard.read_bytes().splitlines(keepends=True)
-        merged += b"".join(lines if k == 0 else lines[1:])  # the header once
+    # docs/cluster.md's merge, as written there.
+    merge = 'files=(shards/forces-*.csv)\n{ head -n 1 "${files[0]}"; for f in "${files[@]}"; do tail -n +2 "$f"; done; } > forces.csv'
+    assert merge in (Path(__file__).resolve().parents[2] / "docs" / "cluster.md").read_text()
+    subprocess.run(["bash", "-c", merge], cwd=tmp_path, check=True)
+    merged = (tmp_path / "forces.csv").read_bytes()
     assert merged == whole.read_bytes()
 
 
