@@ -1,0 +1,128 @@
+# Type hints of the grainforce package; `infer`'s keywords are the CLI's flags
+# (tests/test_stub.py checks they stay the same set).
+import os
+from typing import Any, Callable, Literal, Mapping, Optional, Sequence, Tuple, Union
+
+import numpy as np
+import numpy.typing as npt
+
+try:
+    import pandas as pd
+
+    Table = Union[pd.DataFrame, Mapping[str, npt.ArrayLike]]
+except ImportError:  # pragma: no cover
+    Table = Mapping[str, npt.ArrayLike]  # type: ignore[misc]
+
+PathLike = Union[str, os.PathLike[str]]
+Progress = Union[None, bool, Callable[[int, int], Any]]
+
+class InfeasibleError(ValueError):
+    """The constraints admit no force field (e.g. μ too small for the stresses)."""
+
+class SolverError(RuntimeError):
+    """The solver failed; the message carries its diagnostics."""
+
+class Scene:
+    """A scene: one frame (static) or a sequence of frames (dynamic)."""
+
+    @classmethod
+    def from_frames(
+        cls,
+        grains: Table,
+        contacts: Table,
+        walls: Optional[Table] = None,
+        *,
+        gravity: Optional[Sequence[float]] = None,
+        mu: Optional[float] = None,
+        thickness: Optional[float] = None,
+        description: Optional[str] = None,
+    ) -> Scene:
+        """A scene from tables with the scene format's columns (see docs/scene-format.md)."""
+    @property
+    def dim(self) -> int: ...
+    @property
+    def frames(self) -> list[Optional[int]]: ...
+    @property
+    def n_grains(self) -> int: ...
+    @property
+    def n_contacts(self) -> int: ...
+    def __len__(self) -> int: ...
+    def save(self, path: PathLike) -> None:
+        """Writes the scene folder (grains.csv, contacts.csv, walls.csv, scene.json)."""
+    def to_frames(self) -> Tuple[Table, Table, Optional[Table]]:
+        """The tables (grains, contacts, walls or None)."""
+
+class Inference:
+    """forces: forces.csv's columns; report: the CLI's JSON report (a list per frame for sequences)."""
+
+    forces: Table
+    report: Union[dict[str, Any], list[dict[str, Any]]]
+
+class DemRun:
+    """scene, its exact forces (forces.csv columns) and dem_report.json as a dict."""
+
+    scene: Scene
+    forces: Table
+    report: dict[str, Any]
+
+def read_scene(path: PathLike) -> Scene:
+    """Reads a scene folder: one frame, or a sequence when the files carry `frame`."""
+
+def infer(
+    scene: Scene,
+    method: Literal["qs", "tikhonov", "scaled", "ls", "dynamic"] = "qs",
+    *,
+    progress: Progress = None,
+    mu: Optional[float] = None,
+    lambda_: Optional[float] = None,
+    lambda_range: Optional[Tuple[float, float]] = None,
+    gravity: Optional[Sequence[float]] = None,
+    grains: Optional[Sequence[Union[str, int]]] = None,
+    region: Optional[Sequence[float]] = None,
+    cone: Optional[Literal["exact", "pyramid4", "pyramid8", "pyramid16"]] = None,
+    solver: Optional[Literal["active-set", "interior-point"]] = None,
+    ordering: Optional[Literal["auto", "amd", "nested-dissection"]] = None,
+    tolerance: Optional[float] = None,
+    allow_infeasible: bool = False,
+    wall_weight: Optional[float] = None,
+    lambda_rule: Optional[Literal["weights", "knee", "hard", "fixed"]] = None,
+    stress_sd: Optional[float] = None,
+    accel_sd: Optional[float] = None,
+    sweep: Optional[Tuple[float, float]] = None,
+    sweep_points: Optional[int] = None,
+    frames: Optional[Tuple[int, int]] = None,
+    fps: Optional[float] = None,
+    derive_accelerations: bool = False,
+    smoother: Optional[Literal["fir", "savgol", "whittaker"]] = None,
+    fir_order: Optional[int] = None,
+    cutoff: Optional[float] = None,
+    savgol_window: Optional[int] = None,
+    savgol_degree: Optional[int] = None,
+) -> Inference:
+    """Infers the contact forces of a scene (``grainforce infer``); options are the CLI's flags."""
+
+def dem(
+    preset: Literal["oedometer", "box", "impact", "bed_impact"],
+    dim: int = 2,
+    *,
+    seed: int = 1,
+    grains: Optional[int] = None,
+    gate: Optional[float] = None,
+    duration: Optional[float] = None,
+    frames_every: Optional[int] = None,
+    max_steps: Optional[int] = None,
+    verbose: bool = False,
+) -> DemRun:
+    """Runs a DEM preset (``grainforce dem``): synthetic ground truth."""
+
+def packing(dim: int = 2, grains: int = 1000, *, seed: int = 1) -> Tuple[Scene, Table]:
+    """A synthetic packing with exact forces: (scene, forces)."""
+
+def detect(
+    image: npt.ArrayLike,
+    radius: Tuple[float, float],
+    *,
+    polarity: Literal["bright", "dark", "either"] = "bright",
+    smoothing: Optional[float] = None,
+) -> Table:
+    """Finds disks in a grey image: columns x, y, r, support, visible, contrast, rms."""

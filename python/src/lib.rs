@@ -1,0 +1,601 @@
+//! The native half of the Python package (`grainforce._native`). The Python
+//! half (`grainforce/__init__.py`) turns tables into DataFrames and back; this
+//! half holds scenes, runs the library with the GIL released and turns the
+//! library's errors into Python exceptions.
+
+use clap::{CommandFactory, Parser};
+use grainforce::error::Error;
+use grainforce::infer::kinematics::{self, Smoother};
+use grainforce::infer::{self, InferOptions, Inference, LambdaRule, Method};
+use grainforce::scene::{self, ForceRow, Forces, Selection};
+use numpy::{PyArray1, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
+use pyo3::create_exception;
+use pyo3::exceptions::{PyFileNotFoundError, PyOSError, PyRuntimeError, PyValueError};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Mutex;
+
+// The CLI's own flags and their checks, so `infer(**options)` takes exactly
+// the options `grainforce infer` takes, with the same defaults and messages.
+// Its `run` (which writes files) is not used here.
+#[allow(dead_code)]
+#[path = "../../src/cli/infer.rs"]
+mod cli_infer;
+
+use cli_infer::{SmootherArg, TimeFitArg};
+
+create_exception!(
+    _native,
+    InfeasibleError,
+    PyValueError,
+    "The constraints admit no force field (e.g. μ too small for the stresses)."
+);
+create_exception!(
+    _native,
+    SolverError,
+    PyRuntimeError,
+    "The solver failed; the message carries its diagnostics."
+);
+
+/// The library's error as the Python exception a user expects.
+fn to_py(error: Error) -> PyErr {
+    let message = error.to_string();
+    match &error {
+        Error::Io { source, .. } if source.kind() == std::io::ErrorKind::NotFound => {
+            PyFileNotFoundError::new_err(message)
+        }
+        Error::Io { .. } => PyOSError::new_err(message),
+        Error::Data { .. } | Error::Invalid(_) => PyValueError::new_err(message),
+        Error::Infeasible(_) => InfeasibleError::new_err(message),
+        Error::Solver(_) => SolverError::new_err(message),
+    }
+}
+
+/// A scene: one frame (static) or a sequence of frames.
+#[pyclass(frozen, module = "grainforce._native")]
+struct Scene {
+    frames: Vec<scene::Scene>,
+}
+
+#[pymethods]
+impl Scene {
+    /// 2 or 3.
+    #[getter]
+    fn dim(&self) -> usize {
+        self.frames[0].dim
+    }
+
+    /// Frame numbers (`None` for a static scene's single frame).
+    #[getter]
+    fn frames(&self) -> Vec<Option<i64>> {
+        self.frames.iter().map(|f| f.frame).collect()
+    }
+
+    /// Grains of the first frame.
+    #[getter]
+    fn n_grains(&self) -> usize {
+        self.frames[0].grains.len()
+    }
+
+    /// Contacts of the first frame.
+    #[getter]
+    fn n_contacts(&self) -> usize {
+        self.frames[0].contacts.len()
+    }
+
+    /// Writes the scene folder (grains.csv, contacts.csv, walls.csv, scene.json).
+    fn save(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
+        py.detach(|| scene::write_sequence(&path, &self.frames))
+            .map_err(to_py)
+    }
+
+    fn __len__(&self) -> usize {
+        self.frames.len()
+    }
+
+    fn __repr__(&self) -> String {
+        let f = &self.frames[0];
+        let frames = if self.frames.len() > 1 {
+            format!(", {} frames", self.frames.len())
+        } else {
+            String::new()
+        };
+        format!(
+            "Scene({}D, {} grains, {} contacts, {} walls{frames})",
+            f.dim,
+            f.grains.len(),
+            f.contacts.len(),
+            f.walls.len()
+        )
+    }
+}
+
+/// Reads a scene folder: one frame, or a sequence when the files carry `frame`.
+#[pyfunction]
+fn read_scene(py: Python<'_>, path: PathBuf) -> PyResult<Scene> {
+    let frames = py.detach(|| scene::read_sequence(&path)).map_err(to_py)?;
+    Ok(Scene { frames })
+}
+
+/// One column of a table on its way to CSV.
+#[derive(FromPyObject)]
+enum Column<'py> {
+    Float(PyReadonlyArray1<'py, f64>),
+    Integer(PyReadonlyArray1<'py, i64>),
+    Text(Vec<String>),
+}
+
+impl Column<'_> {
+    fn len(&self) -> usize {
+        match self {
+            Column::Float(a) => a.len(),
+            Column::Integer(a) => a.len(),
+            Column::Text(v) => v.len(),
+        }
+    }
+
+    fn cell(&self, row: usize) -> String {
+        match self {
+            // Debug is the shortest text that reads back to the same double.
+            Column::Float(a) => match a.as_array()[row] {
+                x if x.is_nan() => String::new(),
+                x => format!("{x:?}"),
+            },
+            Column::Integer(a) => a.as_array()[row].to_string(),
+            Column::Text(v) => v[row].clone(),
+        }
+    }
+}
+
+/// Writes columns (float64 or int64 arrays, or lists of text; NaN is an
+/// empty cell) as a CSV table, for the library's reader to check and read.
+#[pyfunction]
+fn write_table(path: PathBuf, names: Vec<String>, columns: Vec<Column<'_>>) -> PyResult<()> {
+    let rows = columns.first().map_or(0, Column::len);
+    if names.len() != columns.len() || columns.iter().any(|c| c.len() != rows) {
+        return Err(PyValueError::new_err(format!(
+            "{}: every column needs a name and the same length",
+            path.display()
+        )));
+    }
+    let io = |e: csv::Error| PyOSError::new_err(format!("{}: {e}", path.display()));
+    let mut out = csv::Writer::from_path(&path).map_err(io)?;
+    out.write_record(&names).map_err(io)?;
+    for row in 0..rows {
+        out.write_record(columns.iter().map(|c| c.cell(row)))
+            .map_err(io)?;
+    }
+    out.flush()
+        .map_err(|e| PyOSError::new_err(format!("{}: {e}", path.display())))
+}
+
+/// `grainforce infer`'s arguments, without a program name.
+#[derive(Parser)]
+#[command(name = "infer", no_binary_name = true)]
+struct InferCall {
+    #[command(flatten)]
+    args: cli_infer::Args,
+}
+
+/// Flags that write files or need steps this binding does not run.
+const NOT_OFFERED: &[&str] = &[
+    "scene",
+    "output",
+    "plot",
+    "report",
+    "pareto",
+    "impulse",
+    "impulse-window",
+    "position-sd",
+    "quiet",
+    "uncertainty",
+    "noise-level",
+    "uncertainty-seed",
+    "time-fit",
+    "roughness",
+    "help",
+];
+
+/// One option of `infer`: flag, takes a value, value name, choices, help.
+type Flag = (String, bool, Option<String>, Vec<String>, String);
+
+/// The options `infer` takes, read from the CLI's own definition.
+#[pyfunction]
+fn infer_flags() -> Vec<Flag> {
+    let command = InferCall::command();
+    command
+        .get_arguments()
+        .filter_map(|a| {
+            let long = a.get_long()?;
+            if NOT_OFFERED.contains(&long) {
+                return None;
+            }
+            Some((
+                long.to_owned(),
+                a.get_action().takes_values(),
+                a.get_value_names()
+                    .and_then(|v| v.first())
+                    .map(|v| v.to_string()),
+                a.get_possible_values()
+                    .iter()
+                    .map(|p| p.get_name().to_owned())
+                    .collect(),
+                a.get_help().map(|h| h.to_string()).unwrap_or_default(),
+            ))
+        })
+        .collect()
+}
+
+/// Frames to infer, each with its options: the CLI's sequence steps (frame
+/// range, accelerations from the tracks, per-frame momentum weights).
+fn prepare(
+    args: &cli_infer::Args,
+    opts: &InferOptions,
+    selection: &Selection,
+    mut frames: Vec<scene::Scene>,
+) -> Result<(Vec<scene::Scene>, Vec<InferOptions>), Error> {
+    let keep: Option<Vec<bool>> = match &args.frames {
+        Some(r) => {
+            let (lo, hi) = cli_infer::range("--frames", r)?;
+            let keep: Vec<bool> = frames
+                .iter()
+                .map(|f| {
+                    f.frame
+                        .is_some_and(|k| (k as f64) >= lo && (k as f64) <= hi)
+                })
+                .collect();
+            if !keep.contains(&true) {
+                return Err(Error::Invalid(format!(
+                    "frames={r}: no frame of the sequence lies in that range"
+                )));
+            }
+            Some(keep)
+        }
+        None => None,
+    };
+    let smoother = match args.smoother {
+        SmootherArg::Fir => Smoother::Fir {
+            order: args.fir_order,
+            cutoff: args.cutoff,
+        },
+        SmootherArg::Savgol => Smoother::SavitzkyGolay {
+            window: args.savgol_window,
+            degree: args.savgol_degree,
+        },
+        SmootherArg::Whittaker => Smoother::Whittaker {
+            cutoff: args.cutoff,
+        },
+    };
+    let mut derived = None;
+    let lacks_accelerations = frames.len() > 1 && !frames.iter().any(|f| f.has_accelerations());
+    if args.derive_accelerations || (lacks_accelerations && opts.method == Method::Dynamic) {
+        let fps = args.fps.ok_or_else(|| {
+            Error::Invalid(
+                "deriving accelerations from the tracks needs the frame rate: give fps".into(),
+            )
+        })?;
+        derived = Some(kinematics::derive_accelerations(
+            &mut frames,
+            fps,
+            smoother,
+        )?);
+    }
+    if let Some(keep) = &keep {
+        let mut kept = keep.iter();
+        frames.retain(|_| *kept.next().unwrap_or(&false));
+        if let Some(k) = &mut derived {
+            let mut kept = keep.iter();
+            k.acceleration_sd.retain(|_| *kept.next().unwrap_or(&false));
+        }
+    }
+    let mut per_frame = Vec::with_capacity(frames.len());
+    for frame in &frames {
+        let mut o = opts.clone();
+        if *selection != Selection::All {
+            o.assemble.active = Some(scene::select_subassembly(frame, selection)?);
+        }
+        per_frame.push(o);
+    }
+    if let (Some(k), None, LambdaRule::Weights { stress_sd, .. }, Method::Dynamic) =
+        (&derived, args.accel_sd, opts.dynamic.rule, opts.method)
+    {
+        kinematics::weight_derived_momentum(&frames, &mut per_frame, k, stress_sd)?;
+    }
+    Ok((frames, per_frame))
+}
+
+/// Infers the frames in parallel (as `infer::infer_frames`), calling
+/// `progress(done, total)` with the GIL taken after each frame. The first
+/// exception the callback raises is kept and raised once the solves end.
+fn solve(
+    frames: &[scene::Scene],
+    per_frame: &[InferOptions],
+    progress: Option<&Py<PyAny>>,
+    callback_error: &Mutex<Option<PyErr>>,
+) -> Result<Vec<Inference>, Error> {
+    use rayon::prelude::*;
+    if frames.len() == 1 {
+        let result = infer::infer(&frames[0], &per_frame[0]);
+        report_progress(progress, 1, 1, callback_error);
+        return result.map(|r| vec![r]);
+    }
+    let done = AtomicUsize::new(0);
+    let results: Vec<Result<Inference, Error>> = frames
+        .par_iter()
+        .zip(per_frame.par_iter())
+        .map(|(scene, opts)| {
+            let r = infer::infer(scene, opts).map_err(|e| match scene.frame {
+                Some(k) => Error::Solver(format!("frame {k}: {e}")),
+                None => e,
+            });
+            let n = done.fetch_add(1, Ordering::SeqCst) + 1;
+            report_progress(progress, n, frames.len(), callback_error);
+            r
+        })
+        .collect();
+    results.into_iter().collect()
+}
+
+fn report_progress(
+    progress: Option<&Py<PyAny>>,
+    done: usize,
+    total: usize,
+    callback_error: &Mutex<Option<PyErr>>,
+) {
+    let Some(callback) = progress else { return };
+    Python::attach(|py| {
+        if let Err(e) = callback.call1(py, (done, total)) {
+            if let Ok(mut slot) = callback_error.lock() {
+                slot.get_or_insert(e);
+            }
+        }
+    });
+}
+
+/// The rows of forces.csv as columns: frame (when framed), contact, f_x, f_y[, f_z].
+fn forces_table<'py>(py: Python<'py>, forces: &Forces) -> PyResult<Bound<'py, PyDict>> {
+    let rows: &[ForceRow] = &forces.rows;
+    let table = PyDict::new(py);
+    if rows.iter().any(|r| r.frame.is_some()) {
+        let frames: Vec<i64> = rows.iter().map(|r| r.frame.unwrap_or(0)).collect();
+        table.set_item("frame", PyArray1::from_vec(py, frames))?;
+    }
+    let contacts: Vec<&str> = rows.iter().map(|r| r.contact.as_str()).collect();
+    table.set_item("contact", contacts)?;
+    for (k, name) in ["f_x", "f_y", "f_z"][..forces.dim].iter().enumerate() {
+        let column: Vec<f64> = rows.iter().map(|r| r.force[k]).collect();
+        table.set_item(*name, PyArray1::from_vec(py, column))?;
+    }
+    Ok(table)
+}
+
+fn to_json<T: serde::Serialize + ?Sized>(value: &T) -> PyResult<String> {
+    serde_json::to_string(value).map_err(|e| PyValueError::new_err(e.to_string()))
+}
+
+/// Infers the contact forces of a scene. `argv` holds `grainforce infer`'s
+/// flags (the Python layer builds them from keyword options). Returns the
+/// forces.csv columns and the JSON report (one object, or a list per frame).
+#[pyfunction]
+#[pyo3(name = "infer", signature = (scene, argv, progress=None))]
+fn infer_forces<'py>(
+    py: Python<'py>,
+    scene: &Scene,
+    argv: Vec<String>,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<(Bound<'py, PyDict>, String)> {
+    let mut full = vec!["<scene>".to_owned(), "--output".into(), "<memory>".into()];
+    full.extend(argv);
+    let call = InferCall::try_parse_from(full)
+        .map_err(|e| PyValueError::new_err(e.render().to_string().trim().to_owned()))?;
+    let args = call.args;
+    if args.time_fit != TimeFitArg::Frames {
+        return Err(PyValueError::new_err(
+            "time_fit='joint' is offered by the CLI only (grainforce infer --time-fit joint)",
+        ));
+    }
+    let callback_error = Mutex::new(None);
+    let outcome = py.detach(|| {
+        let (opts, selection) = cli_infer::options(&args)?;
+        let (frames, per_frame) = prepare(&args, &opts, &selection, scene.frames.clone())?;
+        let results = solve(&frames, &per_frame, progress.as_ref(), &callback_error)?;
+        Ok::<_, Error>((frames, results))
+    });
+    if let Some(e) = callback_error.into_inner().ok().flatten() {
+        return Err(e);
+    }
+    let (frames, results) = outcome.map_err(to_py)?;
+    let mut rows = Vec::new();
+    for (frame, result) in frames.iter().zip(&results) {
+        for (c, f) in result.forces.iter().enumerate() {
+            if let Some(f) = f {
+                rows.push(ForceRow {
+                    contact: frame.contacts[c].id.clone(),
+                    frame: frame.frame,
+                    force: *f,
+                    sd: None,
+                });
+            }
+        }
+    }
+    let forces = Forces {
+        dim: frames[0].dim,
+        rows,
+    };
+    let reports: Vec<&infer::InferenceReport> = results.iter().map(|r| &r.report).collect();
+    let report = if reports.len() == 1 {
+        to_json(reports[0])?
+    } else {
+        to_json(&reports)?
+    };
+    Ok((forces_table(py, &forces)?, report))
+}
+
+/// Runs a DEM preset. Returns the scene, its exact forces as forces.csv
+/// columns and the gate report as JSON.
+#[pyfunction]
+#[pyo3(signature = (preset, dim=2, seed=1, grains=None, gate=None, duration=None, frames_every=None, max_steps=None, verbose=false))]
+#[allow(clippy::too_many_arguments)]
+fn dem<'py>(
+    py: Python<'py>,
+    preset: &str,
+    dim: usize,
+    seed: u64,
+    grains: Option<usize>,
+    gate: Option<f64>,
+    duration: Option<f64>,
+    frames_every: Option<u64>,
+    max_steps: Option<u64>,
+    verbose: bool,
+) -> PyResult<(Scene, Bound<'py, PyDict>, String)> {
+    use grainforce::dem::{self, DemConfig, Preset};
+    let preset = match preset.replace('_', "-").as_str() {
+        "oedometer" => Preset::Oedometer,
+        "box" => Preset::Box,
+        "impact" => Preset::Impact,
+        "bed-impact" => Preset::BedImpact,
+        other => {
+            return Err(PyValueError::new_err(format!(
+                "unknown DEM preset `{other}`: expected oedometer, box, impact or bed-impact"
+            )))
+        }
+    };
+    if dim != 2 && dim != 3 {
+        return Err(PyValueError::new_err(format!(
+            "dim must be 2 or 3 (got {dim})"
+        )));
+    }
+    let mut c = DemConfig::preset(preset, dim).seed(seed).verbose(verbose);
+    if let Some(n) = grains {
+        c.grains = n;
+    }
+    if let Some(g) = gate {
+        c.gate = g;
+    }
+    if let Some(d) = duration {
+        c.duration = d;
+    }
+    if let Some(k) = frames_every {
+        if k == 0 {
+            return Err(PyValueError::new_err("frames_every must be at least 1"));
+        }
+        c.frames_every = Some(k);
+    }
+    if let Some(s) = max_steps {
+        c.max_steps = s;
+    }
+    let run = py.detach(|| dem::simulate(&c)).map_err(to_py)?;
+    let mut forces = Forces {
+        dim,
+        rows: Vec::new(),
+    };
+    for (frame, f) in run.frames.iter().zip(&run.forces) {
+        forces.rows.extend(Forces::from_scene(frame, f).rows);
+    }
+    let table = forces_table(py, &forces)?;
+    let report = to_json(&run.report)?;
+    Ok((Scene { frames: run.frames }, table, report))
+}
+
+/// A synthetic packing with its exact forces (the benchmark's generator):
+/// the scene and the forces as forces.csv columns.
+#[pyfunction]
+#[pyo3(signature = (dim=2, grains=1000, seed=1))]
+fn packing<'py>(
+    py: Python<'py>,
+    dim: usize,
+    grains: usize,
+    seed: u64,
+) -> PyResult<(Scene, Bound<'py, PyDict>)> {
+    use grainforce::bench::generate::{generate, PackingSpec};
+    let mut spec = PackingSpec::new(dim, grains);
+    spec.seed = seed;
+    let packing = py.detach(|| generate(&spec)).map_err(to_py)?;
+    let table = forces_table(py, &Forces::from_scene(&packing.scene, &packing.truth))?;
+    Ok((
+        Scene {
+            frames: vec![packing.scene],
+        },
+        table,
+    ))
+}
+
+/// Finds disks in a grey image (rows = y, columns = x, in pixels). Returns
+/// the columns x, y, r, support, visible, contrast, rms.
+#[pyfunction]
+#[pyo3(signature = (image, radius_min, radius_max, polarity="bright", smoothing=None))]
+fn detect<'py>(
+    py: Python<'py>,
+    image: PyReadonlyArray2<'py, f64>,
+    radius_min: f64,
+    radius_max: f64,
+    polarity: &str,
+    smoothing: Option<f64>,
+) -> PyResult<Bound<'py, PyDict>> {
+    use grainforce::image::{detect_disks, DetectOptions, FloatImage, Polarity};
+    let view = image.as_array();
+    let (height, width) = view.dim();
+    if width == 0 || height == 0 {
+        return Err(PyValueError::new_err("the image is empty"));
+    }
+    if view.iter().any(|v| !v.is_finite()) {
+        return Err(PyValueError::new_err(
+            "the image holds NaN or infinite values",
+        ));
+    }
+    let (w, h) = (
+        u32::try_from(width).map_err(|_| PyValueError::new_err("the image is too wide"))?,
+        u32::try_from(height).map_err(|_| PyValueError::new_err("the image is too tall"))?,
+    );
+    let picture = FloatImage::from_fn(w, h, |x, y| {
+        ::image::Luma([view[[y as usize, x as usize]] as f32])
+    });
+    let mut options = DetectOptions::new(radius_min, radius_max);
+    options.polarity = match polarity {
+        "bright" => Polarity::Bright,
+        "dark" => Polarity::Dark,
+        "either" => Polarity::Either,
+        other => {
+            return Err(PyValueError::new_err(format!(
+                "polarity must be 'bright', 'dark' or 'either', not '{other}'"
+            )))
+        }
+    };
+    options.smoothing_px = smoothing;
+    let disks = py
+        .detach(|| detect_disks(&picture, &options))
+        .map_err(to_py)?;
+    let table = PyDict::new(py);
+    type Field = fn(&grainforce::image::Disk) -> f64;
+    let fields: [(&str, Field); 7] = [
+        ("x", |d| d.x),
+        ("y", |d| d.y),
+        ("r", |d| d.r),
+        ("support", |d| d.support),
+        ("visible", |d| d.visible),
+        ("contrast", |d| d.contrast),
+        ("rms", |d| d.rms),
+    ];
+    for (name, field) in fields {
+        let column: Vec<f64> = disks.iter().map(field).collect();
+        table.set_item(name, PyArray1::from_vec(py, column))?;
+    }
+    Ok(table)
+}
+
+#[pymodule]
+fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<Scene>()?;
+    m.add_function(wrap_pyfunction!(read_scene, m)?)?;
+    m.add_function(wrap_pyfunction!(infer_flags, m)?)?;
+    m.add_function(wrap_pyfunction!(infer_forces, m)?)?;
+    m.add_function(wrap_pyfunction!(dem, m)?)?;
+    m.add_function(wrap_pyfunction!(detect, m)?)?;
+    m.add_function(wrap_pyfunction!(packing, m)?)?;
+    m.add_function(wrap_pyfunction!(write_table, m)?)?;
+    m.add("InfeasibleError", m.py().get_type::<InfeasibleError>())?;
+    m.add("SolverError", m.py().get_type::<SolverError>())?;
+    Ok(())
+}

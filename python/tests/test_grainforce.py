@@ -1,0 +1,270 @@
+"""The Python package against the CLI, the DEM's exact forces and bad input.
+
+The CLI binary comes from GRAINFORCE_BIN (python/ci.sh sets it), else from
+PATH; without it the comparison with the CLI fails rather than skips.
+"""
+
+import json
+import os
+import shutil
+import subprocess
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import grainforce as gf
+
+REPO = Path(__file__).resolve().parents[2]
+OEDOMETER = REPO / "fixtures" / "oedometer"
+IDS = {"id": str, "a": str, "b": str, "wall": str, "contact": str}
+
+
+def cli():
+    binary = os.environ.get("GRAINFORCE_BIN") or shutil.which("grainforce")
+    if not binary:
+        pytest.fail("set GRAINFORCE_BIN to the grainforce binary (python/ci.sh does)")
+    return binary
+
+
+def run_cli(scene_dir, tmp_path, *flags):
+    out, report = tmp_path / "forces.csv", tmp_path / "report.json"
+    subprocess.run(
+        [cli(), "infer", str(scene_dir), "-o", str(out), "--report", str(report), "--quiet", *flags],
+        check=True,
+    )
+    return pd.read_csv(out, dtype=IDS), json.loads(report.read_text())
+
+
+def oedometer_tables():
+    grains = pd.read_csv(OEDOMETER / "grains.csv", dtype=IDS)
+    contacts = pd.read_csv(OEDOMETER / "contacts.csv", dtype=IDS)
+    walls = pd.read_csv(OEDOMETER / "walls.csv", dtype=IDS)
+    meta = json.loads((OEDOMETER / "scene.json").read_text())
+    return grains, contacts, walls, meta
+
+
+def assert_same_forces(got, expected, tolerance=1e-12):
+    assert list(got.columns) == list(expected.columns)
+    assert list(got["contact"]) == list(expected["contact"])
+    components = [c for c in expected.columns if c.startswith("f_")]
+    scale = np.abs(expected[components].to_numpy()).max()
+    gap = np.abs(got[components].to_numpy() - expected[components].to_numpy()).max()
+    assert gap <= tolerance * scale, f"largest gap {gap:.3e} (scale {scale:.3e})"
+
+
+@pytest.mark.parametrize(
+    "method, options, flags",
+    [
+        ("qs", {}, []),
+        ("tikhonov", {"lambda_": 2e-4, "mu": 0.4}, ["--lambda", "2e-4", "--mu", "0.4"]),
+        ("ls", {}, []),
+        ("scaled", {"solver": "interior_point"}, ["--solver", "interior-point"]),
+    ],
+)
+def test_dataframes_in_and_out_match_the_cli(tmp_path, method, options, flags):
+    grains, contacts, walls, meta = oedometer_tables()
+    scene = gf.Scene.from_frames(grains, contacts, walls, **meta)
+    assert (scene.dim, scene.n_grains, scene.n_contacts) == (2, len(grains), len(contacts))
+    result = gf.infer(scene, method=method, **options)
+    expected, report = run_cli(OEDOMETER, tmp_path, "--method", method, *flags)
+    assert isinstance(result.forces, pd.DataFrame)
+    assert_same_forces(result.forces, expected)
+    assert result.report.keys() == report.keys()
+    timings = {"time", "solver_time"}
+    for key in report.keys() - timings:
+        assert_close(result.report[key], report[key], key)
+
+
+def assert_close(got, expected, where):
+    """Same structure, text and flags; numbers to 1e-12."""
+    if isinstance(expected, float) and not isinstance(expected, bool):
+        assert got == pytest.approx(expected, rel=1e-12, abs=1e-300), where
+    elif isinstance(expected, dict):
+        assert got.keys() == expected.keys(), where
+        for k in expected:
+            assert_close(got[k], expected[k], f"{where}.{k}")
+    elif isinstance(expected, list):
+        assert len(got) == len(expected), where
+        for k, (g, e) in enumerate(zip(got, expected)):
+            assert_close(g, e, f"{where}[{k}]")
+    else:
+        assert got == expected, where
+
+
+def test_dicts_of_arrays_without_pandas(monkeypatch):
+    grains, contacts, walls, meta = oedometer_tables()
+    expected = gf.infer(gf.read_scene(OEDOMETER)).forces
+    monkeypatch.setattr(gf, "_pd", None)
+    as_dict = lambda df: {c: df[c].to_numpy() for c in df.columns}
+    scene = gf.Scene.from_frames(as_dict(grains), as_dict(contacts), as_dict(walls), **meta)
+    forces = gf.infer(scene).forces
+    assert isinstance(forces, dict) and list(forces) == ["contact", "f_x", "f_y"]
+    assert_same_forces(pd.DataFrame(forces), expected, tolerance=0.0)
+    back, _, _ = scene.to_frames()
+    assert isinstance(back, dict)
+    assert np.array_equal(back["s_xx"], grains["s_xx"].to_numpy())
+
+
+def test_scene_round_trips_through_frames(tmp_path):
+    scene = gf.read_scene(OEDOMETER)
+    grains, contacts, walls = scene.to_frames()
+    original, _, _, _ = oedometer_tables()
+    assert list(grains["id"]) == list(original["id"])
+    assert np.array_equal(grains["x"].to_numpy(), original["x"].to_numpy())
+    scene.save(tmp_path / "copy")
+    # Not bit for bit: the reader normalises the normals it then writes.
+    assert_same_forces(gf.infer(gf.read_scene(tmp_path / "copy")).forces, gf.infer(scene).forces)
+
+
+def test_dem_forces_are_recovered():
+    run = gf.dem("oedometer", seed=3)
+    assert run.report["passed"] and run.report["grains"] == run.scene.n_grains
+    result = gf.infer(run.scene, method="qs")
+    assert_same_forces(result.forces, run.forces, tolerance=1e-6)
+
+
+def test_packing_forces_are_recovered():
+    scene, truth = gf.packing(dim=3, grains=200, seed=2)
+    assert scene.dim == 3
+    assert_same_forces(gf.infer(scene, method="ls").forces, truth, tolerance=1e-8)
+
+
+def test_sequence_with_progress_recovers_the_dem_forces():
+    run = gf.dem("impact", duration=0.004)
+    assert len(run.scene) > 10 and run.scene.frames[0] == 0
+    calls = []
+    result = gf.infer(run.scene, method="dynamic", progress=lambda done, total: calls.append((done, total)))
+    assert sorted(calls) == [(k, len(run.scene)) for k in range(1, len(run.scene) + 1)]
+    assert list(result.forces.columns) == ["frame", "contact", "f_x", "f_y"]
+    assert isinstance(result.report, list) and len(result.report) == len(run.scene)
+    truth = run.forces
+    assert list(result.forces["frame"]) == list(truth["frame"])
+    assert_same_forces(result.forces, truth, tolerance=1e-6)
+    # A frame range picks frames as --frames does.
+    part = gf.infer(run.scene, method="dynamic", frames=(2, 4))
+    assert sorted(set(part.forces["frame"])) == [2, 3, 4]
+
+
+def test_progress_callback_errors_propagate():
+    run = gf.dem("impact", duration=0.002)
+
+    def broken(done, total):
+        raise KeyError("from the callback")
+
+    with pytest.raises(KeyError, match="from the callback"):
+        gf.infer(run.scene, method="dynamic", progress=broken)
+
+
+def disks_image(centres, radius, shape=(120, 160), supersample=4):
+    """Bright antialiased disks on a dark background (rows are y; pixel (j, i)
+    is centred at x = j, y = i, as in scikit-image)."""
+    h, w = shape
+    ys = (np.arange(h * supersample) + 0.5) / supersample - 0.5
+    xs = (np.arange(w * supersample) + 0.5) / supersample - 0.5
+    inside = np.zeros((h * supersample, w * supersample), dtype=bool)
+    for cx, cy in centres:
+        inside |= (xs[None, :] - cx) ** 2 + (ys[:, None] - cy) ** 2 <= radius**2
+    fine = np.where(inside, 0.8, 0.2)
+    return fine.reshape(h, supersample, w, supersample).mean(axis=(1, 3))
+
+
+def test_detect_finds_disks_in_an_array():
+    centres = [(40.3, 35.7), (110.6, 40.2), (60.1, 85.4)]
+    found = gf.detect(disks_image(centres, 15.0), radius=(10, 20))
+    assert len(found) == 3
+    for cx, cy in centres:
+        d = np.hypot(found["x"] - cx, found["y"] - cy)
+        k = int(np.argmin(d))
+        assert d[k] < 0.2, (cx, cy, d[k])
+        assert abs(found["r"][k] - 15.0) < 0.2
+
+
+def test_bad_input_raises_with_the_library_message(tmp_path):
+    with pytest.raises(FileNotFoundError, match="no-such-scene"):
+        gf.read_scene(tmp_path / "no-such-scene")
+    grains, contacts, walls, meta = oedometer_tables()
+    bad = grains.astype({"s_xx": object})
+    bad.loc[3, "s_xx"] = "abc"
+    with pytest.raises(ValueError, match=r"grains\.csv, line 5, column `s_xx`") as info:
+        gf.Scene.from_frames(bad, contacts, walls, **meta)
+    assert "grainforce-" not in str(info.value)  # no temporary folder in the message
+    with pytest.raises(ValueError, match="unknown field"):
+        gf.Scene.from_frames(grains, contacts, walls, friction=0.5)
+    scene = gf.read_scene(OEDOMETER)
+    with pytest.raises(ValueError, match="--tolerance must lie in"):
+        gf.infer(scene, tolerance=2.0)
+    with pytest.raises(ValueError, match="invalid value 'fast'"):
+        gf.infer(scene, method="fast")
+    with pytest.raises(TypeError, match="unexpected keyword argument 'colour'"):
+        gf.infer(scene, colour="red")
+    with pytest.raises(TypeError, match="unexpected keyword argument 'output'"):
+        gf.infer(scene, output="forces.csv")
+    with pytest.raises(ValueError, match="2 or 3"):
+        gf.dem("oedometer", dim=4)
+    with pytest.raises(ValueError, match="unknown DEM preset"):
+        gf.dem("sandpile")
+    with pytest.raises(ValueError, match="radius range"):
+        gf.detect(np.zeros((50, 50)), radius=(5, 3))
+    with pytest.raises(ValueError, match="2D"):
+        gf.detect(np.zeros(50), radius=(5, 8))
+    with pytest.raises(gf.InfeasibleError, match="μ too small"):
+        gf.infer(sideways_loaded_disk(), mu=1e-3)
+    # allow_infeasible: the least-violation answer, momentum left unbalanced.
+    assert gf.infer(sideways_loaded_disk(), mu=1e-3, allow_infeasible=True).report["momentum_residual"] > 1
+
+
+def sideways_loaded_disk():
+    """A disk on two supports ±30° from the vertical under a nearly horizontal
+    body force: only friction (μ ≳ 1.4) could hold it."""
+    a, r = np.radians(30), np.sqrt(0.01 / np.pi)
+    normals = np.array([[-np.sin(a), -np.cos(a)], [np.sin(a), -np.cos(a)]])
+    grains = {"id": [1], "x": [0.0], "y": [0.0], "volume": [0.01], "s_xx": [0.0],
+              "s_yy": [0.0], "s_xy": [0.0], "mass": [0.1]}
+    contacts = {"id": ["c1", "c2"], "a": [1, 1], "b": ["left", "right"],
+                "x": r * normals[:, 0], "y": r * normals[:, 1],
+                "n_x": normals[:, 0], "n_y": normals[:, 1]}
+    return gf.Scene.from_frames(grains, contacts, gravity=[-9.81, -1.0])
+
+
+def test_two_threads_solve_in_parallel_with_the_gil_released():
+    scene, _ = gf.packing(dim=2, grains=4000, seed=5)
+    alone = time.perf_counter()
+    expected = gf.infer(scene).forces
+    alone = time.perf_counter() - alone
+
+    results = [None, None]
+
+    def solve(k):
+        results[k] = gf.infer(scene).forces
+
+    threads = [threading.Thread(target=solve, args=(k,)) for k in range(2)]
+    for t in threads:
+        t.start()
+    # The main thread keeps running Python while both solve: with the GIL
+    # held it would stall for a whole solve.
+    ticks = [time.perf_counter()]
+    while any(t.is_alive() for t in threads):
+        time.sleep(0.001)
+        ticks.append(time.perf_counter())
+    for t in threads:
+        t.join()
+    longest_stall = max(np.diff(ticks)) if len(ticks) > 1 else 0.0
+    assert alone > 0.05, f"the scene solves too fast ({alone:.3f} s) to show the GIL"
+    assert longest_stall < 0.5 * alone, (longest_stall, alone)
+    for forces in results:
+        assert_same_forces(forces, expected, tolerance=0.0)
+
+
+def test_missing_cells_and_an_id_index():
+    grains, contacts, walls, meta = oedometer_tables()
+    expected = gf.infer(gf.read_scene(OEDOMETER)).forces
+    contacts.loc[[0, 5], "mu"] = np.nan  # empty cells: the scene's μ (0.5) applies
+    assert meta["mu"] == 0.5
+    scene = gf.Scene.from_frames(grains.set_index("id"), contacts, walls, **meta)
+    assert_same_forces(gf.infer(scene).forces, expected)
+    with pytest.raises(ValueError, match="`mu`"):
+        gf.Scene.from_frames(grains, contacts.assign(mu=-1.0), walls)
