@@ -319,17 +319,23 @@ def _progress_callback(progress: Progress, total: int):
     return advance, bar
 
 
-def infer(scene: Scene, method: str = "qs", *, progress: Progress = None, **options: Any) -> Inference:
+def infer(
+    scene: Scene, method: Optional[str] = None, *, progress: Progress = None, **options: Any
+) -> Inference:
     """Infers the contact forces of a scene (``grainforce infer``).
 
-    method: qs (least squares on the stresses, hard equilibrium, friction),
-    tikhonov, scaled, ls or dynamic. Every other option of ``grainforce
-    infer`` is a keyword with its flag's name (``-`` becomes ``_``, and
-    ``lambda`` is ``lambda_``): mu, lambda_, lambda_range=(min, max),
-    gravity=(gx, gy), grains=[ids], region=(xmin, xmax, ymin, ymax), cone,
-    solver, ordering, tolerance, allow_infeasible=True, wall_weight,
-    lambda_rule, stress_sd, accel_sd, sweep, sweep_points, frames=(a, b),
-    fps, derive_accelerations, smoother, fir_order, cutoff, savgol_window,
+    method: None (the CLI's default: qs, switching to soft and saying so in
+    the report when the data do not balance), qs (least squares on the
+    stresses, hard equilibrium, friction), tikhonov, scaled, ls, dynamic or
+    soft (momentum as a weighted penalty). An explicit hard-balance method
+    raises on collapsed forces unless accept_degenerate=True. Every other
+    option of ``grainforce infer`` is a keyword with its flag's name (``-``
+    becomes ``_``, and ``lambda`` is ``lambda_``): stress_noise, mu, lambda_,
+    lambda_range=(min, max), gravity=(gx, gy), grains=[ids],
+    region=(xmin, xmax, ymin, ymax), cone, solver, ordering, tolerance,
+    allow_infeasible=True, accept_degenerate=True, wall_weight, lambda_rule,
+    stress_sd, accel_sd, sweep, sweep_points, frames=(a, b), fps,
+    derive_accelerations, smoother, fir_order, cutoff, savgol_window,
     savgol_degree. Defaults are the CLI's.
 
     progress: for sequences, True for a tqdm bar (a line on stderr without

@@ -70,9 +70,11 @@ def read_scene(path: PathLike) -> Scene:
 
 def infer(
     scene: Scene,
-    method: Literal["qs", "tikhonov", "scaled", "ls", "dynamic"] = "qs",
+    method: Optional[Literal["qs", "tikhonov", "scaled", "ls", "dynamic", "soft"]] = None,
     *,
     progress: Progress = None,
+    stress_noise: Optional[Literal["absolute", "relative", "columns"]] = None,
+    accept_degenerate: bool = False,
     mu: Optional[float] = None,
     lambda_: Optional[float] = None,
     lambda_range: Optional[Tuple[float, float]] = None,
@@ -85,7 +87,7 @@ def infer(
     tolerance: Optional[float] = None,
     allow_infeasible: bool = False,
     wall_weight: Optional[float] = None,
-    lambda_rule: Optional[Literal["weights", "knee", "hard", "fixed"]] = None,
+    lambda_rule: Optional[Literal["weights", "knee", "hard", "fixed", "variance"]] = None,
     stress_sd: Optional[float] = None,
     accel_sd: Optional[float] = None,
     sweep: Optional[Tuple[float, float]] = None,
