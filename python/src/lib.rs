@@ -5,8 +5,7 @@
 
 use clap::{CommandFactory, Parser};
 use grainforce::error::Error;
-use grainforce::infer::kinematics::{self, Smoother};
-use grainforce::infer::{self, InferOptions, Inference, LambdaRule, Method};
+use grainforce::infer::{self, InferOptions, Inference};
 use grainforce::scene::{self, ForceRow, Forces, Selection};
 use numpy::{PyArray1, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::create_exception;
@@ -24,7 +23,7 @@ use std::sync::Mutex;
 #[path = "../../src/cli/infer.rs"]
 mod cli_infer;
 
-use cli_infer::{SmootherArg, TimeFitArg};
+use cli_infer::TimeFitArg;
 
 create_exception!(
     _native,
@@ -228,82 +227,18 @@ fn infer_flags() -> Vec<Flag> {
         .collect()
 }
 
-/// Frames to infer, each with its options: the CLI's sequence steps (frame
-/// range, accelerations from the tracks, per-frame momentum weights).
+/// Frames to infer, each with its options: the library's sequence steps
+/// (frame range, accelerations from the tracks, per-frame momentum weights)
+/// as the CLI's flags ask for them.
 fn prepare(
     args: &cli_infer::Args,
     opts: &InferOptions,
     selection: &Selection,
-    mut frames: Vec<scene::Scene>,
+    frames: Vec<scene::Scene>,
 ) -> Result<(Vec<scene::Scene>, Vec<InferOptions>), Error> {
-    let keep: Option<Vec<bool>> = match &args.frames {
-        Some(r) => {
-            let (lo, hi) = cli_infer::range("--frames", r)?;
-            let keep: Vec<bool> = frames
-                .iter()
-                .map(|f| {
-                    f.frame
-                        .is_some_and(|k| (k as f64) >= lo && (k as f64) <= hi)
-                })
-                .collect();
-            if !keep.contains(&true) {
-                return Err(Error::Invalid(format!(
-                    "frames={r}: no frame of the sequence lies in that range"
-                )));
-            }
-            Some(keep)
-        }
-        None => None,
-    };
-    let smoother = match args.smoother {
-        SmootherArg::Fir => Smoother::Fir {
-            order: args.fir_order,
-            cutoff: args.cutoff,
-        },
-        SmootherArg::Savgol => Smoother::SavitzkyGolay {
-            window: args.savgol_window,
-            degree: args.savgol_degree,
-        },
-        SmootherArg::Whittaker => Smoother::Whittaker {
-            cutoff: args.cutoff,
-        },
-    };
-    let mut derived = None;
-    let lacks_accelerations = frames.len() > 1 && !frames.iter().any(|f| f.has_accelerations());
-    if args.derive_accelerations || (lacks_accelerations && opts.method == Method::Dynamic) {
-        let fps = args.fps.ok_or_else(|| {
-            Error::Invalid(
-                "deriving accelerations from the tracks needs the frame rate: give fps".into(),
-            )
-        })?;
-        derived = Some(kinematics::derive_accelerations(
-            &mut frames,
-            fps,
-            smoother,
-        )?);
-    }
-    if let Some(keep) = &keep {
-        let mut kept = keep.iter();
-        frames.retain(|_| *kept.next().unwrap_or(&false));
-        if let Some(k) = &mut derived {
-            let mut kept = keep.iter();
-            k.acceleration_sd.retain(|_| *kept.next().unwrap_or(&false));
-        }
-    }
-    let mut per_frame = Vec::with_capacity(frames.len());
-    for frame in &frames {
-        let mut o = opts.clone();
-        if *selection != Selection::All {
-            o.assemble.active = Some(scene::select_subassembly(frame, selection)?);
-        }
-        per_frame.push(o);
-    }
-    if let (Some(k), None, LambdaRule::Weights { stress_sd, .. }, Method::Dynamic) =
-        (&derived, args.accel_sd, opts.dynamic.rule, opts.method)
-    {
-        kinematics::weight_derived_momentum(&frames, &mut per_frame, k, stress_sd)?;
-    }
-    Ok((frames, per_frame))
+    let plan = cli_infer::sequence_plan(args, selection.clone())?;
+    let prepared = infer::sequence::prepare(frames, opts, &plan)?;
+    Ok((prepared.frames, prepared.options))
 }
 
 /// Infers the frames in parallel (as `infer::infer_frames`), calling

@@ -2,13 +2,13 @@
 
 use grainforce::error::{Error, Result};
 use grainforce::infer::kinematics::{self, Smoother};
-use grainforce::infer::time_fit;
 use grainforce::infer::uncertainty::{
     force_uncertainty, NoiseEstimate, Uncertainty, UncertaintyOptions,
 };
 use grainforce::infer::{
     self, ConeModel, ConstrainedSolver, InferOptions, LambdaRule, Method, OnCollapse, StressNoise,
 };
+use grainforce::infer::{sequence, time_fit};
 use grainforce::scene::{self, Forces, Selection};
 use grainforce::solver::sparse_ls::Ordering;
 use std::path::PathBuf;
@@ -294,6 +294,36 @@ pub fn range(flag: &str, text: &str) -> Result<(f64, f64)> {
     Ok((lo, hi))
 }
 
+/// The sequence steps the flags ask for (`--frames`, `--derive-accelerations`,
+/// `--fps`, the smoother, the region, `--accel-sd`).
+pub fn sequence_plan(args: &Args, selection: Selection) -> Result<sequence::SequencePlan> {
+    let frame_range = match &args.frames {
+        Some(r) => Some(range("--frames", r)?),
+        None => None,
+    };
+    let smoother = match args.smoother {
+        SmootherArg::Fir => Smoother::Fir {
+            order: args.fir_order,
+            cutoff: args.cutoff,
+        },
+        SmootherArg::Savgol => Smoother::SavitzkyGolay {
+            window: args.savgol_window,
+            degree: args.savgol_degree,
+        },
+        SmootherArg::Whittaker => Smoother::Whittaker {
+            cutoff: args.cutoff,
+        },
+    };
+    Ok(sequence::SequencePlan {
+        frame_range,
+        derive_accelerations: args.derive_accelerations,
+        fps: args.fps,
+        smoother,
+        selection,
+        acceleration_sd_given: args.accel_sd.is_some(),
+    })
+}
+
 pub fn options(args: &Args) -> Result<(InferOptions, Selection)> {
     let mut opts = InferOptions {
         method: match args.method.unwrap_or(MethodArg::Qs) {
@@ -521,83 +551,22 @@ pub fn run(args: Args) -> Result<()> {
         TimeFitArg::Frames => None,
         TimeFitArg::Joint => Some(check_time_fit(&args, &opts, &selection)?),
     };
-    let mut frames = scene::read_sequence(&args.scene)?;
-    // --frames picks the frames inferred; accelerations are still derived
-    // from the whole tracks, so a window's ends are not a filter's ends.
-    let keep: Option<Vec<bool>> = match &args.frames {
-        Some(r) => {
-            let (lo, hi) = range("--frames", r)?;
-            let keep: Vec<bool> = frames
-                .iter()
-                .map(|f| {
-                    f.frame
-                        .is_some_and(|k| (k as f64) >= lo && (k as f64) <= hi)
-                })
-                .collect();
-            if !keep.contains(&true) {
-                return Err(Error::Invalid(format!(
-                    "--frames {r}: no frame of the sequence lies in that range"
-                )));
-            }
-            Some(keep)
-        }
-        None => None,
-    };
-    let smoother = match args.smoother {
-        SmootherArg::Fir => Smoother::Fir {
-            order: args.fir_order,
-            cutoff: args.cutoff,
-        },
-        SmootherArg::Savgol => Smoother::SavitzkyGolay {
-            window: args.savgol_window,
-            degree: args.savgol_degree,
-        },
-        SmootherArg::Whittaker => Smoother::Whittaker {
-            cutoff: args.cutoff,
-        },
-    };
-    let mut derived = None;
-    let lacks_accelerations = frames.len() > 1 && !frames.iter().any(|f| f.has_accelerations());
-    if args.derive_accelerations || (lacks_accelerations && opts.method == Method::Dynamic) {
-        let fps = args.fps.ok_or_else(|| {
-            Error::Invalid(
-                "deriving accelerations from the tracks needs the frame rate: give --fps".into(),
-            )
-        })?;
-        let k = kinematics::derive_accelerations(&mut frames, fps, smoother)?;
-        if !args.quiet {
-            eprintln!(
-                "accelerations derived from {} tracks ({} partial, {} too short: zero); position noise {:.3e} m estimated from the tracks",
-                k.tracks,
-                k.partial_tracks,
-                k.short_tracks.len(),
-                k.position_sd
-            );
-        }
-        derived = Some(k);
+    let plan = sequence_plan(&args, selection)?;
+    let prepared = sequence::prepare(scene::read_sequence(&args.scene)?, &opts, &plan)?;
+    if let (Some(k), false) = (&prepared.derived, args.quiet) {
+        eprintln!(
+            "accelerations derived from {} tracks ({} partial, {} too short: zero); position noise {:.3e} m estimated from the tracks",
+            k.tracks,
+            k.partial_tracks,
+            k.short_tracks.len(),
+            k.position_sd
+        );
     }
-    if let Some(keep) = &keep {
-        let mut kept = keep.iter();
-        frames.retain(|_| *kept.next().unwrap_or(&false));
-        if let Some(k) = &mut derived {
-            let mut kept = keep.iter();
-            k.acceleration_sd.retain(|_| *kept.next().unwrap_or(&false));
-        }
-    }
-    let mut per_frame = Vec::with_capacity(frames.len());
-    for frame in &frames {
-        let mut o = opts.clone();
-        if selection != Selection::All {
-            o.assemble.active = Some(scene::select_subassembly(frame, &selection)?);
-        }
-        per_frame.push(o);
-    }
-    // Derived accelerations without a stated --accel-sd: per-frame noise.
-    if let (Some(k), None, LambdaRule::Weights { stress_sd, .. }, Method::Dynamic) =
-        (&derived, args.accel_sd, opts.dynamic.rule, opts.method)
-    {
-        kinematics::weight_derived_momentum(&frames, &mut per_frame, k, stress_sd)?;
-    }
+    let sequence::PreparedSequence {
+        frames,
+        options: per_frame,
+        ..
+    } = prepared;
     let mut results = if frames.len() == 1 {
         vec![infer::infer(&frames[0], &per_frame[0])?]
     } else {

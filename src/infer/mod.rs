@@ -16,6 +16,7 @@ mod lambda;
 pub mod noise;
 mod polish;
 mod report;
+pub mod sequence;
 pub mod time_fit;
 pub mod uncertainty;
 
