@@ -43,8 +43,9 @@ pub fn weight_stress_rows(assembly: &Assembly, weights: &[Vec<f64>]) -> Assembly
     out
 }
 
-/// w = 1/(|K_st f| + floor·rms), normalised.
-pub fn relative_weights(assembly: &Assembly, solutions: &[Vec<f64>]) -> Vec<Vec<f64>> {
+/// K_st f per cluster, and the floor RELATIVE_FLOOR·rms(K_st f) that keeps
+/// near-zero rows from taking all the weight.
+fn fitted_stresses(assembly: &Assembly, solutions: &[Vec<f64>]) -> (Vec<Vec<f64>>, f64) {
     let fitted: Vec<Vec<f64>> = assembly
         .systems
         .iter()
@@ -56,7 +57,12 @@ pub fn relative_weights(assembly: &Assembly, solutions: &[Vec<f64>]) -> Vec<Vec<
         .flatten()
         .fold((0.0, 0usize), |(s, n), v| (s + v * v, n + 1));
     let rms = (sq / n.max(1) as f64).sqrt();
-    let floor = (RELATIVE_FLOOR * rms).max(f64::MIN_POSITIVE);
+    (fitted, (RELATIVE_FLOOR * rms).max(f64::MIN_POSITIVE))
+}
+
+/// w = 1/(|K_st f| + floor·rms), normalised.
+pub fn relative_weights(assembly: &Assembly, solutions: &[Vec<f64>]) -> Vec<Vec<f64>> {
+    let (fitted, floor) = fitted_stresses(assembly, solutions);
     let weights = fitted
         .iter()
         .map(|f| f.iter().map(|v| 1.0 / (v.abs() + floor)).collect())
@@ -117,22 +123,13 @@ fn normalise(mut weights: Vec<Vec<f64>>) -> Vec<Vec<f64>> {
 /// the relative noise level the answer implies (before the degrees-of-freedom
 /// correction the uncertainty applies).
 pub fn relative_residual(assembly: &Assembly, solutions: &[Vec<f64>]) -> f64 {
-    let fitted: Vec<Vec<f64>> = assembly
-        .systems
-        .iter()
-        .zip(solutions)
-        .map(|(s, x)| s.stress.mul(x))
-        .collect();
-    let (sq, n) = fitted
-        .iter()
-        .flatten()
-        .fold((0.0, 0usize), |(s, n), v| (s + v * v, n + 1));
-    let floor = (RELATIVE_FLOOR * (sq / n.max(1) as f64).sqrt()).max(f64::MIN_POSITIVE);
+    let (fitted, floor) = fitted_stresses(assembly, solutions);
     let mut total = 0.0;
     for (system, kx) in assembly.systems.iter().zip(&fitted) {
         for (k, b) in kx.iter().zip(&system.stress_rhs) {
             total += ((k - b) / (k.abs() + floor)).powi(2);
         }
     }
+    let n: usize = fitted.iter().map(Vec::len).sum();
     (total / n.max(1) as f64).sqrt()
 }
