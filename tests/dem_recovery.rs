@@ -1,22 +1,11 @@
 //! Exact DEM data → the DEM's forces, 2D and 3D, oedometer and box presets.
 
+mod common;
+use common::fixture;
 use grainforce::dem::{simulate, DemConfig, Preset};
 use grainforce::infer::{infer, InferOptions};
 use grainforce::report::metrics::relative_error;
-use grainforce::scene::{read_forces, read_scene, Scene, Vec3};
-use std::path::Path;
-
-fn fixture(name: &str) -> (Scene, Vec<Vec3>) {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("fixtures")
-        .join(name);
-    let scene = read_scene(&dir).unwrap();
-    let truth = read_forces(&dir.join("forces.csv"))
-        .unwrap()
-        .for_scene(&scene, &dir)
-        .unwrap();
-    (scene, truth)
-}
+use grainforce::scene::{Scene, Vec3};
 
 fn qs_relerr(scene: &Scene, truth: &[Vec3]) -> (f64, grainforce::infer::InferenceReport) {
     let r = infer(scene, &InferOptions::default()).unwrap();

@@ -2,23 +2,17 @@
 //! weakest contacts missed, stresses from all forces, and each grain seeing
 //! its forces with its own error (`bench::measured`), as photoelastic frames.
 
+mod common;
 use grainforce::bench::measured::{measured_frame, MeasuredConfig, MeasuredFrame};
 use grainforce::error::Error;
 use grainforce::infer::{infer, InferOptions, LambdaRule, Method, OnCollapse};
 use grainforce::report::metrics::score;
-use grainforce::scene::{read_forces, read_scene, write_scene};
+use grainforce::scene::{read_scene, write_scene};
 use std::path::Path;
 use std::process::Command;
 
 fn fixture(name: &str, cfg: &MeasuredConfig) -> MeasuredFrame {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("fixtures")
-        .join(name);
-    let scene = read_scene(&dir).unwrap();
-    let truth = read_forces(&dir.join("forces.csv"))
-        .unwrap()
-        .for_scene(&scene, &dir)
-        .unwrap();
+    let (scene, truth) = common::fixture(name);
     measured_frame(&scene, &truth, cfg).unwrap()
 }
 

@@ -1,26 +1,15 @@
 //! Stress noise models (issue 19): `relative` (IRLS) on eq. 2.16's noise,
 //! `columns` (sd_s_* per grain), and `absolute` (today's) kept as good.
 
+mod common;
+use common::fixture;
 use grainforce::dem::perturb::{perturb, PerturbConfig};
 use grainforce::infer::{infer, InferOptions, Method, StressNoise};
 use grainforce::report::metrics::relative_error;
-use grainforce::scene::{read_forces, read_scene, sym, Scene, Vec3};
+use grainforce::scene::{sym, Scene, Vec3};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
-use std::path::Path;
-
-fn fixture(name: &str) -> (Scene, Vec<Vec3>) {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("fixtures")
-        .join(name);
-    let scene = read_scene(&dir).unwrap();
-    let truth = read_forces(&dir.join("forces.csv"))
-        .unwrap()
-        .for_scene(&scene, &dir)
-        .unwrap();
-    (scene, truth)
-}
 
 fn relerr(scene: &Scene, truth: &[Vec3], method: Method, model: StressNoise) -> f64 {
     let o = InferOptions {

@@ -3,7 +3,21 @@
 //! least-change projection, and stresses follow from V σ = Σ sym(r ⊗ f).
 #![allow(dead_code)]
 
-use grainforce::scene::{self, Body, Contact, Grain, Scene, Vec3};
+use grainforce::scene::{self, read_forces, read_scene, Body, Contact, Grain, Scene, Vec3};
+use std::path::Path;
+
+/// A bundled scene under fixtures/ and its exact forces (forces.csv).
+pub fn fixture(name: &str) -> (Scene, Vec<Vec3>) {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("fixtures")
+        .join(name);
+    let scene = read_scene(&dir).unwrap();
+    let truth = read_forces(&dir.join("forces.csv"))
+        .unwrap()
+        .for_scene(&scene, &dir)
+        .unwrap();
+    (scene, truth)
+}
 use nalgebra::{DMatrix, DVector};
 
 pub fn grain(id: &str, position: Vec3, radius: f64, dim: usize) -> Grain {
