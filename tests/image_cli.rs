@@ -1,22 +1,11 @@
 //! The command line chain: render → detect → strain, on a scene with known
 //! grain stresses; and the verbs' errors on bad input.
 
+mod common;
 use grainforce::image::synthetic::{assign_random_stresses, touching_disks, PackingSpec};
 use grainforce::image::{Elasticity, PlaneCondition};
 use grainforce::scene::{read_scene, write_scene, Body};
 use std::path::Path;
-use std::process::Command;
-
-fn grainforce(args: &[&str]) -> (bool, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_grainforce"))
-        .args(args)
-        .output()
-        .expect("the binary runs");
-    (
-        out.status.success(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
 
 fn p(path: &Path) -> &str {
     path.to_str().unwrap()
@@ -42,7 +31,7 @@ fn render_detect_strain_recovers_the_stresses() {
     let images = dir.path().join("images");
     let found = dir.path().join("found");
 
-    let (ok, err) = grainforce(&[
+    let (ok, err) = common::run(&[
         "render",
         p(&truth_dir),
         "-o",
@@ -60,7 +49,7 @@ fn render_detect_strain_recovers_the_stresses() {
     ]);
     assert!(ok, "{err}");
     let overlay = dir.path().join("overlay.png");
-    let (ok, err) = grainforce(&[
+    let (ok, err) = common::run(&[
         "detect",
         p(&images.join("deformed.png")),
         "-o",
@@ -76,7 +65,7 @@ fn render_detect_strain_recovers_the_stresses() {
     ]);
     assert!(ok, "{err}");
     assert!(overlay.is_file());
-    let (ok, err) = grainforce(&[
+    let (ok, err) = common::run(&[
         "strain",
         p(&images.join("reference.png")),
         p(&images.join("deformed.png")),
@@ -131,11 +120,11 @@ fn verbs_report_bad_input_clearly() {
     let dir = tempfile::tempdir().unwrap();
     let missing = dir.path().join("nothing.png");
     let out = dir.path().join("out");
-    let (ok, err) = grainforce(&["detect", p(&missing), "-o", p(&out), "--radius", "10..20"]);
+    let (ok, err) = common::run(&["detect", p(&missing), "-o", p(&out), "--radius", "10..20"]);
     assert!(!ok && err.contains("nothing.png"), "{err}");
-    let (ok, err) = grainforce(&["detect", p(&missing), "-o", p(&out), "--radius", "20"]);
+    let (ok, err) = common::run(&["detect", p(&missing), "-o", p(&out), "--radius", "20"]);
     assert!(!ok && err.contains("MIN..MAX"), "{err}");
-    let (ok, err) = grainforce(&[
+    let (ok, err) = common::run(&[
         "render",
         p(dir.path()),
         "-o",

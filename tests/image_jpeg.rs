@@ -1,6 +1,7 @@
 //! Camera JPEGs: colour images reduced to one channel, compression artefacts
 //! at camera quality, through the library and the command line.
 
+mod common;
 use grainforce::image::synthetic::{touching_disks, PackingSpec};
 use grainforce::image::{
     detect_images, load_channel, render_scene, Channel, DetectSettings, Elasticity, FloatImage,
@@ -10,7 +11,6 @@ use grainforce::scene::Scene;
 use image::codecs::jpeg::JpegEncoder;
 use image::{ImageEncoder, RgbImage};
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 fn rubber() -> Elasticity {
     Elasticity::new(5.5e6, 0.45, PlaneCondition::Stress).unwrap()
@@ -155,17 +155,6 @@ fn default_green_channel_and_camera_quality() {
     );
 }
 
-fn grainforce(args: &[&str]) -> (bool, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_grainforce"))
-        .args(args)
-        .output()
-        .expect("the binary runs");
-    (
-        out.status.success(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
-
 #[test]
 fn detect_takes_a_jpeg_and_names_bad_channels() {
     let scene = packing(5);
@@ -174,7 +163,7 @@ fn detect_takes_a_jpeg_and_names_bad_channels() {
     let jpeg = dir.path().join("photo.jpg");
     write_rgb_jpeg(&jpeg, &rendered.deformed, 0, false, 90);
     let out = dir.path().join("found");
-    let (ok, err) = grainforce(&[
+    let (ok, err) = common::run(&[
         "detect",
         jpeg.to_str().unwrap(),
         "-o",
@@ -188,7 +177,7 @@ fn detect_takes_a_jpeg_and_names_bad_channels() {
     let grains = grainforce::scene::read_scene(&out).unwrap().grains.len();
     assert_eq!(grains, scene.grains.len());
 
-    let (ok, err) = grainforce(&[
+    let (ok, err) = common::run(&[
         "detect",
         jpeg.to_str().unwrap(),
         "-o",

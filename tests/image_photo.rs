@@ -4,6 +4,7 @@
 //! `detect` is run as a user would, with only the radius given, and its disks
 //! and contacts are scored against the rendered truth.
 
+mod common;
 use grainforce::image::photoelastic::{render_photoelastic, save_jpeg, PhotoelasticOptions};
 use grainforce::image::synthetic::{touching_disks_of_sizes, PackingSpec};
 use grainforce::image::{detect_images, ContactBody, DetectSettings, DetectedFrame, PixelFrame};
@@ -435,23 +436,12 @@ fn radius_classes_find_only_their_sizes() {
     assert!(classes.iter().all(|o| o.is_some_and(|g| !middle(g))));
 }
 
-fn grainforce(args: &[&str]) -> (bool, String) {
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_grainforce"))
-        .args(args)
-        .output()
-        .expect("the binary runs");
-    (
-        out.status.success(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
-
 #[test]
 fn detect_writes_contact_evidence_and_names_bad_classes() {
     let dir = tempfile::tempdir().unwrap();
     let photo = photograph(dir.path(), 2, 3.0, 90);
     let out = dir.path().join("found");
-    let (ok, err) = grainforce(&[
+    let (ok, err) = common::run(&[
         "detect",
         photo.path.to_str().unwrap(),
         "-o",
@@ -485,7 +475,7 @@ fn detect_writes_contact_evidence_and_names_bad_classes() {
         assert_eq!(r[0].is_empty(), r[9] == "doubtful");
     }
 
-    let (ok, err) = grainforce(&[
+    let (ok, err) = common::run(&[
         "detect",
         photo.path.to_str().unwrap(),
         "-o",

@@ -3,23 +3,18 @@
 //! true force components inside ±1 sd (±2 sd) of the inferred ones should be
 //! near 68 % (95 %).
 
+mod common;
 use grainforce::dem::perturb::{perturb, PerturbConfig};
 use grainforce::infer::uncertainty::{
     force_uncertainty, residual_noise_level, NoiseEstimate, UncertaintyOptions,
 };
 use grainforce::infer::{infer, InferOptions};
-use grainforce::scene::{read_forces, read_scene, Scene, Vec3};
+use grainforce::scene::{read_forces, Scene, Vec3};
 use std::path::Path;
 use std::time::Instant;
 
 fn oedometer() -> (Scene, Vec<Vec3>) {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/oedometer");
-    let scene = read_scene(&dir).unwrap();
-    let truth = read_forces(&dir.join("forces.csv"))
-        .unwrap()
-        .for_scene(&scene, &dir)
-        .unwrap();
-    (scene, truth)
+    common::fixture("oedometer")
 }
 
 struct Coverage {

@@ -6,6 +6,18 @@
 use grainforce::scene::{self, read_forces, read_scene, Body, Contact, Grain, Scene, Vec3};
 use std::path::Path;
 
+/// Runs the grainforce binary: whether it succeeded, and its stderr.
+pub fn run(args: &[&str]) -> (bool, String) {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_grainforce"))
+        .args(args)
+        .output()
+        .expect("the binary runs");
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
 /// A bundled scene under fixtures/ and its exact forces (forces.csv).
 pub fn fixture(name: &str) -> (Scene, Vec<Vec3>) {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
