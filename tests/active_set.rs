@@ -8,7 +8,7 @@ use grainforce::infer::{infer, ConstrainedSolver, InferOptions, Method};
 use grainforce::report::metrics::relative_error;
 use grainforce::scene::{Scene, Vec3};
 use grainforce::solver::sparse_ls::{EqualityLeastSquares, Ordering};
-use grainforce::solver::Triplets;
+use grainforce::solver::{SolveStatus, Triplets};
 use grainforce::Error;
 
 fn identity(n: usize) -> Triplets {
@@ -344,7 +344,8 @@ fn assert_same_optimum(scene: &Scene, truth: &[Vec3], method: Method) {
     )
     .unwrap();
     assert_eq!(
-        fast.report.solver_status, "ActiveSet",
+        fast.report.solver_status,
+        SolveStatus::ActiveSet,
         "{:?}",
         fast.report.solver_attempts
     );
@@ -402,8 +403,8 @@ fn the_ordering_does_not_change_the_answer() {
         };
         let amd = run(Ordering::Amd);
         let nd = run(Ordering::NestedDissection);
-        assert_eq!(amd.report.solver_status, "ActiveSet", "{dim}D");
-        assert_eq!(nd.report.solver_status, "ActiveSet", "{dim}D");
+        assert_eq!(amd.report.solver_status, SolveStatus::ActiveSet, "{dim}D");
+        assert_eq!(nd.report.solver_status, SolveStatus::ActiveSet, "{dim}D");
         let gap = relative_error(&amd.forces_or_zero(), &nd.forces_or_zero());
         assert!(gap < 1e-9, "{dim}D: orderings differ by {gap:.2e}");
     }
@@ -513,7 +514,8 @@ fn dynamic_weighted_momentum_uses_the_active_set() {
     ip.solver = ConstrainedSolver::InteriorPoint;
     let (a, b) = (infer(&scene, &fast).unwrap(), infer(&scene, &ip).unwrap());
     assert_eq!(
-        a.report.solver_status, "ActiveSet",
+        a.report.solver_status,
+        SolveStatus::ActiveSet,
         "{:?}",
         a.report.solver_attempts
     );
@@ -531,7 +533,7 @@ fn an_unsettled_active_set_falls_back_to_the_interior_point_and_says_so() {
     // The 2D guess of the first active set is good enough to settle in one.
     o.active_set.predict = false;
     let r = infer(&scene, &o).unwrap();
-    assert_ne!(r.report.solver_status, "ActiveSet");
+    assert_ne!(r.report.solver_status, SolveStatus::ActiveSet);
     assert!(
         r.report
             .solver_attempts

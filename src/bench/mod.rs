@@ -198,7 +198,7 @@ pub fn run_case(scene: &Scene, truth: &[Vec3], noise: Noise, spec: &MethodSpec) 
                 relerr: relative_error(truth, &forces),
                 coulomb_violation: r.coulomb_violation,
                 iterations: r.iterations,
-                status: r.solver_status.clone(),
+                status: r.solver_status.to_string(),
                 error: None,
             }
         }

@@ -8,7 +8,7 @@
 //! - `hard`: momentum as an exact constraint (accelerations trusted fully);
 //! - `fixed`: a given λ.
 
-use super::{cones, FactorCache, FactorSlot, InferOptions, InferenceReport};
+use super::{cascade, cones, FactorCache, FactorSlot, InferOptions, InferenceReport};
 use crate::assemble::{Assembly, System};
 use crate::error::{Error, Result};
 use crate::report::pareto::ParetoPoint;
@@ -96,27 +96,6 @@ fn solve_one(
     lambda: f64,
     factor: &FactorSlot,
 ) -> Result<(Vec<f64>, conic::ConicSolution)> {
-    let cone_list = cones(system, opts.cone);
-    // Stacking squares the weight: beyond ~1e6 the normal equations lose the
-    // stress rows to round-off, so only moderate λ take the shortcut.
-    let mut note = None;
-    let sparse = opts.exact_first || opts.solver == super::ConstrainedSolver::ActiveSet;
-    if sparse && (1e-6..=1e6).contains(&lambda) {
-        let (a, b) = stacked(system, lambda);
-        let c = crate::solver::Triplets::new(0, system.n);
-        let problem = crate::solver::LeastSquares {
-            a: &a,
-            b: &b,
-            c: &c,
-            d: &[],
-            lambda: 0.0,
-        };
-        let route = super::sparse_route(system, problem, &cone_list, opts, factor)?;
-        if let Some(sol) = route.constrained {
-            return Ok((sol.x.clone(), sol));
-        }
-        note = route.note;
-    }
     let problem = ConicProblem {
         n: system.n,
         terms: vec![
@@ -132,30 +111,19 @@ fn solve_one(
             },
         ],
         equalities: Vec::new(),
-        tikhonov: 0.0,
+        lambda: 0.0,
         regularized: 0,
-        cones: cone_list,
+        cones: cones(system, opts.cone),
     };
-    let mut sol = conic::solve(&problem, &opts.conic)?;
-    for c in &problem.cones {
-        c.project(&mut sol.x);
-    }
-    sol.attempts.extend(note);
-    if opts.polish {
-        let objective = super::polish::Objective {
-            terms: vec![
-                (&system.stress, system.stress_rhs.as_slice(), 1.0),
-                (&system.momentum, system.momentum_rhs.as_slice(), lambda),
-            ],
-            equalities: Vec::new(),
-            tikhonov: 0.0,
-        };
-        if (1e-6..=1e6).contains(&lambda) {
-            if let Some(x) = super::polish::polish(system, &objective, &problem.cones, &sol.x)? {
-                sol.x = x;
-                sol.status = format!("{}+polished", sol.status);
-            }
-        }
+    // Stacking squares the weight: beyond ~1e6 the normal equations lose the
+    // stress rows to round-off, so only moderate λ take the sparse stages
+    // (and polishing, which solves the same stacked system).
+    let moderate = (1e-6..=1e6).contains(&lambda);
+    let sparse =
+        moderate && (opts.exact_first || opts.solver == super::ConstrainedSolver::ActiveSet);
+    let mut sol = cascade::solve(system, &problem, sparse, opts, factor)?.solution;
+    if opts.polish && moderate {
+        cascade::polish(system, &problem, &mut sol)?;
     }
     Ok((sol.x.clone(), sol))
 }
@@ -303,35 +271,6 @@ fn rms(assembly: &Assembly, f: &dyn Fn(&System) -> &Vec<f64>) -> f64 {
 pub(crate) fn momentum_row_scale(assembly: &Assembly) -> f64 {
     rms(assembly, &|s: &System| &s.momentum_rhs)
         .max(1e-3 * rms(assembly, &|s: &System| &s.stress_rhs))
-}
-
-/// min ‖K_s x − b_s‖² + λ‖K_m x − b_m‖² without inequalities: one stacked
-/// least-squares problem for the sparse solver.
-fn stacked(system: &System, lambda: f64) -> (crate::solver::Triplets, Vec<f64>) {
-    let (ms, mm) = (system.stress.nrows, system.momentum.nrows);
-    let w = lambda.sqrt();
-    let mut a = crate::solver::Triplets::new(ms + mm, system.n);
-    for k in 0..system.stress.nnz() {
-        a.push(
-            system.stress.rows[k],
-            system.stress.cols[k],
-            system.stress.vals[k],
-        );
-    }
-    for k in 0..system.momentum.nnz() {
-        a.push(
-            ms + system.momentum.rows[k],
-            system.momentum.cols[k],
-            w * system.momentum.vals[k],
-        );
-    }
-    let b: Vec<f64> = system
-        .stress_rhs
-        .iter()
-        .copied()
-        .chain(system.momentum_rhs.iter().map(|v| w * v))
-        .collect();
-    (a, b)
 }
 
 /// Random probes of the Hutchinson estimate of the hat-matrix trace: its

@@ -9,6 +9,7 @@
 //! - `ls`: the equality-constrained least squares without inequalities: the fast floor.
 //! - `dynamic` (eq. 3.18): ‖K_s f − b_s‖² + λ‖K_m f − b_m‖², λ by a rule (see [`dynamic`]).
 
+mod cascade;
 pub mod collapse;
 pub mod dynamic;
 pub mod kinematics;
@@ -30,11 +31,10 @@ pub use report::InferenceReport;
 use crate::assemble::{self, AssembleOptions, Assembly, Friction, System};
 use crate::error::{Error, Result};
 use crate::scene::{Scene, Vec3};
-use crate::solver::active_set;
 use crate::solver::conic::{self, Cone, ConicProblem, ConicSettings, Term};
-use crate::solver::sparse_ls::Ordering;
-use crate::solver::{sparse_ls, LeastSquares, Triplets};
-use std::sync::Mutex;
+use crate::solver::sparse_ls::{self, Ordering};
+use crate::solver::{SolveStatus, Triplets};
+pub(crate) use cascade::{ordering, FactorCache, FactorSlot};
 use std::time::Instant;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
@@ -545,39 +545,6 @@ fn solve_system(
             0.0
         }
     };
-    let mut unconstrained_fit = None;
-    let mut fallback_note = None;
-    let mut hard_optimum = None;
-    let use_active_set = with_cones && opts.solver == ConstrainedSolver::ActiveSet;
-    if !opts.allow_infeasible && (opts.exact_first || !with_cones || use_active_set) {
-        let route = sparse_route(
-            system,
-            LeastSquares {
-                a: &system.stress,
-                b: &system.stress_rhs,
-                c: &system.momentum,
-                d: &system.momentum_rhs,
-                lambda,
-            },
-            &cone_list,
-            opts,
-            factor,
-        )?;
-        if !with_cones {
-            return Ok((route.unconstrained.x.clone(), Some(route.unconstrained)));
-        }
-        // Even unconverged, it shows how well the data can be fitted.
-        unconstrained_fit = Some(fit(&route.unconstrained.x));
-        fallback_note = route.note;
-        if let Some(sol) = route.constrained {
-            if sol.status == "LeastSquares" || !degenerate(fit(&sol.x), unconstrained_fit) {
-                return Ok((sol.x.clone(), Some(sol)));
-            }
-            // The exact hard-equality optimum of a (nearly) degenerate feasible
-            // set: the handling below needs it, not a second solve of it.
-            hard_optimum = Some(sol);
-        }
-    }
     let mut problem = ConicProblem {
         n: system.n,
         terms: vec![Term {
@@ -586,7 +553,7 @@ fn solve_system(
             weight: 1.0,
         }],
         equalities: vec![(&system.momentum, system.momentum_rhs.as_slice())],
-        tikhonov: lambda * lambda,
+        lambda,
         regularized: system.n,
         cones: cone_list,
     };
@@ -598,248 +565,74 @@ fn solve_system(
             weight: LEAST_VIOLATION_WEIGHT,
         });
     }
-    // Interior-point answers meet the cones only to the solver's tolerance;
-    // the output must satisfy friction exactly.
-    let solved = match hard_optimum {
-        Some(sol) => Ok(sol),
-        None => conic::solve(&problem, &opts.conic).map(|mut sol| {
-            for c in &problem.cones {
-                c.project(&mut sol.x);
-            }
-            sol.attempts.extend(fallback_note);
-            sol
-        }),
+    let use_active_set = with_cones && opts.solver == ConstrainedSolver::ActiveSet;
+    let sparse = !opts.allow_infeasible && (opts.exact_first || !with_cones || use_active_set);
+    let solved = match cascade::solve(system, &problem, sparse, opts, factor) {
+        Ok(solved) => solved,
+        Err(Error::Infeasible(_)) => return Err(diagnose_infeasible(system, opts, &problem)),
+        Err(e) => return Err(e),
     };
-    match solved {
-        Ok(sol) if !opts.allow_infeasible && degenerate(fit(&sol.x), unconstrained_fit) => {
-            // Equilibrium and the cones leave almost no room (data slightly out
-            // of balance with contacts at their friction limit): the hard answer
-            // fits far worse than the data allow. Try momentum as a heavy penalty
-            // and keep it if it balances to data precision and fits clearly better.
-            let hard_fit = fit(&sol.x);
-            let mut soft_problem = problem.clone();
-            soft_problem.equalities.clear();
-            soft_problem.terms.push(Term {
-                matrix: &system.momentum,
-                rhs: &system.momentum_rhs,
-                weight: COLLAPSE_WEIGHT,
-            });
-            let mut soft = conic::solve(&soft_problem, &opts.conic)?;
-            let residual = system
-                .momentum
-                .mul(&soft.x)
-                .iter()
-                .zip(&system.momentum_rhs)
-                .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
-            let mean = mean_magnitude(system, &soft.x);
-            if residual <= BALANCE_PRECISION * mean && fit(&soft.x) < 0.1 * hard_fit {
-                soft.softened = true;
-                soft.warnings.push(format!(
-                    "momentum balance and the friction cones leave almost no room (data slightly out of balance \
-                     with contacts at their friction limit): with momentum exact the stress rows fit {:.1e}, with \
-                                          momentum as a penalty {:.1e} at a momentum residual of {:.1e} of the mean force; the latter is returned",
-                    hard_fit.sqrt(),
-                    fit(&soft.x).sqrt(),
-                    residual / mean
-                ));
-                Ok((soft.x.clone(), Some(soft)))
-            } else if hard_fit > 0.9 {
-                // Only (near-)zero forces balance: returning them would be garbage.
-                Err(Error::Infeasible(format!(
-                    "momentum balance with compressive, Coulomb-bounded contacts admits only near-zero forces for {} \
-                     grains (their stresses fit no better than with zero forces, while {:.1e} is possible without \
-                     friction) — typically a missing contact or a misplaced grain; check the contact list, or pass \
-                     --allow-infeasible for the least-violation answer",
-                    system.grains.len(),
-                    unconstrained_fit.unwrap_or(0.0).sqrt()
-                )))
-            } else {
-                let mut sol = sol;
-                sol.warnings.push(format!(
-                    "with momentum exact and friction the stress rows fit {:.1e}, far worse than the {:.1e} possible \
-                     without friction: the data are out of balance somewhere (check contacts and accelerations)",
-                    hard_fit.sqrt(),
-                    unconstrained_fit.unwrap_or(0.0).sqrt()
-                ));
-                Ok((sol.x.clone(), Some(sol)))
-            }
+    let unconstrained_fit = solved.unconstrained.as_ref().map(|u| fit(&u.x));
+    let mut sol = solved.solution;
+    if opts.allow_infeasible
+        || sol.status == SolveStatus::LeastSquares
+        || !degenerate(fit(&sol.x), unconstrained_fit)
+    {
+        if opts.polish && !opts.allow_infeasible {
+            cascade::polish(system, &problem, &mut sol)?;
         }
-        Ok(mut sol) => {
-            if opts.polish && !sol.softened && !opts.allow_infeasible {
-                let objective = polish::Objective {
-                    terms: vec![(&system.stress, system.stress_rhs.as_slice(), 1.0)],
-                    equalities: vec![(&system.momentum, system.momentum_rhs.as_slice())],
-                    tikhonov: lambda * lambda,
-                };
-                if let Some(x) = polish::polish(system, &objective, &problem.cones, &sol.x)? {
-                    sol.x = x;
-                    sol.status = format!("{}+polished", sol.status);
-                }
-            }
-            Ok((sol.x.clone(), Some(sol)))
-        }
-        Err(Error::Infeasible(_)) => Err(diagnose_infeasible(system, opts, &problem)),
-        Err(e) => Err(e),
+        return Ok((sol.x.clone(), Some(sol)));
     }
-}
-
-/// What the sparse route found.
-pub(crate) struct SparseRoute {
-    /// The least squares without inequalities.
-    pub unconstrained: conic::ConicSolution,
-    /// The friction-constrained optimum, when found: the unconstrained answer
-    /// if admissible (status `LeastSquares`), else the converged active set.
-    pub constrained: Option<conic::ConicSolution>,
-    /// Why the active set did not deliver, for the report.
-    pub note: Option<String>,
-}
-
-/// What one cluster keeps between its solves: the sparse factorisation and the
-/// active set of its last constrained answer.
-#[derive(Default)]
-pub(crate) struct ClusterState {
-    factor: Option<sparse_ls::EqualityLeastSquares>,
-    pieces: Option<active_set::ActivePieces>,
-}
-
-pub(crate) type FactorSlot = Mutex<ClusterState>;
-
-/// State kept across the solves of one inference (λ search, Pareto sweep,
-/// final solve): each cluster's symbolic analysis (ordering, elimination tree)
-/// is done once, not once per λ, and each active set starts from the pieces
-/// of the previous λ's answer.
-#[derive(Default)]
-pub(crate) struct FactorCache {
-    slots: Vec<FactorSlot>,
-}
-
-impl FactorCache {
-    pub(crate) fn new(assembly: &Assembly) -> Self {
-        FactorCache {
-            slots: assembly
-                .systems
-                .iter()
-                .map(|_| Mutex::new(ClusterState::default()))
-                .collect(),
-        }
-    }
-
-    /// One slot per cluster of `assembly` (the one this cache was made for).
-    pub(crate) fn slots(&self, assembly: &Assembly) -> &[FactorSlot] {
-        debug_assert_eq!(self.slots.len(), assembly.systems.len());
-        &self.slots
-    }
-}
-
-/// The user's ordering, else [`Ordering::for_dim`].
-pub(crate) fn ordering(system: &System, choice: Option<Ordering>) -> Ordering {
-    choice.unwrap_or(Ordering::for_dim(system.dim))
-}
-
-/// The sparse route of a friction-constrained least squares: one symbolic
-/// analysis; the unconstrained answer (returned when it satisfies every cone and
-/// `exact_first` is on); then, with the active-set solver, the active set
-/// warm-started from it on the same analysis.
-pub(crate) fn sparse_route(
-    system: &System,
-    p: LeastSquares,
-    cone_list: &[Cone],
-    opts: &InferOptions,
-    slot: &FactorSlot,
-) -> Result<SparseRoute> {
-    let start = Instant::now();
-    let use_active_set = !cone_list.is_empty() && opts.solver == ConstrainedSolver::ActiveSet;
-    // Each contact's unknowns coupled for the active set, so its active rows
-    // fit the pattern.
-    let coupling = if use_active_set {
-        system.contact_blocks()
-    } else {
-        Triplets::new(0, p.a.ncols)
-    };
-    // A poisoned slot only means another cluster's solve panicked; its factor
-    // is still a valid analysis (or is rebuilt when the pattern differs).
-    let mut state = slot.lock().unwrap_or_else(|e| e.into_inner());
-    let ClusterState { factor, pieces } = &mut *state;
-    let factor = match factor {
-        Some(factor) => factor,
-        empty => empty.insert(sparse_ls::EqualityLeastSquares::with_ordering(
-            p.a,
-            p.c,
-            &coupling,
-            ordering(system, opts.ordering),
-        )?),
-    };
-    let sol = factor.solve(p.a, p.c, p.b, p.d, p.lambda)?;
-    let mut warnings = Vec::new();
-    if !sol.converged {
-        warnings.push(format!(
-            "least squares: refinement stopped at KKT residual {:.1e} (momentum rows inconsistent or the forces not unique)",
-            sol.kkt_residual
+    // Equilibrium and the cones leave almost no room (data slightly out of
+    // balance with contacts at their friction limit): the hard answer fits far
+    // worse than the data allow. Try momentum as a heavy penalty and keep it if
+    // it balances to data precision and fits clearly better.
+    let hard_fit = fit(&sol.x);
+    let mut soft_problem = problem.clone();
+    soft_problem.equalities.clear();
+    soft_problem.terms.push(Term {
+        matrix: &system.momentum,
+        rhs: &system.momentum_rhs,
+        weight: COLLAPSE_WEIGHT,
+    });
+    let mut soft = conic::solve(&soft_problem, &opts.conic)?;
+    let residual = system
+        .momentum
+        .mul(&soft.x)
+        .iter()
+        .zip(&system.momentum_rhs)
+        .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+    let mean = mean_magnitude(system, &soft.x);
+    if residual <= BALANCE_PRECISION * mean && fit(&soft.x) < 0.1 * hard_fit {
+        soft.softened = true;
+        soft.warnings.push(format!(
+            "momentum balance and the friction cones leave almost no room (data slightly out of balance \
+             with contacts at their friction limit): with momentum exact the stress rows fit {:.1e}, with \
+             momentum as a penalty {:.1e} at a momentum residual of {:.1e} of the mean force; the latter is returned",
+            hard_fit.sqrt(),
+            fit(&soft.x).sqrt(),
+            residual / mean
         ));
+        Ok((soft.x.clone(), Some(soft)))
+    } else if hard_fit > 0.9 {
+        // Only (near-)zero forces balance: returning them would be garbage.
+        Err(Error::Infeasible(format!(
+            "momentum balance with compressive, Coulomb-bounded contacts admits only near-zero forces for {} \
+             grains (their stresses fit no better than with zero forces, while {:.1e} is possible without \
+             friction) — typically a missing contact or a misplaced grain; check the contact list, or pass \
+             --allow-infeasible for the least-violation answer",
+            system.grains.len(),
+            unconstrained_fit.unwrap_or(0.0).sqrt()
+        )))
+    } else {
+        sol.warnings.push(format!(
+            "with momentum exact and friction the stress rows fit {:.1e}, far worse than the {:.1e} possible \
+             without friction: the data are out of balance somewhere (check contacts and accelerations)",
+            hard_fit.sqrt(),
+            unconstrained_fit.unwrap_or(0.0).sqrt()
+        ));
+        Ok((sol.x.clone(), Some(sol)))
     }
-    let (unconstrained, converged) = as_solution(
-        sol,
-        start,
-        "equality-constrained least squares (faer)",
-        warnings,
-    );
-    let mut route = SparseRoute {
-        constrained: None,
-        note: None,
-        unconstrained,
-    };
-    if cone_list.is_empty() {
-        return Ok(route);
-    }
-    if converged && opts.exact_first {
-        if let Some(x) = feasible_as_is(&route.unconstrained.x, cone_list) {
-            let mut sol = route.unconstrained.clone();
-            sol.x = x;
-            route.constrained = Some(sol);
-            return Ok(route);
-        }
-    }
-    if use_active_set {
-        let mut sol = active_set::solve_from(
-            factor,
-            &p,
-            cone_list,
-            &route.unconstrained.x,
-            pieces.as_ref(),
-            &opts.active_set,
-        )?;
-        if !sol.converged && pieces.is_some() {
-            // The previous answer's pieces misled it: start cold.
-            sol = active_set::solve(
-                factor,
-                &p,
-                cone_list,
-                &route.unconstrained.x,
-                &opts.active_set,
-            )?;
-        }
-        if sol.converged {
-            *pieces = Some(sol.pieces);
-            route.constrained = Some(conic::ConicSolution {
-                x: sol.x,
-                status: "ActiveSet".into(),
-                iterations: sol.iterations as u32,
-                solve_time: start.elapsed().as_secs_f64(),
-                attempts: vec![format!(
-                    "active set on the sparse factorisation: {} solves, {} sliding and {} open contacts",
-                    sol.iterations, sol.sliding, sol.open
-                )],
-                softened: false,
-                warnings: Vec::new(),
-            });
-        } else {
-            route.note = Some(format!(
-                "active set: {}; solved by the interior point instead",
-                sol.reason.unwrap_or_default()
-            ));
-        }
-    }
-    Ok(route)
 }
 
 /// Weight of the momentum rows under --allow-infeasible: heavy enough that
@@ -865,49 +658,6 @@ fn mean_magnitude(system: &System, x: &[f64]) -> f64 {
 /// one: the feasible set is (nearly) degenerate.
 fn degenerate(constrained: f64, unconstrained: Option<f64>) -> bool {
     constrained > 1e-12 && unconstrained.is_some_and(|u| constrained > 100.0 * u)
-}
-
-/// Relative size of a cone violation treated as round-off of an exact answer.
-const ROUND_OFF: f64 = 1e-9;
-
-/// The unconstrained optimum, when it already satisfies every cone (up to
-/// round-off, then projected): it is then the constrained optimum too.
-pub(crate) fn feasible_as_is(x: &[f64], cones: &[Cone]) -> Option<Vec<f64>> {
-    let scale = x
-        .iter()
-        .fold(0.0f64, |m, v| m.max(v.abs()))
-        .max(f64::MIN_POSITIVE);
-    if cones.iter().any(|c| c.violation(x) > ROUND_OFF * scale) {
-        return None;
-    }
-    let mut x = x.to_vec();
-    for c in cones {
-        c.project(&mut x);
-    }
-    Some(x)
-}
-
-/// A sparse least-squares result in the form the report absorbs, and whether
-/// its refinement converged.
-pub(crate) fn as_solution(
-    sol: sparse_ls::LsSolution,
-    start: Instant,
-    attempt: &str,
-    warnings: Vec<String>,
-) -> (conic::ConicSolution, bool) {
-    let converged = sol.converged;
-    (
-        conic::ConicSolution {
-            x: sol.x,
-            status: "LeastSquares".into(),
-            iterations: sol.refinement_steps as u32,
-            solve_time: start.elapsed().as_secs_f64(),
-            attempts: vec![attempt.into()],
-            softened: false,
-            warnings,
-        },
-        converged,
-    )
 }
 
 /// Whether the data determine the forces (N(K_st) ∩ N(K_eq) = {0} in every
@@ -1019,7 +769,7 @@ fn solve_scaled(
             },
         ],
         equalities: vec![(&momentum, system.momentum_rhs.as_slice())],
-        tikhonov: 0.0,
+        lambda: 0.0,
         regularized: 0,
         cones: cone_list,
     };

@@ -9,36 +9,11 @@
 
 use crate::assemble::System;
 use crate::error::Result;
-use crate::solver::conic::Cone;
+use crate::solver::conic::{Cone, ConicProblem};
 use crate::solver::{sparse_ls, Triplets};
 
 /// Slack (relative to the largest unknown) under which a constraint counts as tight.
 const ACTIVE: f64 = 1e-6;
-
-/// The objective being polished: Σ w‖K x − b‖² with hard equalities.
-pub(crate) struct Objective<'a> {
-    /// (matrix, rhs, weight) terms.
-    pub terms: Vec<(&'a Triplets, &'a [f64], f64)>,
-    /// Hard equalities C x = d.
-    pub equalities: Vec<(&'a Triplets, &'a [f64])>,
-    /// λ² on every unknown.
-    pub tikhonov: f64,
-}
-
-impl Objective<'_> {
-    fn value(&self, x: &[f64]) -> f64 {
-        let mut v = self.tikhonov * x.iter().map(|a| a * a).sum::<f64>();
-        for (m, b, w) in &self.terms {
-            v += w * m
-                .mul(x)
-                .iter()
-                .zip(*b)
-                .map(|(a, b)| (a - b).powi(2))
-                .sum::<f64>();
-        }
-        v
-    }
-}
 
 /// Rows a·x = 0 for each constraint tight at `x`.
 fn active_rows(x: &[f64], cones: &[Cone], n: usize) -> Triplets {
@@ -115,49 +90,31 @@ fn active_rows(x: &[f64], cones: &[Cone], n: usize) -> Triplets {
 /// on `x` (the caller keeps `x`).
 pub(crate) fn polish(
     system: &System,
-    objective: &Objective,
-    cones: &[Cone],
+    problem: &ConicProblem,
     x: &[f64],
 ) -> Result<Option<Vec<f64>>> {
     let n = system.n;
-    let active = active_rows(x, cones, n);
-    // A = stacked √w K, b = stacked √w b.
-    let rows: usize = objective.terms.iter().map(|t| t.0.nrows).sum();
-    let mut a = Triplets::new(rows, n);
-    let mut b = Vec::with_capacity(rows);
-    let mut offset = 0;
-    for (m, rhs, w) in &objective.terms {
-        let s = w.sqrt();
-        for k in 0..m.nnz() {
-            a.push(offset + m.rows[k], m.cols[k], s * m.vals[k]);
-        }
-        b.extend(rhs.iter().map(|v| s * v));
-        offset += m.nrows;
+    let Some(stacked) = problem.least_squares() else {
+        return Ok(None);
+    };
+    let ls = stacked.view();
+    let active = active_rows(x, &problem.cones, n);
+    // The problem's equalities, then the tight constraints.
+    let mut c = ls.c.clone();
+    c.nrows += active.nrows;
+    for k in 0..active.nnz() {
+        c.push(ls.c.nrows + active.rows[k], active.cols[k], active.vals[k]);
     }
-    let zeros = vec![0.0; active.nrows];
-    let mut c = Triplets::new(0, n);
-    let mut d = Vec::new();
-    for (m, rhs) in objective
-        .equalities
-        .iter()
-        .copied()
-        .chain(std::iter::once((&active, &zeros[..])))
-    {
-        let base = c.nrows;
-        c.nrows += m.nrows;
-        for k in 0..m.nnz() {
-            c.push(base + m.rows[k], m.cols[k], m.vals[k]);
-        }
-        d.extend_from_slice(rhs);
-    }
-    let none = crate::solver::Triplets::new(0, a.ncols);
-    let mut ls = sparse_ls::EqualityLeastSquares::with_ordering(
-        &a,
+    let mut d = ls.d.to_vec();
+    d.resize(c.nrows, 0.0);
+    let none = Triplets::new(0, n);
+    let mut factor = sparse_ls::EqualityLeastSquares::with_ordering(
+        ls.a,
         &c,
         &none,
         super::ordering(system, None),
     )?;
-    let sol = ls.solve(&a, &c, &b, &d, objective.tikhonov.sqrt())?;
+    let sol = factor.solve(ls.a, &c, ls.b, &d, ls.lambda)?;
     if !sol.converged || sol.x.iter().any(|v| !v.is_finite()) {
         return Ok(None);
     }
@@ -166,18 +123,22 @@ pub(crate) fn polish(
         .iter()
         .fold(0.0f64, |m, v| m.max(v.abs()))
         .max(f64::MIN_POSITIVE);
-    if cones.iter().any(|c| c.violation(&sol.x) > 1e-9 * scale) {
+    if problem
+        .cones
+        .iter()
+        .any(|c| c.violation(&sol.x) > 1e-9 * scale)
+    {
         return Ok(None);
     }
     // The interior-point answer meets the equalities only to its tolerance, so
     // its objective may sit slightly below the exact constrained optimum.
-    let (before, after) = (objective.value(x), objective.value(&sol.x));
-    let floor = 1e-12 * b.iter().map(|v| v * v).sum::<f64>().max(1.0);
+    let (before, after) = (problem.objective(x), problem.objective(&sol.x));
+    let floor = 1e-12 * ls.b.iter().map(|v| v * v).sum::<f64>().max(1.0);
     if after > before * (1.0 + 1e-6) + floor {
         return Ok(None);
     }
     let mut polished = sol.x;
-    for c in cones {
+    for c in &problem.cones {
         c.project(&mut polished);
     }
     Ok(Some(polished))

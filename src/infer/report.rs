@@ -5,6 +5,7 @@ use super::{wall_totals, InferOptions, LambdaTrace, Method};
 use crate::assemble::{Assembly, Friction};
 use crate::scene::{Scene, Vec3};
 use crate::solver::conic::ConicSolution;
+use crate::solver::SolveStatus;
 
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct WallReport {
@@ -59,7 +60,7 @@ pub struct InferenceReport {
     /// over clusters; None: not checked): a relative error η in the data can
     /// move the forces by up to ~η/σ.
     pub conditioning: Option<f64>,
-    pub solver_status: String,
+    pub solver_status: SolveStatus,
     /// How each solve went (algorithm, iterations, fallbacks), deduplicated.
     pub solver_attempts: Vec<String>,
     pub iterations: u32,
@@ -148,7 +149,7 @@ impl InferenceReport {
             collapse: None,
             unique: None,
             conditioning: None,
-            solver_status: "not run".into(),
+            solver_status: SolveStatus::NotRun,
             solver_attempts: Vec::new(),
             iterations: 0,
             solver_time: 0.0,
@@ -162,13 +163,8 @@ impl InferenceReport {
     pub(crate) fn absorb(&mut self, sol: &ConicSolution) {
         self.iterations += sol.iterations;
         self.solver_time += sol.solve_time;
-        let worse = |s: &str| match s {
-            "not run" => 0,
-            "Solved" | "LeastSquares" | "Solved+polished" | "ActiveSet" => 1,
-            _ => 2,
-        };
-        if worse(&sol.status) >= worse(&self.solver_status) {
-            self.solver_status = sol.status.clone();
+        if sol.status.severity() >= self.solver_status.severity() {
+            self.solver_status = sol.status;
         }
         for a in &sol.attempts {
             if !self.solver_attempts.contains(a) {

@@ -23,14 +23,13 @@
 //! pair of bodies they join (contact ids are only unique within a frame); a
 //! contact absent from a frame has zero force there.
 
-use super::{cones, feasible_as_is, ConeModel, InferOptions};
+use super::{cascade, cones, ConeModel, InferOptions};
 use crate::assemble::{self, AssembleOptions};
 use crate::error::{Error, Result};
 use crate::scene::{Body, Scene, Vec3};
-use crate::solver::active_set;
-use crate::solver::conic::{self, Cone, ConicProblem, Term};
+use crate::solver::conic::{Cone, ConicProblem, ConicSolution, Term};
 use crate::solver::sparse_ls::EqualityLeastSquares;
-use crate::solver::{LeastSquares, Triplets};
+use crate::solver::{LeastSquares, SolveStatus, Triplets};
 use std::collections::HashMap;
 use std::time::Instant;
 
@@ -591,71 +590,71 @@ pub fn infer_time_fit(
             "position sd raised from {stated_position_sd:.2e} to {position_sd:.2e} m: tighter tracks left the joint system too ill-conditioned"
         ));
     }
-    let (x, solver) = match feasible_as_is(&sol.x, &cone_list) {
-        Some(x) => (x, "least squares (friction met as is)".to_owned()),
+    let problem = ConicProblem {
+        n: ncols,
+        terms: vec![Term {
+            matrix: &a,
+            rhs: &b,
+            weight: 1.0,
+        }],
+        equalities: vec![(&c, d.as_slice())],
+        lambda: 0.0,
+        regularized: 0,
+        cones: cone_list,
+    };
+    let unconstrained = ConicSolution {
+        x: sol.x,
+        status: SolveStatus::LeastSquares,
+        iterations: sol.refinement_steps as u32,
+        solve_time: start.elapsed().as_secs_f64(),
+        attempts: Vec::new(),
+        softened: false,
+        warnings: Vec::new(),
+    };
+    let stages = cascade::Stages {
+        feasible_as_is: true,
+        active_set: true,
+    };
+    let (constrained, note) = cascade::constrained_on_factor(
+        &mut ls,
+        &LeastSquares {
+            a: &a,
+            b: &b,
+            c: &c,
+            d: &d,
+            lambda: 0.0,
+        },
+        &problem.cones,
+        &unconstrained,
+        &mut None,
+        stages,
+        &opts.active_set,
+        Instant::now(),
+    )?;
+    let (x, solver) = match constrained {
+        Some(sol) if sol.status == SolveStatus::LeastSquares => {
+            (sol.x, "least squares (friction met as is)".to_owned())
+        }
+        Some(sol) => (sol.x, sol.attempts.join("; ")),
         None => {
-            let problem = LeastSquares {
-                a: &a,
-                b: &b,
-                c: &c,
-                d: &d,
-                lambda: 0.0,
-            };
-            let constrained =
-                active_set::solve(&mut ls, &problem, &cone_list, &sol.x, &opts.active_set)?;
-
-            if constrained.converged {
-                (
-                    constrained.x,
-                    format!(
-                        "active set: {} solves, {} sliding and {} open contact-frames",
-                        constrained.iterations, constrained.sliding, constrained.open
-                    ),
-                )
-            } else {
-                // The interior point takes what the active set cannot settle.
-                let conic_problem = ConicProblem {
-                    n: ncols,
-                    terms: vec![Term {
-                        matrix: &a,
-                        rhs: &b,
-                        weight: 1.0,
-                    }],
-                    equalities: vec![(&c, d.as_slice())],
-                    tikhonov: 0.0,
-                    regularized: 0,
-                    cones: cone_list.clone(),
-                };
-                // The joint problem is always feasible (zero forces, free
-                // tracks), so an interior-point failure is numerical: say so
-                // rather than pass its diagnosis on.
-                let mut ip = conic::solve(&conic_problem, &opts.conic).map_err(|e| {
-                    Error::Solver(format!(
-                        "time fit: neither the active set ({}) nor the interior point ({e}) solved the joint problem; infer frame by frame (--time-fit frames)",
-                        constrained.reason.clone().unwrap_or_default()
-                    ))
-                })?;
-                if ip.softened {
-                    return Err(Error::Solver(format!(
-                        "time fit: the interior point met the integrator rows only softened ({}); infer frame by frame instead",
-                        ip.status
-                    )));
-                }
-                // Its answer meets the cones to its tolerance; the output meets them exactly.
-                for cone in &cone_list {
-                    cone.project(&mut ip.x);
-                }
-                warnings.extend(ip.warnings);
-                (
-                    ip.x,
-                    format!(
-                        "interior point ({}, {} iterations; the active set stopped: {})",
-                        ip.status,
-                        ip.iterations,
-                        constrained.reason.unwrap_or_default()
-                    ),
-                )
+            // The joint problem is always feasible (zero forces, free tracks),
+            // so an interior-point failure is numerical: say so rather than
+            // pass its diagnosis on.
+            let note = note.unwrap_or_default();
+            let ip = cascade::interior_point(&problem, &opts.conic, None).map_err(|e| {
+                Error::Solver(format!(
+                    "time fit: the interior point did not solve the joint problem either ({e}; {note}); infer frame by frame (--time-fit frames)"
+                ))
+            })?;
+            if ip.softened {
+                return Err(Error::Solver(format!(
+                    "time fit: the interior point met the integrator rows only softened ({}); infer frame by frame instead",
+                    ip.status
+                )));
             }
+            warnings.extend(ip.warnings);
+            let solver = format!("{note} ({}, {} iterations)", ip.status, ip.iterations);
+            (ip.x, solver)
         }
     };
 

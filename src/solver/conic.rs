@@ -8,12 +8,13 @@
 //! reported as an error with the diagnostics if all attempts fail. Garbage is
 //! never passed on.
 
-use super::Triplets;
+use super::{LeastSquares, SolveStatus, Triplets};
 use crate::error::{Error, Result};
 use clarabel::algebra::CscMatrix;
 use clarabel::solver::{
     DefaultSettings, DefaultSettingsBuilder, DefaultSolver, IPSolver, SolverStatus, SupportedConeT,
 };
+use std::borrow::Cow;
 
 /// A constraint on a contact's unknowns (u₀ = compressive normal force).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -169,17 +170,112 @@ pub struct Term<'a> {
     pub weight: f64,
 }
 
-/// minimise Σ w‖K x − b‖² + λ² Σ_{i<regularized} x_i²  s.t. C x = d, cones.
+/// minimise Σ w‖K x − b‖² + λ² Σ_{i<regularized} x_i²  s.t. C x = d, cones:
+/// the one problem type of every constrained solve (interior point, active
+/// set through [`ConicProblem::least_squares`], polishing).
 #[derive(Debug, Clone, Default)]
 pub struct ConicProblem<'a> {
     pub n: usize,
     pub terms: Vec<Term<'a>>,
     pub equalities: Vec<(&'a Triplets, &'a [f64])>,
-    /// λ² (dimensionless).
-    pub tikhonov: f64,
+    /// Tikhonov λ (dimensionless); the objective carries λ².
+    pub lambda: f64,
     /// The first `regularized` unknowns carry the λ² term.
     pub regularized: usize,
     pub cones: Vec<Cone>,
+}
+
+/// A [`ConicProblem`] without its cones as one least squares
+/// min ‖A x − b‖² + λ²‖x‖² s.t. C x = d: the terms stacked with weights √w,
+/// the equalities stacked; borrowed when there is only one of each.
+#[derive(Debug, Clone)]
+pub struct StackedLeastSquares<'a> {
+    a: Cow<'a, Triplets>,
+    b: Cow<'a, [f64]>,
+    c: Cow<'a, Triplets>,
+    d: Cow<'a, [f64]>,
+    lambda: f64,
+}
+
+impl StackedLeastSquares<'_> {
+    pub fn view(&self) -> LeastSquares<'_> {
+        LeastSquares {
+            a: &self.a,
+            b: &self.b,
+            c: &self.c,
+            d: &self.d,
+            lambda: self.lambda,
+        }
+    }
+}
+
+/// Stacks blocks of rows (each scaled by its factor) into one matrix.
+fn stack<'a>(
+    n: usize,
+    blocks: &[(&'a Triplets, &'a [f64], f64)],
+) -> (Cow<'a, Triplets>, Cow<'a, [f64]>) {
+    if let [(m, rhs, scale)] = blocks {
+        if *scale == 1.0 {
+            return (Cow::Borrowed(*m), Cow::Borrowed(*rhs));
+        }
+    }
+    let rows = blocks.iter().map(|(m, ..)| m.nrows).sum();
+    let mut a = Triplets::new(rows, n);
+    let mut b = Vec::with_capacity(rows);
+    let mut offset = 0;
+    for &(m, rhs, scale) in blocks {
+        for k in 0..m.nnz() {
+            a.push(offset + m.rows[k], m.cols[k], scale * m.vals[k]);
+        }
+        b.extend(rhs.iter().map(|v| scale * v));
+        offset += m.nrows;
+    }
+    (Cow::Owned(a), Cow::Owned(b))
+}
+
+impl<'a> ConicProblem<'a> {
+    /// The problem as one sparse least squares, when λ covers every unknown
+    /// (or is zero); `None` otherwise.
+    pub fn least_squares(&self) -> Option<StackedLeastSquares<'a>> {
+        if self.lambda > 0.0 && self.regularized != self.n {
+            return None;
+        }
+        let terms: Vec<_> = self
+            .terms
+            .iter()
+            .map(|t| (t.matrix, t.rhs, t.weight.sqrt()))
+            .collect();
+        let (a, b) = stack(self.n, &terms);
+        let equalities: Vec<_> = self.equalities.iter().map(|&(c, d)| (c, d, 1.0)).collect();
+        let (c, d) = if equalities.is_empty() {
+            (Cow::Owned(Triplets::new(0, self.n)), Cow::Owned(Vec::new()))
+        } else {
+            stack(self.n, &equalities)
+        };
+        Some(StackedLeastSquares {
+            a,
+            b,
+            c,
+            d,
+            lambda: self.lambda,
+        })
+    }
+
+    /// Σ w‖K x − b‖² + λ²‖x_reg‖².
+    pub fn objective(&self, x: &[f64]) -> f64 {
+        let reg: f64 = x[..self.regularized].iter().map(|a| a * a).sum();
+        let mut v = self.lambda * self.lambda * reg;
+        for t in &self.terms {
+            v += t.weight
+                * t.matrix
+                    .mul(x)
+                    .iter()
+                    .zip(t.rhs)
+                    .map(|(a, b)| (a - b).powi(2))
+                    .sum::<f64>();
+        }
+        v
+    }
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
@@ -204,8 +300,8 @@ impl Default for ConicSettings {
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct ConicSolution {
     pub x: Vec<f64>,
-    /// clarabel's final status (Solved or AlmostSolved).
-    pub status: String,
+    /// The route that produced `x` (for clarabel: Solved or AlmostSolved).
+    pub status: SolveStatus,
     pub iterations: u32,
     pub solve_time: f64,
     /// What was tried, in order, with each status.
@@ -282,7 +378,7 @@ fn validate(problem: &ConicProblem) -> Result<()> {
             ));
         }
     }
-    if !(problem.tikhonov >= 0.0 && problem.tikhonov.is_finite()) || problem.regularized > n {
+    if !(problem.lambda >= 0.0 && problem.lambda.is_finite()) || problem.regularized > n {
         return Err(Error::Invalid("conic problem: bad Tikhonov term".into()));
     }
     let all_rhs = problem
@@ -327,7 +423,11 @@ fn accept(a: &Attempt, attempts: &[String], softened: bool) -> Result<Option<Con
     }
     Ok(Some(ConicSolution {
         x: a.x.clone(),
-        status: format!("{:?}", a.status),
+        status: if a.status == SolverStatus::AlmostSolved {
+            SolveStatus::AlmostSolved { polished: false }
+        } else {
+            SolveStatus::Solved { polished: false }
+        },
         iterations: a.iterations,
         solve_time: a.solve_time,
         attempts: attempts.to_vec(),
@@ -356,10 +456,11 @@ fn attempt(problem: &ConicProblem, tolerance: f64, max_iter: u32) -> Result<Atte
     // Objective: ½ zᵀ P z with P = 2·diag(λ² on x, w on each residual block).
     let mut p_rows = Vec::new();
     let mut p_vals = Vec::new();
-    if problem.tikhonov > 0.0 {
+    let tikhonov = problem.lambda * problem.lambda;
+    if tikhonov > 0.0 {
         for i in 0..problem.regularized {
             p_rows.push(i);
-            p_vals.push(2.0 * problem.tikhonov);
+            p_vals.push(2.0 * tikhonov);
         }
     }
     let mut offset = n;

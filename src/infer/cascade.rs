@@ -1,0 +1,339 @@
+//! The one route of every friction-constrained least squares — quasi-static,
+//! Tikhonov, dynamic, soft and the joint time fit all take it:
+//!
+//! 1. the least squares without inequalities on the sparse factorisation (its
+//!    symbolic analysis done once per cluster and kept across λ);
+//! 2. that answer, when it already meets every cone;
+//! 3. the active set on the same factorisation, warm-started from the previous
+//!    solve's active pieces, then cold;
+//! 4. the interior point (clarabel) when the active set does not converge, its
+//!    answer projected onto the cones;
+//! 5. on request, [`polish`] of an interior-point answer.
+//!
+//! Callers build one [`ConicProblem`] and read the route taken from the
+//! solution's [`SolveStatus`] and `attempts`.
+
+use super::{polish as polishing, ConstrainedSolver, InferOptions};
+use crate::assemble::System;
+use crate::error::Result;
+use crate::solver::active_set::{self, ActivePieces, ActiveSetSettings};
+use crate::solver::conic::{self, Cone, ConicProblem, ConicSettings, ConicSolution};
+use crate::solver::sparse_ls::{self, EqualityLeastSquares, Ordering};
+use crate::solver::{LeastSquares, SolveStatus, Triplets};
+use std::sync::Mutex;
+use std::time::Instant;
+
+/// What the cascade found.
+pub(crate) struct Solved {
+    /// The answer; its status names the stage that produced it.
+    pub solution: ConicSolution,
+    /// The answer without inequalities, when the sparse stage ran (even
+    /// unconverged, it shows how well the data can be fitted).
+    pub unconstrained: Option<ConicSolution>,
+}
+
+/// Solves `problem` for one cluster. `sparse` allows stages 1–3; without it
+/// (or when the problem has no sparse form) the interior point solves it.
+pub(crate) fn solve(
+    system: &System,
+    problem: &ConicProblem,
+    sparse: bool,
+    opts: &InferOptions,
+    slot: &FactorSlot,
+) -> Result<Solved> {
+    let mut note = None;
+    let mut unconstrained = None;
+    if let Some(stacked) = problem.least_squares().filter(|_| sparse) {
+        let route = sparse_route(system, stacked.view(), &problem.cones, opts, slot)?;
+        if problem.cones.is_empty() {
+            return Ok(Solved {
+                solution: route.unconstrained.clone(),
+                unconstrained: Some(route.unconstrained),
+            });
+        }
+        if let Some(solution) = route.constrained {
+            return Ok(Solved {
+                solution,
+                unconstrained: Some(route.unconstrained),
+            });
+        }
+        note = route.note;
+        unconstrained = Some(route.unconstrained);
+    }
+    Ok(Solved {
+        solution: interior_point(problem, &opts.conic, note)?,
+        unconstrained,
+    })
+}
+
+/// Stage 4: clarabel, its answer projected onto the cones (it meets them only
+/// to its tolerance; the output must meet them exactly). `note` says why the
+/// active set did not deliver.
+pub(crate) fn interior_point(
+    problem: &ConicProblem,
+    settings: &ConicSettings,
+    note: Option<String>,
+) -> Result<ConicSolution> {
+    let mut sol = conic::solve(problem, settings)?;
+    for c in &problem.cones {
+        c.project(&mut sol.x);
+    }
+    sol.attempts.extend(note);
+    Ok(sol)
+}
+
+/// Stage 5: an interior-point answer sharpened by imposing the constraints it
+/// found tight; other answers are exact already and stay as they are.
+pub(crate) fn polish(
+    system: &System,
+    problem: &ConicProblem,
+    sol: &mut ConicSolution,
+) -> Result<()> {
+    if !sol.status.is_interior_point() || sol.softened {
+        return Ok(());
+    }
+    if let Some(x) = polishing::polish(system, problem, &sol.x)? {
+        sol.x = x;
+        sol.status = sol.status.polished();
+    }
+    Ok(())
+}
+
+/// What the sparse stages found.
+pub(crate) struct SparseRoute {
+    /// The least squares without inequalities.
+    pub unconstrained: ConicSolution,
+    /// The friction-constrained optimum, when found: the unconstrained answer
+    /// if admissible (status `LeastSquares`), else the converged active set.
+    pub constrained: Option<ConicSolution>,
+    /// Why the active set did not deliver, for the report.
+    pub note: Option<String>,
+}
+
+/// What one cluster keeps between its solves: the sparse factorisation and the
+/// active set of its last constrained answer.
+#[derive(Default)]
+pub(crate) struct ClusterState {
+    factor: Option<EqualityLeastSquares>,
+    pieces: Option<ActivePieces>,
+}
+
+pub(crate) type FactorSlot = Mutex<ClusterState>;
+
+/// State kept across the solves of one inference (λ search, Pareto sweep,
+/// final solve): each cluster's symbolic analysis (ordering, elimination tree)
+/// is done once, not once per λ, and each active set starts from the pieces
+/// of the previous λ's answer.
+#[derive(Default)]
+pub(crate) struct FactorCache {
+    slots: Vec<FactorSlot>,
+}
+
+impl FactorCache {
+    pub(crate) fn new(assembly: &crate::assemble::Assembly) -> Self {
+        FactorCache {
+            slots: assembly
+                .systems
+                .iter()
+                .map(|_| Mutex::new(ClusterState::default()))
+                .collect(),
+        }
+    }
+
+    /// One slot per cluster of `assembly` (the one this cache was made for).
+    pub(crate) fn slots(&self, assembly: &crate::assemble::Assembly) -> &[FactorSlot] {
+        debug_assert_eq!(self.slots.len(), assembly.systems.len());
+        &self.slots
+    }
+}
+
+/// The user's ordering, else [`Ordering::for_dim`].
+pub(crate) fn ordering(system: &System, choice: Option<Ordering>) -> Ordering {
+    choice.unwrap_or(Ordering::for_dim(system.dim))
+}
+
+/// Stages 1–3 on the cluster's cached factorisation.
+fn sparse_route(
+    system: &System,
+    p: LeastSquares,
+    cone_list: &[Cone],
+    opts: &InferOptions,
+    slot: &FactorSlot,
+) -> Result<SparseRoute> {
+    let start = Instant::now();
+    let use_active_set = !cone_list.is_empty() && opts.solver == ConstrainedSolver::ActiveSet;
+    // Each contact's unknowns coupled for the active set, so its active rows
+    // fit the pattern.
+    let coupling = if use_active_set {
+        system.contact_blocks()
+    } else {
+        Triplets::new(0, p.a.ncols)
+    };
+    // A poisoned slot only means another cluster's solve panicked; its factor
+    // is still a valid analysis (or is rebuilt when the pattern differs).
+    let mut state = slot.lock().unwrap_or_else(|e| e.into_inner());
+    let ClusterState { factor, pieces } = &mut *state;
+    let factor = match factor {
+        Some(factor) => factor,
+        empty => empty.insert(EqualityLeastSquares::with_ordering(
+            p.a,
+            p.c,
+            &coupling,
+            ordering(system, opts.ordering),
+        )?),
+    };
+    let sol = factor.solve(p.a, p.c, p.b, p.d, p.lambda)?;
+    let mut warnings = Vec::new();
+    if !sol.converged {
+        warnings.push(format!(
+            "least squares: refinement stopped at KKT residual {:.1e} (momentum rows inconsistent or the forces not unique)",
+            sol.kkt_residual
+        ));
+    }
+    let (unconstrained, converged) = as_solution(
+        sol,
+        start,
+        "equality-constrained least squares (faer)",
+        warnings,
+    );
+    if cone_list.is_empty() {
+        return Ok(SparseRoute {
+            unconstrained,
+            constrained: None,
+            note: None,
+        });
+    }
+    let stages = Stages {
+        feasible_as_is: converged && opts.exact_first,
+        active_set: use_active_set,
+    };
+    let (constrained, note) = constrained_on_factor(
+        factor,
+        &p,
+        cone_list,
+        &unconstrained,
+        pieces,
+        stages,
+        &opts.active_set,
+        start,
+    )?;
+    Ok(SparseRoute {
+        unconstrained,
+        constrained,
+        note,
+    })
+}
+
+/// Which of stages 2 and 3 to try.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Stages {
+    pub feasible_as_is: bool,
+    pub active_set: bool,
+}
+
+/// Stages 2–3 from an unconstrained answer on its factorisation (which must
+/// couple each contact's unknowns): the constrained optimum when found, else
+/// why not (for the report). `pieces` warm-starts the active set and receives
+/// the converged one.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn constrained_on_factor(
+    factor: &mut EqualityLeastSquares,
+    p: &LeastSquares,
+    cone_list: &[Cone],
+    unconstrained: &ConicSolution,
+    pieces: &mut Option<ActivePieces>,
+    stages: Stages,
+    settings: &ActiveSetSettings,
+    start: Instant,
+) -> Result<(Option<ConicSolution>, Option<String>)> {
+    if stages.feasible_as_is {
+        if let Some(x) = feasible_as_is(&unconstrained.x, cone_list) {
+            let mut sol = unconstrained.clone();
+            sol.x = x;
+            return Ok((Some(sol), None));
+        }
+    }
+    if !stages.active_set {
+        return Ok((None, None));
+    }
+    let mut sol = active_set::solve_from(
+        factor,
+        p,
+        cone_list,
+        &unconstrained.x,
+        pieces.as_ref(),
+        settings,
+    )?;
+    if !sol.converged && pieces.is_some() {
+        // The previous answer's pieces misled it: start cold.
+        sol = active_set::solve(factor, p, cone_list, &unconstrained.x, settings)?;
+    }
+    if !sol.converged {
+        return Ok((
+            None,
+            Some(format!(
+                "active set: {}; solved by the interior point instead",
+                sol.reason.unwrap_or_default()
+            )),
+        ));
+    }
+    *pieces = Some(sol.pieces);
+    Ok((
+        Some(ConicSolution {
+            x: sol.x,
+            status: SolveStatus::ActiveSet,
+            iterations: sol.iterations as u32,
+            solve_time: start.elapsed().as_secs_f64(),
+            attempts: vec![format!(
+                "active set on the sparse factorisation: {} solves, {} sliding and {} open contacts",
+                sol.iterations, sol.sliding, sol.open
+            )],
+            softened: false,
+            warnings: Vec::new(),
+        }),
+        None,
+    ))
+}
+
+/// Relative size of a cone violation treated as round-off of an exact answer.
+const ROUND_OFF: f64 = 1e-9;
+
+/// The unconstrained optimum, when it already satisfies every cone (up to
+/// round-off, then projected): it is then the constrained optimum too.
+pub(crate) fn feasible_as_is(x: &[f64], cones: &[Cone]) -> Option<Vec<f64>> {
+    let scale = x
+        .iter()
+        .fold(0.0f64, |m, v| m.max(v.abs()))
+        .max(f64::MIN_POSITIVE);
+    if cones.iter().any(|c| c.violation(x) > ROUND_OFF * scale) {
+        return None;
+    }
+    let mut x = x.to_vec();
+    for c in cones {
+        c.project(&mut x);
+    }
+    Some(x)
+}
+
+/// A sparse least-squares result in the form the report absorbs, and whether
+/// its refinement converged.
+pub(crate) fn as_solution(
+    sol: sparse_ls::LsSolution,
+    start: Instant,
+    attempt: &str,
+    warnings: Vec<String>,
+) -> (ConicSolution, bool) {
+    let converged = sol.converged;
+    (
+        ConicSolution {
+            x: sol.x,
+            status: SolveStatus::LeastSquares,
+            iterations: sol.refinement_steps as u32,
+            solve_time: start.elapsed().as_secs_f64(),
+            attempts: vec![attempt.into()],
+            softened: false,
+            warnings,
+        },
+        converged,
+    )
+}
