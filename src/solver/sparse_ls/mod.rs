@@ -53,7 +53,7 @@ use crate::{Error, Result};
 
 /// Static regularisation δ of the equilibrated KKT matrix (diag of AᵀA ≤ 1 there),
 /// tried in this order until refinement converges.
-pub const DELTA_LADDER: [f64; 3] = [1e-10, 1e-8, 1e-6];
+pub(crate) const DELTA_LADDER: [f64; 3] = [1e-10, 1e-8, 1e-6];
 /// Refinement is declared converged when the relative KKT residual (a normwise
 /// backward error of the unregularised system) is at most this.
 pub const CONVERGED_TOL: f64 = 1e-10;
@@ -240,7 +240,7 @@ impl EqualityLeastSquares {
     /// Stop refinement at this relative KKT residual instead of round-off
     /// (≥ round-off; a value above [`CONVERGED_TOL`] leaves solutions unconverged).
     /// Iterative callers that only need [`CONVERGED_TOL`] save solves.
-    pub fn set_refinement_target(&mut self, target: f64) {
+    pub(crate) fn set_refinement_target(&mut self, target: f64) {
         self.refine_to = target.max(ROUNDOFF_FLOOR);
     }
 
