@@ -43,7 +43,8 @@ impl SpdFactor {
             });
         if !sorted_upper {
             return Err(Error::Invalid(format!(
-                "SpdFactor needs the upper triangle of a {size}×{size} matrix in CSC with sorted rows,                  each column ending on its diagonal, and one value per entry"
+                "SpdFactor needs the upper triangle of a {size}×{size} matrix in CSC with sorted rows, \
+                 each column ending on its diagonal, and one value per entry"
             )));
         }
         let par = default_parallelism(size);
