@@ -3,6 +3,10 @@
 //! central differences — or a Savitzky–Golay fit — and the impulse check
 //! (table 3.1): Δv from the integrated inferred contact forces vs Δv measured,
 //! with the measured side's noise.
+//!
+//! Layout: `filter` (the smoothers and their noise gain), `derive`
+//! (accelerations of a sequence and the momentum weights they call for),
+//! `impulse` (the impulse check); the track helpers shared by both live here.
 
 mod derive;
 mod filter;

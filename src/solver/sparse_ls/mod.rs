@@ -21,6 +21,15 @@
 //! The symbolic analysis (pattern of the KKT matrix, ordering, elimination tree)
 //! lives in [`EqualityLeastSquares`] and is reused by every numeric factorisation
 //! (λ sweeps, many frames with the same contact network).
+//!
+//! Layout: `kkt` forms the KKT pattern and its equilibrated values;
+//! `symbolic` (ordering, symbolic Cholesky; `ordering` holds nested
+//! dissection) and `numeric` (LDLᵀ and its cached state) are faer's two
+//! stages; `active_rows` and `border` take active rows in as penalties or
+//! around the kept factor (`nodes`: sparse solves on its supernodes); `refine`
+//! solves and refines; `spd` is the Cholesky path for definite matrices,
+//! `identifiability` the uniqueness probe, `checks` the input checks,
+//! `compressed` the CSR/CSC kernels.
 
 mod active_rows;
 mod border;
