@@ -44,7 +44,7 @@ position, contacts and volume-averaged stress (2D and 3D, static and dynamic). S
 of CSV files (grains.csv, contacts.csv, optional walls.csv and scene.json); see the README."
 )]
 struct Cli {
-    /// Print no "wrote …" or progress lines on stderr (warnings and errors still show).
+    /// Silence the run summaries, "wrote …" and progress lines on stderr (errors still show).
     #[arg(short, long, global = true)]
     quiet: bool,
     #[command(subcommand)]
