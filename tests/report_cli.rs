@@ -219,7 +219,11 @@ fn plot_draws_forces_and_pareto_fronts() {
     assert_eq!(png_size(&png).0, 400);
     // "wrote …" is a status line on stderr; stdout is left for results.
     assert!(text(&out.stdout).is_empty(), "{}", text(&out.stdout));
-    assert!(text(&out.stderr).starts_with("wrote "), "{}", text(&out.stderr));
+    assert!(
+        text(&out.stderr).starts_with("wrote "),
+        "{}",
+        text(&out.stderr)
+    );
 
     let pareto = write(
         dir.path(),
