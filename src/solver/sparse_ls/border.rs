@@ -39,7 +39,7 @@ pub(super) fn border_columns(num: &Numeric, changes: &Changes, delta: f64) -> Ve
 }
 
 /// A column of B (sparse) and its D.
-pub(super) type BorderColumn = (Vec<(usize, f64)>, f64);
+type BorderColumn = (Vec<(usize, f64)>, f64);
 
 impl Bordered {
     /// Whether this border already solved that column.
@@ -131,12 +131,7 @@ impl Bordered {
 
 /// Entries of row i of T G S (`springs`: of R S, unit row scale), a column
 /// of a border.
-pub(super) fn scaled_row(
-    rows: &ActiveRows,
-    springs: bool,
-    i: usize,
-    col_scale: &[f64],
-) -> Vec<(usize, f64)> {
+fn scaled_row(rows: &ActiveRows, springs: bool, i: usize, col_scale: &[f64]) -> Vec<(usize, f64)> {
     let (m, t) = if springs {
         (&rows.springs, 1.0)
     } else {

@@ -112,7 +112,7 @@ impl EqualityLeastSquares {
     }
 
     /// Position of entry (i, j), i ≤ j, in the upper KKT pattern.
-    pub(super) fn kkt_position(&self, i: usize, j: usize) -> Option<usize> {
+    fn kkt_position(&self, i: usize, j: usize) -> Option<usize> {
         let range = self.kkt_col_ptr[j]..self.kkt_col_ptr[j + 1];
         self.kkt_row_idx[range.clone()]
             .binary_search(&i)

@@ -57,7 +57,7 @@ impl EqualityLeastSquares {
     /// [`attempt`](Self::attempt), bordering the changed rows only when
     /// `may_border`.
     #[allow(clippy::too_many_arguments)]
-    pub(super) fn attempt_on(
+    fn attempt_on(
         &mut self,
         a: &Triplets,
         c: &Triplets,
@@ -260,7 +260,7 @@ impl EqualityLeastSquares {
     /// Residual of the unregularised equilibrated KKT system at z = (y, μ, w), and
     /// the relative sizes of the dual (stationarity, normwise) and primal (C x = d
     /// and G x = 0, per row) parts.
-    pub(super) fn kkt_residual(
+    fn kkt_residual(
         &self,
         num: &Numeric,
         ones_a: &[f64],
