@@ -556,7 +556,7 @@ fn edge_smoothing_for_noise(image: &FloatImage, smooth: &FloatImage, vote_sigma:
 
 /// Separable Gaussian blur (kernel to ±3σ, edges extended), rows and columns
 /// in parallel: the large σ used for voting makes this the costliest filter.
-pub(crate) fn gaussian_blur(image: &FloatImage, sigma: f64) -> FloatImage {
+pub fn gaussian_blur(image: &FloatImage, sigma: f64) -> FloatImage {
     let (w, h) = (image.width() as usize, image.height() as usize);
     let radius = (3.0 * sigma).ceil().max(1.0) as isize;
     let mut kernel: Vec<f32> = (-radius..=radius)
