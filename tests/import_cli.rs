@@ -33,7 +33,9 @@ fn import_stats_export() {
         "0,-9.81,0",
     ]);
     assert!(ok, "{err}");
-    assert!(out.contains("2 frame(s), 80 grains"), "{out}");
+    // "wrote …" goes to stderr; stdout holds only results (none here).
+    assert!(out.is_empty(), "{out}");
+    assert!(err.contains("2 frame(s), 80 grains"), "{err}");
     assert!(!err.contains("warning"), "{err}");
     // Without --gravity, the `fix gravity` of in.settle beside the dumps is read.
     let (ok, out, err) = grainforce(&[
@@ -46,8 +48,8 @@ fn import_stats_export() {
     ]);
     assert!(ok && !err.contains("warning"), "{err}");
     assert!(
-        out.contains("gravity 0,-9.81,0 from `fix gravity`"),
-        "{out}"
+        err.contains("note: gravity 0,-9.81,0 from `fix gravity`"),
+        "{out}{err}"
     );
     // Without any gravity the importer warns: forces do not balance, and the
     // settled bed looks gravity-loaded.
@@ -73,7 +75,7 @@ fn import_stats_export() {
         "stats",
         &s(&scene),
         &s(&forces),
-        "--json",
+        "--report",
         &s(&json),
         "--csv",
         &s(&csv),
@@ -91,8 +93,14 @@ fn import_stats_export() {
     assert_eq!(parsed[0]["grains"], 40);
 
     let pvd = dir.path().join("vtk/run.pvd");
-    let (ok, _, err) = grainforce(&["export", "vtk", &s(&scene), &s(&forces), "-o", &s(&pvd)]);
+    let (ok, out, err) = grainforce(&["export", "vtk", &s(&scene), &s(&forces), "-o", &s(&pvd)]);
     assert!(ok, "{err}");
+    assert!(out.is_empty() && err.contains("wrote"), "{out}{err}");
+    // The global -q silences "wrote …" and keeps the result.
+    let quiet = dir.path().join("quiet/run.pvd");
+    let (ok, out, err) = grainforce(&["-q", "export", "vtk", &s(&scene), "-o", &s(&quiet)]);
+    assert!(ok && out.is_empty() && err.is_empty(), "{out}{err}");
+    assert!(quiet.exists());
     assert!(dir.path().join("vtk/run_120000_contacts.vtp").exists());
     // A sequence needs a .pvd output.
     let (ok, _, err) = grainforce(&[
@@ -134,7 +142,7 @@ fn import_warnings_and_gff_options() {
         &s(&dir.path().join("wall")),
     ]);
     assert!(
-        ok && out.contains("27 grains") && !err.contains("warning"),
+        ok && err.contains("27 grains") && !err.contains("warning"),
         "{out}{err}"
     );
     let json = std::fs::read_to_string(dir.path().join("wall/scene.json")).unwrap();
@@ -158,7 +166,7 @@ fn import_warnings_and_gff_options() {
     assert!(ok && err.contains("pass --gravity 0,0,-9.81"), "{err}");
 
     let strain = root.join("gff/strain");
-    let (ok, out, err) = grainforce(&[
+    let (ok, _, err) = grainforce(&[
         "import",
         "gff",
         &s(&strain.join("quartz_strain.gff")),
@@ -172,7 +180,7 @@ fn import_warnings_and_gff_options() {
         "--tomography-grains",
         &s(&strain.join("tomo_grains.csv")),
     ]);
-    assert!(ok && out.contains("10 grains"), "{err}");
+    assert!(ok && err.contains("10 grains"), "{err}");
     assert!(
         err.contains("warning: 1 grain(s) have a zero standard error"),
         "{err}"

@@ -79,7 +79,7 @@ fn score_prints_relerr_last_and_checks_physics_with_a_scene() {
         &inferred,
         "--scene",
         &scene,
-        "--json",
+        "--report",
         json.to_str().unwrap(),
     ]);
     let stdout = text(&out.stdout);
@@ -105,6 +105,22 @@ fn score_prints_relerr_last_and_checks_physics_with_a_scene() {
     let rel = report["overall"]["error"]["relative"].as_f64().unwrap();
     assert!((rel - 0.1).abs() < 1e-12);
     assert_eq!(report["overall"]["walls"][0]["wall"], "floor");
+    // The old flag name still writes the same report, for old scripts.
+    let old = dir.path().join("old.json");
+    let out = grainforce(&[
+        "score",
+        &truth,
+        &inferred,
+        "--scene",
+        &scene,
+        "--json",
+        old.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    assert_eq!(
+        std::fs::read_to_string(&old).unwrap(),
+        std::fs::read_to_string(&json).unwrap()
+    );
 }
 
 #[test]
@@ -201,6 +217,13 @@ fn plot_draws_forces_and_pareto_fronts() {
     ]);
     assert!(out.status.success(), "{}", text(&out.stderr));
     assert_eq!(png_size(&png).0, 400);
+    // "wrote …" is a status line on stderr; stdout is left for results.
+    assert!(text(&out.stdout).is_empty(), "{}", text(&out.stdout));
+    assert!(
+        text(&out.stderr).starts_with("wrote "),
+        "{}",
+        text(&out.stderr)
+    );
 
     let pareto = write(
         dir.path(),

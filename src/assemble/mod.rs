@@ -111,20 +111,16 @@ impl System {
             .collect()
     }
 
-    pub fn stress_rows_per_grain(&self) -> usize {
-        stress_rows(self.dim)
-    }
-
-    pub fn momentum_rows_per_grain(&self) -> usize {
+    pub(crate) fn momentum_rows_per_grain(&self) -> usize {
         momentum_rows(self.dim)
     }
 }
 
-pub fn stress_rows(dim: usize) -> usize {
+pub(crate) fn stress_rows(dim: usize) -> usize {
     dim * (dim + 1) / 2
 }
 
-pub fn momentum_rows(dim: usize) -> usize {
+pub(crate) fn momentum_rows(dim: usize) -> usize {
     if dim == 2 {
         3
     } else {

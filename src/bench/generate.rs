@@ -168,7 +168,7 @@ pub fn generate(spec: &PackingSpec) -> Result<Packing> {
 }
 
 /// Compressive normal force f_n = −n·f and the tangential magnitude.
-pub fn normal_tangential(n: Vec3, f: Vec3) -> (f64, f64) {
+pub(crate) fn normal_tangential(n: Vec3, f: Vec3) -> (f64, f64) {
     let fn_ = -scene::dot(f, n);
     let ft = scene::norm([f[0] + fn_ * n[0], f[1] + fn_ * n[1], f[2] + fn_ * n[2]]);
     (fn_, ft)

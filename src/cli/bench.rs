@@ -59,8 +59,8 @@ pub struct Args {
     #[arg(long, default_value_t = 900.0)]
     pub timeout: f64,
     /// Write every case (one row per repeat) as CSV.
-    #[arg(long, value_name = "TABLE.csv")]
-    pub out: Option<PathBuf>,
+    #[arg(long, value_name = "TABLE.csv", alias = "out")]
+    pub csv: Option<PathBuf>,
     /// Write the Markdown table and the ratios to this file as well.
     #[arg(long, value_name = "TABLE.md")]
     pub markdown: Option<PathBuf>,
@@ -79,7 +79,7 @@ pub struct Args {
     /// The cvxpy script (default: benches/cvxpy/gem_cvxpy.py of the source tree).
     #[arg(long, value_name = "SCRIPT.py")]
     pub cvxpy_script: Option<PathBuf>,
-    /// Do not run anything: merge these CSV files of earlier runs (--out) and
+    /// Do not run anything: merge these CSV files of earlier runs (--csv) and
     /// print/write their table, ratios and plot.
     #[arg(long, value_delimiter = ',', value_name = "A.csv,B.csv")]
     pub from: Option<Vec<PathBuf>>,
@@ -204,7 +204,7 @@ pub fn run(args: Args) -> Result<()> {
                 .unwrap_or(if dim == 3 { DEFAULT_SLIDING_3D } else { 0.0 });
             let t = Instant::now();
             let packing = bench::generate(&spec)?;
-            eprintln!(
+            status!(
                 "{dim}D {size}: generated {} grains, {} contacts in {:.1} s ({} contacts at the Coulomb limit, {} with raised μ, equilibrium residual {:.1e})",
                 packing.scene.grains.len(),
                 packing.scene.contacts.len(),
@@ -234,10 +234,10 @@ pub fn run(args: Args) -> Result<()> {
                             size,
                             args.timeout,
                         );
-                        eprintln!("  {}", one_line(&r));
+                        status!("  {}", one_line(&r));
                         results.push(r);
                         // Keep the CSV current so an interrupted run keeps its cases.
-                        if let Some(path) = &args.out {
+                        if let Some(path) = &args.csv {
                             scene::write_file_atomically(path, bench::csv(&results)?.as_bytes())?;
                         }
                     }
@@ -245,7 +245,7 @@ pub fn run(args: Args) -> Result<()> {
                 if args.cvxpy && size <= cvxpy_max {
                     let c =
                         compare_cvxpy(&exe, &script_path(&args), &dir, &truth_path, args.timeout)?;
-                    eprintln!("  {}", c.line(dim, size, noise.name()));
+                    status!("  {}", c.line(dim, size, noise.name()));
                     comparisons.push((dim, size, noise.name(), c));
                 }
             }
@@ -272,7 +272,7 @@ fn finish(
         text.push_str(&format!("- {}\n", c.line(*dim, *size, noise)));
     }
     print!("{text}");
-    if let Some(path) = &args.out {
+    if let Some(path) = &args.csv {
         scene::write_file_atomically(path, bench::csv(results)?.as_bytes())?;
     }
     if let Some(path) = &args.markdown {
@@ -488,7 +488,7 @@ fn cvxpy_setup(script: &Path) -> Result<()> {
             script.display()
         )));
     }
-    eprintln!("setting up the cvxpy venv (first use installs cvxpy and clarabel with pip)…");
+    status!("setting up the cvxpy venv (first use installs cvxpy and clarabel with pip)…");
     let status = Command::new("python3")
         .arg(script)
         .arg("--setup")

@@ -194,7 +194,7 @@ pub fn run(args: Args) -> grainforce::Result<()> {
     let run = dem::simulate(&c)?;
     dem::write_run(&args.output, &run)?;
     let r = &run.report;
-    eprintln!(
+    status!(
         "{}: {} grains, {} contacts{}, {} steps of {:.3e} s, unbalanced ratio {:.2e}, moment ratio {:.2e}, \
          kinetic/elastic {:.2e} (gate {:.1e}: {}), max residual {:.2e}, {:.1} s",
         args.output.display(),

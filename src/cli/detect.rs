@@ -214,7 +214,7 @@ pub fn run(args: Args) -> Result<()> {
     };
     let detection = detect_images(&args.images, &settings, &mut |k, path, image, found| {
         let doubtful = found.candidates.iter().filter(|c| c.doubtful).count();
-        eprintln!(
+        status!(
             "{}: {} disks, {} contacts{}",
             path.display(),
             found.disks.len(),
@@ -256,7 +256,7 @@ pub fn run(args: Args) -> Result<()> {
             settings.keep_doubtful,
         )?;
     }
-    eprintln!(
+    status!(
         "wrote {} ({} frame{})",
         args.output.display(),
         scenes.len(),

@@ -68,7 +68,7 @@ pub fn run(args: Args) -> Result<()> {
             )));
         }
         let files = vtk::write_series(&args.output, &frames, forces.as_deref(), encoding)?;
-        println!(
+        status!(
             "wrote {} and {} frame file pairs",
             args.output.display(),
             files.len()
@@ -80,7 +80,7 @@ pub fn run(args: Args) -> Result<()> {
             forces.as_ref().map(|f| f[0].as_slice()),
             encoding,
         )?;
-        println!(
+        status!(
             "wrote {} and {}",
             files.grains.display(),
             files.contacts.display()

@@ -121,8 +121,8 @@ fn script_gravity(atoms: &Path, given: Option<&Path>) -> Result<Option<[f64; 3]>
         eprintln!("note: {n}");
     }
     if let Some(g) = g {
-        println!(
-            "gravity {},{},{} from `fix gravity` in {}",
+        eprintln!(
+            "note: gravity {},{},{} from `fix gravity` in {}",
             g[0],
             g[1],
             g[2],
@@ -214,7 +214,7 @@ pub fn run(args: Args) -> Result<()> {
     imported.write(&args.output)?;
     let grains: usize = imported.frames.iter().map(|f| f.grains.len()).sum();
     let contacts: usize = imported.frames.iter().map(|f| f.contacts.len()).sum();
-    println!(
+    status!(
         "wrote {}: {} frame(s), {} grains, {} contacts ({}D){}",
         args.output.display(),
         imported.frames.len(),

@@ -205,8 +205,8 @@ pub struct Args {
     /// Seed of the --uncertainty draws.
     #[arg(long, default_value_t = 1)]
     pub uncertainty_seed: u32,
-    /// Print nothing on stderr.
-    #[arg(short, long)]
+    /// The global -q/--quiet: print no report, summary or progress on stderr.
+    #[arg(skip)]
     pub quiet: bool,
 }
 

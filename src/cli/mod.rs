@@ -1,6 +1,25 @@
 //! One module per verb; each parses its flags (clap) and calls the library.
 
 use clap::{Parser, Subcommand};
+use std::sync::atomic::{AtomicBool, Ordering};
+
+/// Set once from the global `-q/--quiet` before the verb runs.
+static QUIET: AtomicBool = AtomicBool::new(false);
+
+/// Whether "wrote …" and progress lines are silenced.
+pub(crate) fn quiet() -> bool {
+    QUIET.load(Ordering::Relaxed)
+}
+
+/// A "wrote …" or progress line: on stderr (stdout holds results), and not
+/// under `-q`. Notes, warnings and errors use `eprintln!` directly.
+macro_rules! status {
+    ($($arg:tt)*) => {
+        if !crate::cli::quiet() {
+            eprintln!($($arg)*);
+        }
+    };
+}
 
 mod bench;
 mod dem;
@@ -25,6 +44,9 @@ position, contacts and volume-averaged stress (2D and 3D, static and dynamic). S
 of CSV files (grains.csv, contacts.csv, optional walls.csv and scene.json); see the README."
 )]
 struct Cli {
+    /// Silence the run summaries, "wrote …" and progress lines on stderr (errors still show).
+    #[arg(short, long, global = true)]
+    quiet: bool,
     #[command(subcommand)]
     command: Command,
 }
@@ -59,8 +81,12 @@ enum Command {
 
 pub fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
+    QUIET.store(cli.quiet, Ordering::Relaxed);
     let result = match cli.command {
-        Command::Infer(a) => infer::run(a),
+        Command::Infer(mut a) => {
+            a.quiet = cli.quiet;
+            infer::run(a)
+        }
         Command::Score(a) => score::run(a),
         Command::Plot(a) => plot::run(a),
         Command::Dem(a) => dem::run(a),

@@ -79,7 +79,7 @@ pub fn run(args: Args) -> grainforce::Result<()> {
         }
     }
     let contacts: usize = noisy.iter().map(|s| s.contacts.len()).sum();
-    eprintln!(
+    status!(
         "{}: {} frame(s), {} contacts kept{}",
         args.output.display(),
         noisy.len(),

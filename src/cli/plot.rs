@@ -49,7 +49,7 @@ pub fn run(args: Args) -> Result<()> {
         }
         let img = report::draw_pareto(&points, knee);
         report::save_png(&args.output, &img)?;
-        println!("wrote {} ({} points)", args.output.display(), points.len());
+        status!("wrote {} ({} points)", args.output.display(), points.len());
         return Ok(());
     }
     let (Some(scene_dir), Some(forces_path)) = (&args.scene, &args.forces) else {
@@ -97,7 +97,7 @@ pub fn run(args: Args) -> Result<()> {
     };
     let img = report::forcechain::draw_force_chains_with_sd(scene, &forces, sd.as_deref(), &opts)?;
     report::save_png(&args.output, &img)?;
-    println!(
+    status!(
         "wrote {} ({}x{} px, {} contacts)",
         args.output.display(),
         img.width(),

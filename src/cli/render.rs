@@ -82,7 +82,7 @@ pub fn run(args: Args) -> Result<()> {
         save_gray(&args.output.join(name), image, args.bits)?;
     }
     rendered.frame.write(&args.output.join(FRAME_FILE))?;
-    eprintln!(
+    status!(
         "wrote {} image(s) of {}×{} px to {} (detect with --frame {})",
         rendered.deformed.len() + 1,
         rendered.frame.width,

@@ -17,8 +17,8 @@ pub struct Args {
     #[arg(long)]
     scene: Option<PathBuf>,
     /// Also write every number as JSON here.
-    #[arg(long, value_name = "OUT.json")]
-    json: Option<PathBuf>,
+    #[arg(long, value_name = "SCORE.json", alias = "json")]
+    report: Option<PathBuf>,
 }
 
 pub fn run(args: Args) -> Result<()> {
@@ -62,7 +62,7 @@ pub fn run(args: Args) -> Result<()> {
         print_stress(&overall);
     }
 
-    if let Some(path) = &args.json {
+    if let Some(path) = &args.report {
         let report = serde_json::json!({ "overall": overall, "frames": frames });
         let text =
             serde_json::to_string_pretty(&report).map_err(|e| Error::Invalid(e.to_string()))?;

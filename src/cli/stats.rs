@@ -15,8 +15,8 @@ pub struct Args {
     #[arg(long)]
     csv: Option<PathBuf>,
     /// Write every statistic (histograms and chain lengths included) as JSON.
-    #[arg(long)]
-    json: Option<PathBuf>,
+    #[arg(long, value_name = "STATS.json", alias = "json")]
+    report: Option<PathBuf>,
     /// Draw P(f/<f>) of the first frame with its exponential tail fit (log y) to this PNG.
     #[arg(long, value_name = "STATS.png")]
     plot: Option<PathBuf>,
@@ -70,7 +70,7 @@ pub fn run(args: Args) -> Result<()> {
             eprintln!("note: --plot draws the first frame");
         }
     }
-    if let Some(path) = &args.json {
+    if let Some(path) = &args.report {
         let text = serde_json::to_string_pretty(&all).map_err(|e| Error::Invalid(e.to_string()))?;
         write_file(path, &(text + "\n"))?;
     }

@@ -98,7 +98,11 @@ pub fn run(args: Args) -> Result<()> {
     }
     let prepared_reference = Prepared::new(&reference);
     let total: usize = frames.iter().map(|f| f.grains.len()).sum();
-    let bar = indicatif::ProgressBar::new(total as u64);
+    let bar = if super::quiet() {
+        indicatif::ProgressBar::hidden()
+    } else {
+        indicatif::ProgressBar::new(total as u64)
+    };
     bar.set_style(
         indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} grains ({eta} left)")
             .expect("valid template"),
@@ -132,7 +136,7 @@ pub fn run(args: Args) -> Result<()> {
     }
     bar.finish_and_clear();
     write_sequence(&args.scene, &frames)?;
-    eprintln!(
+    status!(
         "wrote stresses into {}",
         args.scene.join("grains.csv").display()
     );

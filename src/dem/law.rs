@@ -278,7 +278,7 @@ fn rebound(law: ContactLaw, a: f64) -> f64 {
 }
 
 /// Dimensionless damping that gives restitution `e` (0 < e ≤ 1).
-pub fn damping_for_restitution(law: ContactLaw, e: f64) -> f64 {
+pub(crate) fn damping_for_restitution(law: ContactLaw, e: f64) -> f64 {
     if e >= 1.0 {
         return 0.0;
     }

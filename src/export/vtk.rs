@@ -156,7 +156,7 @@ fn indices(v: impl Iterator<Item = usize>) -> Values {
 }
 
 /// The grains file: grains as vertices at their centroids.
-pub fn grains_vtp(scene: &Scene, forces: Option<&[Vec3]>, encoding: Encoding) -> Vec<u8> {
+pub(crate) fn grains_vtp(scene: &Scene, forces: Option<&[Vec3]>, encoding: Encoding) -> Vec<u8> {
     let n = scene.grains.len();
     let g = &scene.grains;
     let mut doc = Document::new(encoding);
@@ -198,7 +198,7 @@ pub fn grains_vtp(scene: &Scene, forces: Option<&[Vec3]>, encoding: Encoding) ->
 
 /// The contacts file: contacts as lines between centroids (or to the
 /// contact point on a wall).
-pub fn contacts_vtp(scene: &Scene, forces: Option<&[Vec3]>, encoding: Encoding) -> Vec<u8> {
+pub(crate) fn contacts_vtp(scene: &Scene, forces: Option<&[Vec3]>, encoding: Encoding) -> Vec<u8> {
     let mut points: Vec<Vec3> = scene.grains.iter().map(|g| g.position).collect();
     let mut connectivity = Vec::new();
     for c in &scene.contacts {

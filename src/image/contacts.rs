@@ -304,7 +304,7 @@ fn sample(image: &FloatImage, x: f64, y: f64) -> Option<f64> {
 /// not run into a neighbour: the darkest point just outside the fitted circle,
 /// then the half-way rise to the background. `None` where no darker rim shows
 /// (the background is as dark as the rim, or the disk has no free side).
-pub fn measure_rims(image: &FloatImage, disks: &[Disk]) -> Vec<Option<Rim>> {
+pub(crate) fn measure_rims(image: &FloatImage, disks: &[Disk]) -> Vec<Option<Rim>> {
     use rayon::prelude::*;
     disks
         .par_iter()

@@ -255,7 +255,7 @@ pub struct GrainDic {
 
 /// Correlates one grain: `centre` and `radius` [px] locate it in the deformed
 /// image (its current configuration).
-pub fn correlate_grain(
+pub(crate) fn correlate_grain(
     reference: &Prepared,
     deformed: &Prepared,
     centre: [f64; 2],
@@ -604,7 +604,7 @@ fn affine_fit(results: &[SubsetResult], centre: [f64; 2]) -> Option<([f64; 6], u
 
 /// Strain V − I of the deformation gradient F = I + ∇u, where F = V R (polar
 /// decomposition): free of rigid rotation. Returns (xx, yy, xy).
-pub fn left_stretch_strain(gradient: [[f64; 2]; 2]) -> [f64; 3] {
+pub(crate) fn left_stretch_strain(gradient: [[f64; 2]; 2]) -> [f64; 3] {
     let f = [
         [1.0 + gradient[0][0], gradient[0][1]],
         [gradient[1][0], 1.0 + gradient[1][1]],

@@ -45,7 +45,7 @@ pub fn measure_stresses(
 }
 
 /// As [`measure_stresses`], calling `progress` once per grain done (from any thread).
-pub fn measure_stresses_with_progress(
+pub(crate) fn measure_stresses_with_progress(
     reference: &FloatImage,
     deformed: &FloatImage,
     scene: &mut Scene,

@@ -32,7 +32,7 @@ impl DumpFrame {
     }
 
     /// Index of a column that must exist, or an error at the header line.
-    pub fn require(&self, path: &Path, name: &str) -> Result<usize> {
+    pub(crate) fn require(&self, path: &Path, name: &str) -> Result<usize> {
         self.column(name).ok_or_else(|| {
             Error::data(
                 path,
@@ -92,7 +92,7 @@ impl Lines {
 }
 
 /// Reads every frame of a dump file.
-pub fn read_dump(path: &Path, kind: DumpKind) -> Result<Vec<DumpFrame>> {
+pub(crate) fn read_dump(path: &Path, kind: DumpKind) -> Result<Vec<DumpFrame>> {
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
     let mut lines = Lines {
         path: path.to_owned(),

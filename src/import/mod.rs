@@ -168,7 +168,7 @@ pub fn sphere_contact(pa: Vec3, ra: f64, pb: Vec3, rb: f64) -> Option<(Vec3, Vec
 }
 
 /// Volume of a grain of radius r: π r² per unit thickness in 2D, 4/3 π r³ in 3D.
-pub fn ball_volume(dim: usize, r: f64) -> f64 {
+pub(crate) fn ball_volume(dim: usize, r: f64) -> f64 {
     if dim == 2 {
         std::f64::consts::PI * r * r
     } else {

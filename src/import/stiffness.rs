@@ -34,12 +34,12 @@ const VOIGT_PAIRS: [(usize, usize); 6] = [(0, 0), (1, 1), (2, 2), (1, 2), (0, 2)
 /// "Elastic moduli of quartz versus hydrostatic pressure at 25 and −195.8 °C",
 /// J. Appl. Phys. 36, 1624 (1965). C11, C12, C13, C14, C33, C44; the sign of
 /// C14 is that of the IEEE 1949 axes for right-handed quartz.
-pub const QUARTZ: [f64; 6] = [86.74, 6.99, 11.91, -17.91, 107.2, 57.94];
+pub(crate) const QUARTZ: [f64; 6] = [86.74, 6.99, 11.91, -17.91, 107.2, 57.94];
 
 /// α-zirconium at 298 K, GPa: E. S. Fisher and C. J. Renken, "Single-crystal
 /// elastic moduli and the hcp → bcc transformation in Ti, Zr, and Hf",
 /// Phys. Rev. 135, A482 (1964). C11, C12, C13, C33, C44.
-pub const ZIRCONIUM: [f64; 5] = [143.4, 72.8, 65.3, 164.8, 32.0];
+pub(crate) const ZIRCONIUM: [f64; 5] = [143.4, 72.8, 65.3, 164.8, 32.0];
 
 /// A crystal's stiffness in Pa, in the crystal frame U maps from.
 #[derive(Debug, Clone, PartialEq)]
@@ -262,7 +262,7 @@ fn check_positive_definite(m: &Voigt) -> std::result::Result<(), String> {
 }
 
 /// Symmetric tensor of a [`Sym`].
-pub fn tensor(s: &Sym) -> Mat3 {
+pub(crate) fn tensor(s: &Sym) -> Mat3 {
     let mut t = [[0.0; 3]; 3];
     for (k, (i, j)) in sym::PAIRS.iter().enumerate() {
         t[*i][*j] = s[k];
@@ -272,7 +272,7 @@ pub fn tensor(s: &Sym) -> Mat3 {
 }
 
 /// [`Sym`] of a symmetric tensor.
-pub fn from_tensor(t: &Mat3) -> Sym {
+pub(crate) fn from_tensor(t: &Mat3) -> Sym {
     let mut s = [0.0; 6];
     for (k, (i, j)) in sym::PAIRS.iter().enumerate() {
         s[k] = t[*i][*j];
@@ -301,11 +301,11 @@ fn transpose(a: &Mat3) -> Mat3 {
 }
 
 /// Aᵀ T A: a sample-frame tensor in the frame A maps from.
-pub fn rotate_into(a: &Mat3, t: &Mat3) -> Mat3 {
+pub(crate) fn rotate_into(a: &Mat3, t: &Mat3) -> Mat3 {
     mul(&transpose(a), &mul(t, a))
 }
 
 /// A T Aᵀ: a tensor in the frame A maps from, in the sample frame.
-pub fn rotate_out_of(a: &Mat3, t: &Mat3) -> Mat3 {
+pub(crate) fn rotate_out_of(a: &Mat3, t: &Mat3) -> Mat3 {
     mul(a, &mul(t, &transpose(a)))
 }

@@ -21,7 +21,7 @@ pub enum OnCollapse {
 
 /// Stress residual beyond which the forces explain too little of the stresses
 /// (0.8: less than 36 % of ‖b‖² fitted; exact data fit to ~0, 10–20 % noise to 0.1–0.2).
-pub const COLLAPSE_RESIDUAL: f64 = 0.8;
+pub(crate) const COLLAPSE_RESIDUAL: f64 = 0.8;
 
 /// Momentum weight of the stress-only fit of the diagnosis (small enough not
 /// to pull the fit towards balance, large enough to fix what stresses leave free).
@@ -29,7 +29,7 @@ const STRESS_ONLY_WEIGHT: f64 = 1e-4;
 
 /// Mean |f| over the force scale the stresses imply below which forces count
 /// as "zero" (balanced data give 0.2–2).
-pub const COLLAPSE_FORCE_RATIO: f64 = 1e-2;
+pub(crate) const COLLAPSE_FORCE_RATIO: f64 = 1e-2;
 
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct GrainImbalance {

@@ -24,13 +24,13 @@ pub enum StressNoise {
 
 /// Reweighting steps after the first (unweighted) solve: the weights settle
 /// after one or two (see the README's measured-data section).
-pub const IRLS_STEPS: usize = 2;
+pub(crate) const IRLS_STEPS: usize = 2;
 
 /// Floor of the relative model's sd, as a fraction of the rms component.
-pub const RELATIVE_FLOOR: f64 = 0.05;
+pub(crate) const RELATIVE_FLOOR: f64 = 0.05;
 
 /// A copy of the assembly with stress row i of each system scaled by w[system][i].
-pub fn weight_stress_rows(assembly: &Assembly, weights: &[Vec<f64>]) -> Assembly {
+pub(crate) fn weight_stress_rows(assembly: &Assembly, weights: &[Vec<f64>]) -> Assembly {
     let mut out = assembly.clone();
     for (system, w) in out.systems.iter_mut().zip(weights) {
         for k in 0..system.stress.vals.len() {
@@ -61,7 +61,7 @@ fn fitted_stresses(assembly: &Assembly, solutions: &[Vec<f64>]) -> (Vec<Vec<f64>
 }
 
 /// w = 1/(|K_st f| + floor·rms), normalised.
-pub fn relative_weights(assembly: &Assembly, solutions: &[Vec<f64>]) -> Vec<Vec<f64>> {
+pub(crate) fn relative_weights(assembly: &Assembly, solutions: &[Vec<f64>]) -> Vec<Vec<f64>> {
     let (fitted, floor) = fitted_stresses(assembly, solutions);
     let weights = fitted
         .iter()
@@ -71,7 +71,7 @@ pub fn relative_weights(assembly: &Assembly, solutions: &[Vec<f64>]) -> Vec<Vec<
 }
 
 /// w = 1/sd from the grains' `sd_s_*` columns, in the rows' units.
-pub fn column_weights(scene: &Scene, assembly: &Assembly) -> Result<Vec<Vec<f64>>> {
+pub(crate) fn column_weights(scene: &Scene, assembly: &Assembly) -> Result<Vec<Vec<f64>>> {
     let dim = scene.dim;
     let comps = sym::components(dim);
     let mut weights = Vec::with_capacity(assembly.systems.len());
@@ -122,7 +122,7 @@ fn normalise(mut weights: Vec<Vec<f64>>) -> Vec<Vec<f64>> {
 /// rms of the relative stress residual, (K_st f − b)/(|K_st f| + floor·rms):
 /// the relative noise level the answer implies (before the degrees-of-freedom
 /// correction the uncertainty applies).
-pub fn relative_residual(assembly: &Assembly, solutions: &[Vec<f64>]) -> f64 {
+pub(crate) fn relative_residual(assembly: &Assembly, solutions: &[Vec<f64>]) -> f64 {
     let (fitted, floor) = fitted_stresses(assembly, solutions);
     let mut total = 0.0;
     for (system, kx) in assembly.systems.iter().zip(&fitted) {

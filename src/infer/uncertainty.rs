@@ -78,8 +78,8 @@ pub struct Uncertainty {
 /// rows leave no residual degrees of freedom (the residual says nothing then).
 pub fn residual_noise_level(report: &InferenceReport) -> Option<f64> {
     let dim = report.dim;
-    let stress_rows_per_grain = if dim == 2 { 3 } else { 6 };
-    let momentum_rows_per_grain = if dim == 2 { 3 } else { 6 };
+    let stress_rows_per_grain = crate::assemble::stress_rows(dim);
+    let momentum_rows_per_grain = crate::assemble::momentum_rows(dim);
     let grains = report.grains_with_equations;
     let m = (grains * stress_rows_per_grain) as f64;
     // With hard momentum, the unknowns left free for the stress rows.
@@ -102,7 +102,7 @@ pub fn residual_noise_level(report: &InferenceReport) -> Option<f64> {
 /// The stresses the inferred forces reproduce: V σ̂ = Σ sym(r ⊗ f) over each
 /// grain's contacts. Grains with a contact outside the inference, or without
 /// any force, keep their measured stress.
-pub fn fitted_stresses(scene: &Scene, forces: &[Option<Vec3>]) -> Vec<Sym> {
+pub(crate) fn fitted_stresses(scene: &Scene, forces: &[Option<Vec3>]) -> Vec<Sym> {
     let n = scene.grains.len();
     let mut sums = vec![[0.0; 6]; n];
     let mut complete = vec![true; n];

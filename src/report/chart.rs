@@ -45,7 +45,7 @@ pub const PALETTE: [Rgb<u8>; 10] = [
 ];
 
 pub const WHITE: Rgb<u8> = Rgb([255, 255, 255]);
-pub const BLACK: Rgb<u8> = Rgb([0, 0, 0]);
+pub(crate) const BLACK: Rgb<u8> = Rgb([0, 0, 0]);
 const GRID: Rgb<u8> = Rgb([228, 228, 228]);
 const MARK: Rgb<u8> = Rgb([220, 20, 60]);
 
@@ -589,7 +589,7 @@ pub fn nice_step(span: f64, count: usize) -> f64 {
 }
 
 /// Tick positions (in data units) of a linear range.
-pub fn linear_ticks(lo: f64, hi: f64, count: usize) -> (Vec<f64>, f64) {
+pub(crate) fn linear_ticks(lo: f64, hi: f64, count: usize) -> (Vec<f64>, f64) {
     let step = nice_step(hi - lo, count);
     let first = (lo / step).ceil() as i64;
     let last = (hi / step).floor() as i64;
@@ -721,7 +721,7 @@ pub fn save_png(path: &Path, img: &RgbImage) -> Result<()> {
 }
 
 /// Lightens a colour towards white by `amount` ∈ [0, 1].
-pub fn lighten(color: Rgb<u8>, amount: f64) -> Rgb<u8> {
+pub(crate) fn lighten(color: Rgb<u8>, amount: f64) -> Rgb<u8> {
     let a = amount.clamp(0.0, 1.0);
     Rgb(color
         .0

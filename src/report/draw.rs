@@ -6,7 +6,7 @@
 use image::{Rgb, RgbImage};
 
 /// Blends `color` into the pixel at (x, y) with weight `alpha` ∈ [0, 1].
-pub fn blend(img: &mut RgbImage, x: i64, y: i64, color: Rgb<u8>, alpha: f64) {
+pub(crate) fn blend(img: &mut RgbImage, x: i64, y: i64, color: Rgb<u8>, alpha: f64) {
     if alpha <= 0.0 || x < 0 || y < 0 || x >= img.width() as i64 || y >= img.height() as i64 {
         return;
     }
@@ -30,7 +30,13 @@ fn span(a: f64, b: f64, size: u32) -> Option<(i64, i64)> {
 
 /// A segment from p to q of the given width (round caps). Widths below one pixel
 /// are drawn one pixel wide but fainter, so hairlines stay visible.
-pub fn thick_line(img: &mut RgbImage, p: (f64, f64), q: (f64, f64), width: f64, color: Rgb<u8>) {
+pub(crate) fn thick_line(
+    img: &mut RgbImage,
+    p: (f64, f64),
+    q: (f64, f64),
+    width: f64,
+    color: Rgb<u8>,
+) {
     let (half, strength) = if width >= 1.0 {
         (width / 2.0, 1.0)
     } else {
@@ -104,7 +110,7 @@ pub fn disk(img: &mut RgbImage, c: (f64, f64), r: f64, color: Rgb<u8>) {
 }
 
 /// A filled axis-aligned rectangle [x0, x1) × [y0, y1) in whole pixels.
-pub fn fill_rect(img: &mut RgbImage, x0: i64, y0: i64, x1: i64, y1: i64, color: Rgb<u8>) {
+pub(crate) fn fill_rect(img: &mut RgbImage, x0: i64, y0: i64, x1: i64, y1: i64, color: Rgb<u8>) {
     for y in y0.max(0)..y1.min(img.height() as i64) {
         for x in x0.max(0)..x1.min(img.width() as i64) {
             img.put_pixel(x as u32, y as u32, color);
@@ -113,7 +119,7 @@ pub fn fill_rect(img: &mut RgbImage, x0: i64, y0: i64, x1: i64, y1: i64, color: 
 }
 
 /// A one-pixel rectangle outline around [x0, x1) × [y0, y1).
-pub fn rect_outline(img: &mut RgbImage, x0: i64, y0: i64, x1: i64, y1: i64, color: Rgb<u8>) {
+pub(crate) fn rect_outline(img: &mut RgbImage, x0: i64, y0: i64, x1: i64, y1: i64, color: Rgb<u8>) {
     fill_rect(img, x0, y0, x1, y0 + 1, color);
     fill_rect(img, x0, y1 - 1, x1, y1, color);
     fill_rect(img, x0, y0, x0 + 1, y1, color);
@@ -169,7 +175,7 @@ pub mod colormap {
     }
 
     /// inferno(t), t ∈ [0, 1] from black through purple and orange to pale yellow.
-    pub fn inferno(t: f64) -> Rgb<u8> {
+    pub(crate) fn inferno(t: f64) -> Rgb<u8> {
         sample(&INFERNO, t)
     }
 

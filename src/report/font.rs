@@ -5,8 +5,8 @@
 use image::{Rgb, RgbImage};
 
 /// Glyph size in font pixels; each character cell adds one column and one row of spacing.
-pub const GLYPH_WIDTH: u32 = 5;
-pub const GLYPH_HEIGHT: u32 = 7;
+pub(crate) const GLYPH_WIDTH: u32 = 5;
+pub(crate) const GLYPH_HEIGHT: u32 = 7;
 const CELL_WIDTH: u32 = GLYPH_WIDTH + 1;
 
 /// The hollow box drawn for characters the font lacks.
@@ -166,7 +166,7 @@ pub fn draw_text(img: &mut RgbImage, x: i64, y: i64, text: &str, scale: u32, col
 
 /// Draws `text` rotated a quarter turn anticlockwise (reading bottom to top), its
 /// bounding box's top-left corner at (x, y). Used for vertical axis titles.
-pub fn draw_text_vertical(
+pub(crate) fn draw_text_vertical(
     img: &mut RgbImage,
     x: i64,
     y: i64,

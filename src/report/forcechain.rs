@@ -236,7 +236,7 @@ pub fn draw_force_chains(
 
 /// The standard deviation of |f| from per-component ones, to first order
 /// (components independent): √Σ (f_k/|f| · sd_k)².
-pub fn magnitude_sd(f: Vec3, sd: Vec3) -> f64 {
+pub(crate) fn magnitude_sd(f: Vec3, sd: Vec3) -> f64 {
     let m = norm(f);
     if m == 0.0 {
         return norm(sd);

@@ -16,7 +16,7 @@ use std::collections::{BTreeMap, HashMap};
 use std::path::Path;
 
 /// A component is tensile when n·f exceeds this fraction of the mean |f|.
-pub const TENSILE_TOLERANCE: f64 = 1e-6;
+pub(crate) const TENSILE_TOLERANCE: f64 = 1e-6;
 
 /// ‖f − f*‖ / ‖f*‖ (eq. 2.15) over all components; 0 when both are zero, `+∞` when
 /// only the truth is zero. Pairs beyond the shorter slice are ignored: callers check

@@ -59,7 +59,7 @@ pub fn wall_totals(scene: &Scene, forces: &[Option<Vec3>]) -> Vec<Vec3> {
 
 impl Scene {
     /// Sets every grain's stress to V σ = Σ sym(r ⊗ f) of `forces`.
-    pub fn set_stresses_from(&mut self, forces: &[Vec3]) {
+    pub(crate) fn set_stresses_from(&mut self, forces: &[Vec3]) {
         let sums = contact_sums(self, forces);
         for (g, s) in self.grains.iter_mut().zip(sums) {
             g.stress = s.stress_moment.map(|v| v / g.volume);

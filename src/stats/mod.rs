@@ -324,7 +324,7 @@ fn coordination(scene: &Scene, carrying: &[bool], min_contacts: usize) -> (f64, 
 }
 
 /// Deviatoric anisotropy of a fabric tensor (see [`FrameStats::fabric_anisotropy`]).
-pub fn anisotropy(dim: usize, fabric: &Sym) -> f64 {
+pub(crate) fn anisotropy(dim: usize, fabric: &Sym) -> f64 {
     let trace: f64 = (0..dim).map(|k| fabric[k]).sum();
     if trace == 0.0 {
         return 0.0;

@@ -25,7 +25,7 @@ use crate::solver::Triplets;
 use crate::{Error, Result};
 
 /// λ_min/λ_max of the equilibrated BᵀB below which the solution is not unique.
-pub const EIGENVALUE_RATIO_THRESHOLD: f64 = 1e-10;
+pub(crate) const EIGENVALUE_RATIO_THRESHOLD: f64 = 1e-10;
 /// Number of simultaneous vectors in the inverse iteration (bounds the null
 /// dimension that can be detected).
 const BLOCK_SIZE: usize = 8;

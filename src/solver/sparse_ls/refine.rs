@@ -1,0 +1,355 @@
+//! One solve on a factor (or a border around it) and iterative refinement
+//! against the unregularised KKT system.
+
+use super::active_rows::{ActiveRows, Changes};
+use super::border::{border_columns, Bordered, BORDER_MAX_ROWS};
+use super::compressed::{abs_mul_scaled, abs_mul_t_scaled, mul_scaled, mul_t_scaled};
+use super::numeric::{thread_count, Numeric};
+use super::{
+    Bordering, EqualityLeastSquares, ADD_FACTOR, CONVERGED_TOL, MAX_REFINEMENT_STEPS, STALL_STEPS,
+};
+use crate::solver::Triplets;
+use crate::{Error, Result};
+
+/// Outcome of one factorisation + refinement.
+pub(super) struct Attempt {
+    pub(super) x: Vec<f64>,
+    pub(super) multipliers: Vec<f64>,
+    pub(super) dual: f64,
+    pub(super) primal: f64,
+    pub(super) steps: usize,
+    pub(super) bordered: bool,
+}
+
+impl Attempt {
+    pub(super) fn rho(&self) -> f64 {
+        self.dual.max(self.primal)
+    }
+}
+
+impl EqualityLeastSquares {
+    /// One factorisation with static regularisation δ (or a border of the
+    /// kept one), first solve, refinement. A border that does not refine to
+    /// [`CONVERGED_TOL`] is replaced by a factorisation: taking a row out
+    /// cancels its penalty ĝᵀĝ/δ, which could cost the accuracy refinement
+    /// needs.
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn attempt(
+        &mut self,
+        a: &Triplets,
+        c: &Triplets,
+        b: &[f64],
+        d: &[f64],
+        lambda: f64,
+        delta: f64,
+        g: &Triplets,
+        springs: &Triplets,
+    ) -> Result<Attempt> {
+        match self.attempt_on(a, c, b, d, lambda, delta, g, springs, true) {
+            Ok(att) if !att.bordered || att.rho() <= CONVERGED_TOL => Ok(att),
+            Ok(_) | Err(Error::Solver(_)) => {
+                self.attempt_on(a, c, b, d, lambda, delta, g, springs, false)
+            }
+            Err(e) => Err(e),
+        }
+    }
+
+    /// [`attempt`](Self::attempt), bordering the changed rows only when
+    /// `may_border`.
+    #[allow(clippy::too_many_arguments)]
+    fn attempt_on(
+        &mut self,
+        a: &Triplets,
+        c: &Triplets,
+        b: &[f64],
+        d: &[f64],
+        lambda: f64,
+        delta: f64,
+        g: &Triplets,
+        springs: &Triplets,
+        may_border: bool,
+    ) -> Result<Attempt> {
+        let n = self.n;
+        // On a factor of the same A, C, λ and δ, the rows that changed since
+        // it was computed (rows added, rows it holds that are no longer
+        // active) are bordered around it — one sparse forward solve each —
+        // instead of a new numeric factorisation, when those solves cost less
+        // than the factorisation did.
+        let mut changes = None;
+        // The border's columns, when the choice below already built them.
+        let mut built = None;
+        if let (Some(num), Some(symbolic)) = (self.numeric.as_mut(), self.symbolic.as_ref()) {
+            if num.same_values(a, c, lambda, delta) {
+                if !num.active.same(g, springs) {
+                    num.active = ActiveRows::new(n, g, springs, &num.base.col_scale);
+                }
+                let diff = Changes::between(&num.in_factor, &num.active);
+                let k = diff.count();
+                // Removing a spring would subtract a stiffness of any size.
+                let may =
+                    may_border && k > 0 && k <= BORDER_MAX_ROWS && diff.removed_springs.is_empty();
+                let border = may
+                    && match self.bordering {
+                        Bordering::Auto => {
+                            // Only the columns the last border did not solve cost solves.
+                            let columns = border_columns(num, &diff, delta);
+                            let factor = num.factor(symbolic);
+                            let fresh = (columns.iter())
+                                .filter(|col| {
+                                    !num.last_border.as_ref().is_some_and(|b| b.holds(col))
+                                })
+                                .map(|(entries, _)| entries.as_slice());
+                            let share = factor.reach_share(fresh);
+                            let seconds = share * num.solve_seconds / thread_count(self.par) as f64;
+                            built = Some(columns);
+                            seconds < num.factor_seconds
+                        }
+                        Bordering::Never => false,
+                        Bordering::Always => true,
+                    };
+                if k == 0 || border {
+                    changes = Some(diff);
+                }
+            }
+        }
+        let changes = match changes {
+            Some(changes) => changes,
+            None => {
+                self.factorise(a, c, lambda, delta, g, springs)?;
+                let num = self.numeric.as_ref().expect("factorised above");
+                Changes::between(&num.in_factor, &num.active)
+            }
+        };
+        let border = changes.count() > 0;
+        let previous = self.numeric.as_mut().and_then(|n| n.last_border.take());
+        let num = self.numeric.as_ref().expect("factorised above");
+        let factor = num.factor(
+            self.symbolic
+                .as_ref()
+                .expect("non-empty KKT has a symbolic factor"),
+        );
+        let size = factor.rows();
+        let mg = num.active.len();
+        let bordered = if border {
+            let columns = built.unwrap_or_else(|| border_columns(num, &changes, delta));
+            Some(Bordered::new(columns, &factor, previous.as_ref())?)
+        } else {
+            None
+        };
+        let kept: Vec<f64> = changes
+            .kept
+            .iter()
+            .map(|&k| if k { 1.0 } else { 0.0 })
+            .collect();
+        let any_kept = changes.kept.iter().any(|&k| k);
+        let mut border_rhs = vec![0.0; changes.count()];
+        // Solves the regularised augmented system in place: the active rows
+        // the factor holds are eliminated through their penalty, the others
+        // bordered around it, between the two halves of the factor's solve.
+        let mut kkt_solve = |rhs: &mut [f64]| {
+            let (head, r3) = rhs.split_at_mut(size);
+            if any_kept {
+                let shifted: Vec<f64> = (r3.iter().zip(&num.active.row_scale))
+                    .map(|(r, t)| r * t / delta)
+                    .collect();
+                let lift = mul_t_scaled(&num.active.csr, &kept, &num.base.col_scale, &shifted, n);
+                for (h, l) in head.iter_mut().zip(&lift) {
+                    *h += l;
+                }
+            }
+            factor.solve_with(head, |v| {
+                if let Some(bordered) = &bordered {
+                    for (slot, &i) in border_rhs.iter_mut().zip(&changes.added) {
+                        *slot = r3[i];
+                    }
+                    let t = bordered.correct(&factor, v, &border_rhs);
+                    for (&i, ti) in changes.added.iter().zip(t.iter()) {
+                        r3[i] = *ti;
+                    }
+                }
+            });
+            if any_kept {
+                let gy = mul_scaled(
+                    &num.active.csr,
+                    &num.active.row_scale,
+                    &num.base.col_scale,
+                    &head[..n],
+                );
+                for ((r, gyi), &k) in r3.iter_mut().zip(&gy).zip(&changes.kept) {
+                    if k {
+                        *r = (gyi - *r) / delta;
+                    }
+                }
+            }
+        };
+
+        let ones_a = vec![1.0; a.nrows];
+        let d_hat: Vec<f64> = d
+            .iter()
+            .zip(&num.base.c_row_scale)
+            .map(|(v, t)| v * t)
+            .collect();
+        // The right-hand side (the residual at z = 0): (S Aᵀb, T d, 0).
+        let mut z = mul_t_scaled(&self.a_csr, &ones_a, &num.base.col_scale, b, n);
+        z.extend_from_slice(&d_hat);
+        z.resize(size + mg, 0.0);
+        let clock = std::time::Instant::now();
+        kkt_solve(&mut z);
+        let first_solve_seconds = clock.elapsed().as_secs_f64();
+        let (mut r, mut dual, mut primal) = self.kkt_residual(num, &ones_a, b, &d_hat, &z);
+        if !(dual.is_finite() && primal.is_finite()) {
+            return Err(Error::Solver(
+                "the first KKT solve produced non-finite values (factor growth; the data are too badly scaled \
+                 for the normal-equations KKT)"
+                    .into(),
+            ));
+        }
+        let mut best = (dual.max(primal), dual, primal, z.clone());
+        let mut steps = 0;
+        let mut stalled = 0;
+        while steps < MAX_REFINEMENT_STEPS && best.0 > self.refine_to && stalled < STALL_STEPS {
+            kkt_solve(&mut r);
+            for (zi, ri) in z.iter_mut().zip(&r) {
+                *zi += ri;
+            }
+            steps += 1;
+            (r, dual, primal) = self.kkt_residual(num, &ones_a, b, &d_hat, &z);
+            let rho = dual.max(primal);
+            if !rho.is_finite() {
+                break;
+            }
+            stalled = if rho < 0.9 * best.0 { 0 } else { stalled + 1 };
+            if rho < best.0 {
+                best = (rho, dual, primal, z.clone());
+            }
+        }
+        let x: Vec<f64> = best.3[..n]
+            .iter()
+            .zip(&num.base.col_scale)
+            .map(|(y, s)| y * s)
+            .collect();
+        if x.iter().any(|v| !v.is_finite()) {
+            return Err(Error::Solver(
+                "the solution overflows after unscaling".into(),
+            ));
+        }
+        // The refined system reads (AᵀA + λ²)x + … + Gᵀ(T w) = Aᵀb, so the
+        // multiplier of G x ≥ 0 in ∇ = Cᵀν + Gᵀy is y = −T w.
+        let multipliers = best.3[size..]
+            .iter()
+            .zip(&num.active.row_scale)
+            .map(|(w, t)| -w * t)
+            .collect();
+        if let Some(num) = self.numeric.as_mut() {
+            if !border {
+                // A plain solve on the factor: the unit of a border's cost.
+                num.solve_seconds = first_solve_seconds;
+            }
+            num.last_border = bordered.or(previous);
+        }
+        Ok(Attempt {
+            x,
+            multipliers,
+            dual: best.1,
+            primal: best.2,
+            steps,
+            bordered: border,
+        })
+    }
+
+    /// Residual of the unregularised equilibrated KKT system at z = (y, μ, w), and
+    /// the relative sizes of the dual (stationarity, normwise) and primal (C x = d
+    /// and G x = 0, per row) parts.
+    fn kkt_residual(
+        &self,
+        num: &Numeric,
+        ones_a: &[f64],
+        b: &[f64],
+        d_hat: &[f64],
+        z: &[f64],
+    ) -> (Vec<f64>, f64, f64) {
+        let n = self.n;
+        let mc = d_hat.len();
+        let (y, rest) = z.split_at(n);
+        let (mu, w) = rest.split_at(mc);
+        let (s, t) = (&num.base.col_scale, &num.base.c_row_scale);
+        let (g_csr, tg) = (&num.active.csr, &num.active.row_scale);
+        let ay = mul_scaled(&self.a_csr, ones_a, s, y);
+        let ra: Vec<f64> = b.iter().zip(&ay).map(|(bi, ai)| bi - ai).collect();
+        let atr = mul_t_scaled(&self.a_csr, ones_a, s, &ra, n);
+        let ctmu = mul_t_scaled(&self.c_csr, t, s, mu, n);
+        let gtw = mul_t_scaled(g_csr, tg, s, w, n);
+        let springs = &num.active.springs;
+        let ones_r = vec![1.0; springs.nmajor];
+        let ry = mul_scaled(springs, &ones_r, s, y);
+        let rtry = mul_t_scaled(springs, &ones_r, s, &ry, n);
+        let rtry_bound = abs_mul_t_scaled(
+            springs,
+            &ones_r,
+            s,
+            &abs_mul_scaled(springs, &ones_r, s, y),
+            n,
+        );
+        let cy = mul_scaled(&self.c_csr, t, s, y);
+        let gy = mul_scaled(g_csr, tg, s, y);
+
+        let abs_ay = abs_mul_scaled(&self.a_csr, ones_a, s, y);
+        let b_bound: Vec<f64> = b
+            .iter()
+            .zip(&abs_ay)
+            .map(|(bi, ai)| bi.abs() + ai)
+            .collect();
+        let dual_bound = abs_mul_t_scaled(&self.a_csr, ones_a, s, &b_bound, n);
+        let ctmu_bound = abs_mul_t_scaled(&self.c_csr, t, s, mu, n);
+        let gtw_bound = abs_mul_t_scaled(g_csr, tg, s, w, n);
+        let primal_bound = abs_mul_scaled(&self.c_csr, t, s, y);
+        let g_bound = abs_mul_scaled(g_csr, tg, s, y);
+
+        let mut r = Vec::with_capacity(z.len());
+        let (mut dual_num, mut dual_den) = (0.0f64, 0.0f64);
+        for j in 0..n {
+            let reg = num.base.lambda2_s2[j] * y[j];
+            let g = atr[j] - reg - ctmu[j] - gtw[j] - rtry[j];
+            dual_num = dual_num.max(g.abs());
+            dual_den = dual_den
+                .max(dual_bound[j] + reg.abs() + ctmu_bound[j] + gtw_bound[j] + rtry_bound[j]);
+            r.push(g);
+        }
+        // Constraints are checked row by row (componentwise): each equation must
+        // hold to round-off relative to its own terms. A row whose terms are
+        // themselves round-off of the solution (d_i = 0 and C_i y ≈ 0, e.g. one
+        // entry pinning y_j = 0) cannot do better than |y_j| ~ u‖y‖, and the pure
+        // componentwise ratio would then read 1 forever; such rows are measured
+        // against ‖C_i‖∞‖y‖∞ as well (Arioli, Demmel & Duff, SIMAX 1989).
+        let ratio = |num: f64, den: f64| {
+            if num == 0.0 {
+                0.0
+            } else {
+                (num / den).min(1.0)
+            }
+        };
+        let y_max = y.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        let roundoff_level = ADD_FACTOR * z.len() as f64 * f64::EPSILON;
+        let mut primal = 0.0f64;
+        let mut row_check = |rc: f64, own: f64, rhs: f64, row_max: f64| {
+            let own_terms = own + rhs.abs();
+            let normwise = row_max * y_max;
+            let den = if own_terms > roundoff_level * (normwise + rhs.abs()) {
+                own_terms
+            } else {
+                own_terms + normwise
+            };
+            primal = primal.max(ratio(rc.abs(), den));
+        };
+        for i in 0..mc {
+            let rc = d_hat[i] - cy[i];
+            row_check(rc, primal_bound[i], d_hat[i], num.base.c_row_max[i]);
+            r.push(rc);
+        }
+        for i in 0..gy.len() {
+            row_check(gy[i], g_bound[i], 0.0, num.active.row_max[i]);
+            r.push(-gy[i]);
+        }
+        (r, ratio(dual_num, dual_den), primal)
+    }
+}
