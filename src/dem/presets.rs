@@ -16,15 +16,6 @@ const QUARTZ: (f64, f64) = (95e9, 0.08);
 
 pub(super) fn defaults(preset: Preset, dim: usize) -> DemConfig {
     let stiff = 67.5e6; // 67.5 kN/mm
-    let rigid = |kn: f64, kt: f64, restitution: f64, mu: f64| Material {
-        kn,
-        kt,
-        young: f64::INFINITY,
-        poisson: 0.0,
-        restitution,
-        mu,
-        tangential_damping: 0.0,
-    };
     let mut c = DemConfig {
         preset,
         dim,
@@ -89,21 +80,8 @@ pub(super) fn defaults(preset: Preset, dim: usize) -> DemConfig {
             c.grains = 6;
             c.sizes = SizeDistribution::Uniform { min: r, max: r };
             c.density = 1250.0;
-            c.law = ContactLaw::Hertz;
-            c.thickness = 6.35e-3;
             let kn = linear_equivalent(5.85e6, 0.49, r / 2.0, 0.05 * r);
-            c.grain = Material {
-                kn,
-                kt: kn * 2.0 / 3.0,
-                young: 5.85e6,
-                poisson: 0.49,
-                restitution: 0.6,
-                mu: 0.6,
-                tangential_damping: 0.0,
-            };
-            c.wall = rigid(2.0 * kn, 4.0 / 3.0 * kn, 0.6, 0.6);
-            c.gravity = Some([0.0, -9.81, 0.0]);
-            c.overlap_ref = 0.05;
+            hertz_disks_under_gravity(&mut c, 5.85e6, 0.49, kn, 0.6);
             c.duration = 0.028;
             c.frame_rate = 5000.0;
             c.impact_velocity = [-1.141, -0.66, 0.0];
@@ -120,21 +98,8 @@ pub(super) fn defaults(preset: Preset, dim: usize) -> DemConfig {
                 fraction_small: 0.5,
             };
             c.density = 1200.0;
-            c.law = ContactLaw::Hertz;
-            c.thickness = 6.35e-3;
             let kn = linear_equivalent(12e6, 0.45, 0.0127 / 2.0, 0.05 * 0.0127);
-            c.grain = Material {
-                kn,
-                kt: kn * 2.0 / 3.0,
-                young: 12e6,
-                poisson: 0.45,
-                restitution: 0.5,
-                mu: 0.6,
-                tangential_damping: 0.0,
-            };
-            c.wall = rigid(2.0 * kn, 4.0 / 3.0 * kn, 0.5, 0.6);
-            c.gravity = Some([0.0, -9.81, 0.0]);
-            c.overlap_ref = 0.05;
+            hertz_disks_under_gravity(&mut c, 12e6, 0.45, kn, 0.5);
             c.duration = 0.03;
             c.frame_rate = 4500.0;
             c.impact_velocity = [0.0, -2.4, 0.0];
@@ -152,6 +117,44 @@ fn linear_equivalent(young: f64, poisson: f64, rstar: f64, delta: f64) -> f64 {
 }
 
 /// Per-unit-thickness scale of the laws: 1/T in 2D, 1 in 3D.
+/// A wall of infinite Young's modulus with these linear constants.
+fn rigid(kn: f64, kt: f64, restitution: f64, mu: f64) -> Material {
+    Material {
+        kn,
+        kt,
+        young: f64::INFINITY,
+        poisson: 0.0,
+        restitution,
+        mu,
+        tangential_damping: 0.0,
+    }
+}
+
+/// The impact experiments' photoelastic disks (6.35 mm thick, μ = 0.6, Hertz
+/// contacts of linear equivalent `kn`) between rigid walls, under gravity.
+fn hertz_disks_under_gravity(
+    c: &mut DemConfig,
+    young: f64,
+    poisson: f64,
+    kn: f64,
+    restitution: f64,
+) {
+    c.law = ContactLaw::Hertz;
+    c.thickness = 6.35e-3;
+    c.grain = Material {
+        kn,
+        kt: kn * 2.0 / 3.0,
+        young,
+        poisson,
+        restitution,
+        mu: 0.6,
+        tangential_damping: 0.0,
+    };
+    c.wall = rigid(2.0 * kn, 4.0 / 3.0 * kn, restitution, 0.6);
+    c.gravity = Some([0.0, -9.81, 0.0]);
+    c.overlap_ref = 0.05;
+}
+
 fn law_scale(c: &DemConfig) -> f64 {
     if c.dim == 2 {
         1.0 / c.thickness
@@ -160,28 +163,9 @@ fn law_scale(c: &DemConfig) -> f64 {
     }
 }
 
-fn grain_interaction(c: &DemConfig) -> Interaction {
-    let s = law_scale(c);
-    let g = &c.grain;
-    let damp_n = damping_for_restitution(c.law, g.restitution);
-    let (normal, tangential) = match c.law {
-        ContactLaw::Linear => (g.kn * s, g.kt * s),
-        ContactLaw::Hertz => (
-            effective_young(g.young, g.poisson, g.young, g.poisson) * s,
-            effective_shear(g.young, g.poisson, g.young, g.poisson) * s,
-        ),
-    };
-    Interaction {
-        law: c.law,
-        normal,
-        tangential,
-        damp_n,
-        damp_t: g.tangential_damping * damp_n,
-        mu: g.mu,
-    }
-}
-
-fn wall_interaction(c: &DemConfig, wall: &Material) -> Interaction {
+/// The law between a grain and a body of material `wall` (a grain's own
+/// material for grain–grain contacts).
+fn interaction(c: &DemConfig, wall: &Material) -> Interaction {
     let s = law_scale(c);
     let g = &c.grain;
     let damp_n = damping_for_restitution(c.law, wall.restitution);
@@ -307,8 +291,8 @@ fn build(c: &DemConfig) -> Result<Built> {
     let mut rng = ChaCha8Rng::seed_from_u64(c.seed);
     let radii = radii(c, &mut rng);
     let rmin = radii.iter().cloned().fold(f64::INFINITY, f64::min);
-    let grain = grain_interaction(c);
-    let wall = wall_interaction(c, &c.wall);
+    let grain = interaction(c, &c.grain);
+    let wall = interaction(c, &c.wall);
     let mut delta = c.overlap_ref * rmin;
     if c.preset.is_dynamic() && c.law == ContactLaw::Hertz {
         // Hertz overlap of the impactor on the lightest grain at the impact speed.
@@ -735,7 +719,7 @@ fn impact(sys: &mut System, c: &DemConfig, frame_steps: u64, settled: f64) -> Re
             ("intruder", [xc, touch + 2e-3, 0.0])
         }
     };
-    let impactor_law = wall_interaction(c, &c.wall);
+    let impactor_law = interaction(c, &c.wall);
     sys.add_wall(
         name,
         WallShape::Ball {

@@ -197,22 +197,7 @@ pub(crate) fn read_dump(path: &Path, kind: DumpKind) -> Result<Vec<DumpFrame>> {
                 }
                 let mut values = Vec::with_capacity(cells.len());
                 for (cell, name) in cells.iter().zip(&columns) {
-                    let x: f64 = cell.parse().map_err(|_| {
-                        Error::data(
-                            path,
-                            Some(n),
-                            Some(name),
-                            format!("`{cell}` is not a number"),
-                        )
-                    })?;
-                    if !x.is_finite() {
-                        return Err(Error::data(
-                            path,
-                            Some(n),
-                            Some(name),
-                            format!("`{cell}` is not a finite number"),
-                        ));
-                    }
+                    let x = crate::scene::parse_number(path, n, name, cell)?;
                     values.push(x);
                 }
                 rows.push(DumpRow { line: n, values });

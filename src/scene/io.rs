@@ -92,7 +92,8 @@ pub(crate) fn csv_number(
     )
 }
 
-fn parse_number(path: &Path, line: usize, column: &str, s: &str) -> Result<f64> {
+/// A finite number, or an error naming the file, line and column.
+pub(crate) fn parse_number(path: &Path, line: usize, column: &str, s: &str) -> Result<f64> {
     let value: f64 = s.parse().map_err(|_| {
         Error::data(
             path,

@@ -12,7 +12,7 @@ pub use io::{
     write_scene, write_sequence, ForceRow, Forces,
 };
 /// The CSV reading every grainforce table shares (importers use it too).
-pub(crate) use io::{csv_cell, csv_number, read_csv};
+pub(crate) use io::{csv_cell, csv_number, parse_number, read_csv};
 pub use select::{select_subassembly, Selection};
 pub use sums::{contact_sums, wall_totals, ContactSums};
 
