@@ -197,7 +197,30 @@ fn check_dynamic(run: &dem::DemRun, gravity: bool) {
 #[test]
 fn impact_frames_balance_momentum_to_round_off() {
     let c = DemConfig::preset(Preset::Impact, 2).duration(0.01);
-    let run = dem::simulate(&c).unwrap();
+    // The library reports progress through the callback, in order; the run is
+    // the same as without one.
+    let mut events = Vec::new();
+    let run = dem::simulate_with_progress(&c, &mut |p| events.push(p.clone())).unwrap();
+    assert!(matches!(
+        events[0],
+        dem::DemProgress::Built {
+            grains: 6,
+            dim: 2,
+            ..
+        }
+    ));
+    assert!(events[1..]
+        .iter()
+        .any(|e| matches!(e, dem::DemProgress::Relaxing { .. })));
+    let frames: Vec<u64> = events
+        .iter()
+        .filter_map(|e| match e {
+            dem::DemProgress::Frame { frame, total, .. } => Some(*frame).filter(|_| *total == 50),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(frames, [20, 40]);
+    assert_eq!(run.frames, dem::simulate(&c).unwrap().frames);
     assert_eq!(run.frames.len(), 51);
     assert!(run.report.max_momentum_residual < 1e-9);
     let impactor = run.frames[20].wall_index("impactor").unwrap();

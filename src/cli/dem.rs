@@ -131,9 +131,7 @@ pub fn run(args: Args) -> grainforce::Result<()> {
             args.dim
         )));
     }
-    let mut c = DemConfig::preset(preset, args.dim)
-        .seed(args.seed)
-        .verbose(args.verbose);
+    let mut c = DemConfig::preset(preset, args.dim).seed(args.seed);
     if let Some(n) = args.grains {
         c.grains = n;
     }
@@ -191,7 +189,12 @@ pub fn run(args: Args) -> grainforce::Result<()> {
             SizesArg::InverseSquare => SizeDistribution::InverseSquare { min: lo, max: hi },
         };
     }
-    let run = dem::simulate(&c)?;
+    let verbose = args.verbose;
+    let run = dem::simulate_with_progress(&c, &mut |p| {
+        if verbose {
+            eprintln!("{p}");
+        }
+    })?;
     dem::write_run(&args.output, &run)?;
     let r = &run.report;
     status!(

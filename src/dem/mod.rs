@@ -199,7 +199,8 @@ pub struct DemConfig {
     /// Dynamic presets: impactor / intruder radius [m] and mass (per unit thickness in 2D).
     pub impactor_radius: f64,
     pub impactor_mass: f64,
-    /// Print progress to stderr.
+    /// [`simulate`] prints progress to stderr (a library user passes a
+    /// callback to [`simulate_with_progress`] instead).
     pub verbose: bool,
 }
 
@@ -431,8 +432,82 @@ impl DemRun {
 
 /// Runs the configured preset.
 pub fn simulate(config: &DemConfig) -> Result<DemRun> {
+    if config.verbose {
+        simulate_with_progress(config, &mut |p| eprintln!("{p}"))
+    } else {
+        simulate_with_progress(config, &mut |_| {})
+    }
+}
+
+/// As [`simulate`], telling `on_progress` how the run goes (the packing
+/// built, the relaxation every 20 000 steps, every 20th frame of an impact)
+/// instead of printing it; `verbose` is ignored.
+pub fn simulate_with_progress(
+    config: &DemConfig,
+    on_progress: &mut dyn FnMut(&DemProgress),
+) -> Result<DemRun> {
     config.validate()?;
-    presets::run(config)
+    presets::run(config, on_progress)
+}
+
+/// What a DEM run reports while it runs.
+#[derive(Debug, Clone, PartialEq)]
+pub enum DemProgress {
+    /// The packing is built; relaxation starts.
+    Built {
+        preset: &'static str,
+        grains: usize,
+        dim: usize,
+        time_step: f64,
+    },
+    /// Relaxation towards the gate (`phase`: `servo` while the walls hold the
+    /// target load, `relax` after), with the gate figures so far.
+    Relaxing {
+        phase: &'static str,
+        step: u64,
+        unbalanced: f64,
+        moment: f64,
+        servo_error: f64,
+        seconds: f64,
+    },
+    /// A frame of a dynamic preset recorded.
+    Frame {
+        frame: u64,
+        total: u64,
+        contacts: usize,
+    },
+}
+
+impl std::fmt::Display for DemProgress {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            DemProgress::Built {
+                preset,
+                grains,
+                dim,
+                time_step,
+            } => write!(
+                f,
+                "grainforce dem {preset}: {grains} grains in {dim}D, time step {time_step:.3e} s"
+            ),
+            DemProgress::Relaxing {
+                phase,
+                step,
+                unbalanced,
+                moment,
+                servo_error,
+                seconds,
+            } => write!(
+                f,
+                "  {phase}: step {step:>9}, unbalanced {unbalanced:.3e}, moment {moment:.3e}, servo error {servo_error:.3e}, {seconds:.1} s"
+            ),
+            DemProgress::Frame {
+                frame,
+                total,
+                contacts,
+            } => write!(f, "  impact: frame {frame}/{total}, {contacts} contacts"),
+        }
+    }
 }
 
 /// Builds the configured preset and relaxes it to the gate without writing
@@ -441,7 +516,7 @@ pub fn simulate(config: &DemConfig) -> Result<DemRun> {
 /// before the impact.
 pub fn prepare(config: &DemConfig) -> Result<(sim::System, GateReport)> {
     config.validate()?;
-    presets::prepare(config).map(|(s, r, _)| (s, r))
+    presets::prepare(config, &mut |_| {}).map(|(s, r, _)| (s, r))
 }
 
 /// Writes a run as a scene folder (grains.csv, contacts.csv, walls.csv,

@@ -5,7 +5,9 @@
 use super::law::{damping_for_restitution, effective_shear, effective_young, Interaction};
 use super::output::{balance_residuals, snapshot};
 use super::sim::{Motion, System, WallShape};
-use super::{ContactLaw, DemConfig, DemRun, GateReport, Material, Preset, SizeDistribution};
+use super::{
+    ContactLaw, DemConfig, DemProgress, DemRun, GateReport, Material, Preset, SizeDistribution,
+};
 use crate::error::{Error, Result};
 use crate::scene::{Scene, Settings, Vec3};
 use rand::{Rng, SeedableRng};
@@ -419,7 +421,13 @@ fn build(c: &DemConfig) -> Result<Built> {
 /// then walls frozen and relaxation with local and light viscous damping.
 /// Ends with an evaluation of the state (contacts recorded) that met the gate,
 /// or the last one when the step limit ran out. Returns the gate figures.
-fn relax(sys: &mut System, c: &DemConfig, tc: f64, started: std::time::Instant) -> Gate {
+fn relax(
+    sys: &mut System,
+    c: &DemConfig,
+    tc: f64,
+    started: std::time::Instant,
+    on_progress: &mut dyn FnMut(&DemProgress),
+) -> Gate {
     let check = 10;
     sys.local_damping = c.local_damping;
     // Light viscous drag (a small fraction of the contact frequency) damps
@@ -432,16 +440,18 @@ fn relax(sys: &mut System, c: &DemConfig, tc: f64, started: std::time::Instant) 
         .any(|w| matches!(w.motion, Motion::Servo { .. }));
     let servo_ratio = c.gate.max(1e-6);
     let mut next_print = 0u64;
-    let verbose = c.verbose;
-    let progress = |sys: &System, phase: &str, next: &mut u64| {
-        if verbose && sys.steps >= *next {
-            let (f, m) = sys.unbalanced();
-            eprintln!(
-                "  {phase}: step {:>9}, unbalanced {f:.3e}, moment {m:.3e}, servo error {:.3e}, {:.1} s",
-                sys.steps,
-                sys.servo_error(),
-                started.elapsed().as_secs_f64()
-            );
+    let mut progress = |sys: &System, phase: &'static str, next: &mut u64| {
+        if sys.steps >= *next {
+            let (unbalanced, moment) = sys.unbalanced();
+            on_progress(&DemProgress::Relaxing {
+                phase,
+                step: sys.steps,
+                unbalanced,
+                moment,
+                servo_error: sys.servo_error(),
+                seconds: started.elapsed().as_secs_f64(),
+            });
+            // A developer's view of the walls and the worst grains.
             if std::env::var_os("GRAINFORCE_DEM_DEBUG").is_some() {
                 for (k, w) in sys.walls.iter().enumerate() {
                     eprintln!(
@@ -576,23 +586,23 @@ fn law_name(l: ContactLaw) -> &'static str {
 /// Builds the preset and relaxes it to the gate (for dynamic presets: the
 /// settled packing before the impact). Returns the system, the gate part of
 /// the report and the steps per frame.
-pub(super) fn prepare(c: &DemConfig) -> Result<(System, GateReport, u64)> {
+pub(super) fn prepare(
+    c: &DemConfig,
+    on_progress: &mut dyn FnMut(&DemProgress),
+) -> Result<(System, GateReport, u64)> {
     let started = std::time::Instant::now();
     let Built {
         mut sys,
         tc,
         frame_steps,
     } = build(c)?;
-    if c.verbose {
-        eprintln!(
-            "grainforce dem {}: {} grains in {}D, time step {:.3e} s",
-            c.preset.name(),
-            c.grains,
-            c.dim,
-            sys.dt
-        );
-    }
-    let gate = relax(&mut sys, c, tc, started);
+    on_progress(&DemProgress::Built {
+        preset: c.preset.name(),
+        grains: c.grains,
+        dim: c.dim,
+        time_step: sys.dt,
+    });
+    let gate = relax(&mut sys, c, tc, started, on_progress);
     let mut report = GateReport {
         preset: c.preset.name().into(),
         dim: c.dim,
@@ -627,9 +637,9 @@ pub(super) fn prepare(c: &DemConfig) -> Result<(System, GateReport, u64)> {
     Ok((sys, report, frame_steps))
 }
 
-pub(super) fn run(c: &DemConfig) -> Result<DemRun> {
+pub(super) fn run(c: &DemConfig, on_progress: &mut dyn FnMut(&DemProgress)) -> Result<DemRun> {
     let started = std::time::Instant::now();
-    let (mut sys, mut report, frame_steps) = prepare(c)?;
+    let (mut sys, mut report, frame_steps) = prepare(c, on_progress)?;
     let gate_force = report.unbalanced_ratio;
     let gate_moment = report.moment_ratio;
     let passed = report.passed;
@@ -650,7 +660,7 @@ pub(super) fn run(c: &DemConfig) -> Result<DemRun> {
         let (scene, f) = snapshot(&sys, &settings(c, text), None, false, true);
         (vec![scene], vec![f], sys.max_overlap)
     } else {
-        impact(&mut sys, c, frame_steps, gate_force)?
+        impact(&mut sys, c, frame_steps, gate_force, on_progress)?
     };
     let mut worst_f: f64 = 0.0;
     let mut worst_m: f64 = 0.0;
@@ -677,7 +687,13 @@ type Frames = (Vec<Scene>, Vec<Vec<Vec3>>, f64);
 
 /// Launches the impactor (impact) or intruder (bed-impact) at the settled
 /// packing and records frames; no numerical damping acts from here on.
-fn impact(sys: &mut System, c: &DemConfig, frame_steps: u64, settled: f64) -> Result<Frames> {
+fn impact(
+    sys: &mut System,
+    c: &DemConfig,
+    frame_steps: u64,
+    settled: f64,
+    on_progress: &mut dyn FnMut(&DemProgress),
+) -> Result<Frames> {
     let speed = c.impact_velocity.iter().map(|x| x * x).sum::<f64>().sqrt();
     let (name, centre) = match c.preset {
         Preset::Impact => {
@@ -768,11 +784,12 @@ fn impact(sys: &mut System, c: &DemConfig, frame_steps: u64, settled: f64) -> Re
         let (s, f) = snapshot(sys, &settings, Some(frame as i64), true, false);
         frames.push(s);
         forces.push(f);
-        if c.verbose && frame % 20 == 0 {
-            eprintln!(
-                "  impact: frame {frame}/{frames_total}, {} contacts",
-                frames.last().map(|s| s.contacts.len()).unwrap_or(0)
-            );
+        if frame % 20 == 0 {
+            on_progress(&DemProgress::Frame {
+                frame,
+                total: frames_total,
+                contacts: frames.last().map(|s| s.contacts.len()).unwrap_or(0),
+            });
         }
     }
     Ok((frames, forces, max_overlap))
