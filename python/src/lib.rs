@@ -13,7 +13,6 @@ use pyo3::exceptions::{PyFileNotFoundError, PyOSError, PyRuntimeError, PyValueEr
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Mutex;
 
 // The CLI's own flags and their checks, so `infer(**options)` takes exactly
@@ -241,7 +240,7 @@ fn prepare(
     Ok((prepared.frames, prepared.options))
 }
 
-/// Infers the frames in parallel (as `infer::infer_frames`), calling
+/// Infers the frames in parallel (the library's `infer_frames`), calling
 /// `progress(done, total)` with the GIL taken after each frame. The first
 /// exception the callback raises is kept and raised once the solves end.
 fn solve(
@@ -250,27 +249,13 @@ fn solve(
     progress: Option<&Py<PyAny>>,
     callback_error: &Mutex<Option<PyErr>>,
 ) -> Result<Vec<Inference>, Error> {
-    use rayon::prelude::*;
     if frames.len() == 1 {
         let result = infer::infer(&frames[0], &per_frame[0]);
         report_progress(progress, 1, 1, callback_error);
         return result.map(|r| vec![r]);
     }
-    let done = AtomicUsize::new(0);
-    let results: Vec<Result<Inference, Error>> = frames
-        .par_iter()
-        .zip(per_frame.par_iter())
-        .map(|(scene, opts)| {
-            let r = infer::infer(scene, opts).map_err(|e| match scene.frame {
-                Some(k) => Error::Solver(format!("frame {k}: {e}")),
-                None => e,
-            });
-            let n = done.fetch_add(1, Ordering::SeqCst) + 1;
-            report_progress(progress, n, frames.len(), callback_error);
-            r
-        })
-        .collect();
-    results.into_iter().collect()
+    let report = |p: infer::Progress| report_progress(progress, p.done, p.total, callback_error);
+    infer::infer_frames(frames, per_frame, progress.map(|_| &report as _))
 }
 
 fn report_progress(
@@ -280,6 +265,7 @@ fn report_progress(
     callback_error: &Mutex<Option<PyErr>>,
 ) {
     let Some(callback) = progress else { return };
+    // Called from a solving thread, which holds no GIL: take it for the call.
     Python::attach(|py| {
         if let Err(e) = callback.call1(py, (done, total)) {
             if let Ok(mut slot) = callback_error.lock() {

@@ -545,6 +545,18 @@ fn time_fit(
     time_fit::infer_time_fit(frames, opts, &fit, Some(&frame_by_frame))
 }
 
+/// The bar drawn on stderr while the frames of a sequence are inferred.
+fn frame_bar(frames: usize) -> indicatif::ProgressBar {
+    let bar = indicatif::ProgressBar::new(frames as u64);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template(
+            "{bar:40} {pos}/{len} frames, {elapsed} elapsed, ETA {eta}",
+        )
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    bar
+}
+
 pub fn run(args: Args) -> Result<()> {
     let (opts, selection) = options(&args)?;
     let joint_fps = match args.time_fit {
@@ -570,7 +582,17 @@ pub fn run(args: Args) -> Result<()> {
     let mut results = if frames.len() == 1 {
         vec![infer::infer(&frames[0], &per_frame[0])?]
     } else {
-        infer::infer_frames(&frames, &per_frame, !args.quiet)?
+        let bar = (!args.quiet).then(|| frame_bar(frames.len()));
+        let advance = |p: infer::Progress| {
+            if let Some(bar) = &bar {
+                bar.set_position(p.done as u64);
+            }
+        };
+        let results = infer::infer_frames(&frames, &per_frame, Some(&advance));
+        if let Some(bar) = bar {
+            bar.finish_and_clear();
+        }
+        results?
     };
     let time_fit = match joint_fps {
         None => None,

@@ -103,3 +103,71 @@ pub fn prepare(
         derived,
     })
 }
+
+/// How far the frames of a sequence have got, passed to a progress callback
+/// after each frame ends (inferred or failed).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Progress {
+    /// Frames ended so far, this one included.
+    pub done: usize,
+    pub total: usize,
+    /// The frame that just ended (its number, when the scene has one).
+    pub frame: Option<i64>,
+    /// Frames failed so far.
+    pub failed: usize,
+}
+
+/// A progress callback; called from the solving threads, one call at a
+/// time, with `done` rising by one each call.
+pub type ProgressFn<'a> = &'a (dyn Fn(Progress) + Sync);
+
+/// Infers every frame of a sequence with the same options, frames in
+/// parallel; the first failure (in frame order) is the error.
+pub fn infer_sequence(
+    frames: &[Scene],
+    opts: &InferOptions,
+    progress: Option<ProgressFn<'_>>,
+) -> Result<Vec<super::Inference>> {
+    let per_frame = vec![opts.clone(); frames.len()];
+    infer_frames(frames, &per_frame, progress)
+}
+
+/// Infers frames in parallel, each with its own options; the first failure
+/// (in frame order) is the error.
+pub fn infer_frames(
+    frames: &[Scene],
+    opts: &[InferOptions],
+    progress: Option<ProgressFn<'_>>,
+) -> Result<Vec<super::Inference>> {
+    use rayon::prelude::*;
+    if frames.len() != opts.len() {
+        return Err(Error::Invalid(
+            "one set of options per frame is needed".into(),
+        ));
+    }
+    let counts = std::sync::Mutex::new((0usize, 0usize));
+    let results: Vec<Result<super::Inference>> = frames
+        .par_iter()
+        .zip(opts.par_iter())
+        .map(|(scene, opts)| {
+            let r = super::infer(scene, opts).map_err(|e| match scene.frame {
+                Some(k) => Error::Solver(format!("frame {k}: {e}")),
+                None => e,
+            });
+            if let Some(report) = progress {
+                // Held while reporting, so calls come one at a time, in order.
+                let mut counts = counts.lock().unwrap_or_else(|p| p.into_inner());
+                counts.0 += 1;
+                counts.1 += usize::from(r.is_err());
+                report(Progress {
+                    done: counts.0,
+                    total: frames.len(),
+                    frame: scene.frame,
+                    failed: counts.1,
+                });
+            }
+            r
+        })
+        .collect();
+    results.into_iter().collect()
+}
