@@ -60,7 +60,12 @@ enum Command {
 pub fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
-        Command::Infer(a) => infer::run(a),
+        Command::Infer(a) => match infer::run(a) {
+            Ok(infer::Finished::FramesFailed) => {
+                return std::process::ExitCode::from(infer::FRAMES_FAILED_EXIT)
+            }
+            other => other.map(drop),
+        },
         Command::Score(a) => score::run(a),
         Command::Plot(a) => plot::run(a),
         Command::Dem(a) => dem::run(a),
