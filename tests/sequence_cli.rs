@@ -1,6 +1,13 @@
 //! Long sequences on the command line: a failed frame is reported and the
-//! others are written.
+//! others are written; `--frames A..B` reads only the frames it needs and
+//! gives them the forces one run over every frame gives them.
 
+mod common;
+
+use grainforce::infer::kinematics::Smoother;
+use grainforce::infer::sequence::{self, SequencePlan};
+use grainforce::infer::{InferOptions, Method};
+use grainforce::scene::Selection;
 use std::path::Path;
 use std::process::Command;
 
@@ -107,4 +114,141 @@ fn a_sequence_whose_frames_all_fail_is_an_error() {
     let run = infer(&scene, &["-m", "qs", "-o", out.to_str().unwrap(), "-q"]);
     assert_eq!(run.status.code(), Some(1));
     assert!(!out.exists());
+}
+
+/// The lines of a forces.csv whose frame (first column) lies in first..=last.
+fn rows_of_frames(text: &str, first: i64, last: i64) -> Vec<&str> {
+    text.lines()
+        .skip(1)
+        .filter(|l| {
+            let k: i64 = l.split(',').next().unwrap().parse().unwrap();
+            (first..=last).contains(&k)
+        })
+        .collect()
+}
+
+#[test]
+fn a_frame_range_reads_its_frames_and_gets_one_runs_forces() {
+    // Accelerations in grains.csv (DEM): a range reads exactly its frames.
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = tmp.path().join("impact");
+    let run = grainforce::dem::simulate(
+        &grainforce::dem::DemConfig::preset(grainforce::dem::Preset::Impact, 2)
+            .seed(1)
+            .duration(0.004),
+    )
+    .unwrap();
+    grainforce::scene::write_sequence(&scene, &run.frames).unwrap();
+    let (first, last) = (run.frames[0].frame.unwrap(), run.frames.last().unwrap().frame.unwrap());
+    let cut = (first + last) / 2;
+    let opts = InferOptions {
+        method: Method::Dynamic,
+        ..Default::default()
+    };
+    let plan = SequencePlan {
+        frame_range: Some((cut as f64, last as f64)),
+        derive_accelerations: false,
+        fps: None,
+        smoother: Smoother::default_fir(),
+        selection: Selection::All,
+        acceleration_sd_given: false,
+        position_sd: None,
+    };
+    let (frames, scope) = sequence::read(&scene, &opts, &plan).unwrap();
+    assert_eq!(scope.frames, Some((cut, last)));
+    let numbers: Vec<i64> = frames.iter().filter_map(|f| f.frame).collect();
+    assert_eq!(numbers, (cut..=last).collect::<Vec<_>>());
+
+    let whole = tmp.path().join("whole.csv");
+    let part = tmp.path().join("part.csv");
+    let range = format!("{cut}..{last}");
+    for (out, extra) in [(&whole, vec![]), (&part, vec!["--frames", range.as_str()])] {
+        let mut args = vec!["-m", "dynamic", "-q", "-o", out.to_str().unwrap()];
+        args.extend(extra);
+        let done = infer(&scene, &args);
+        assert!(done.status.success(), "{}", String::from_utf8_lossy(&done.stderr));
+    }
+    let (whole, part) = (
+        std::fs::read_to_string(whole).unwrap(),
+        std::fs::read_to_string(part).unwrap(),
+    );
+    assert_eq!(part.lines().next(), whole.lines().next());
+    let expected = rows_of_frames(&whole, cut, last);
+    assert!(!expected.is_empty());
+    assert_eq!(rows_of_frames(&part, i64::MIN, i64::MAX), expected);
+}
+
+#[test]
+fn derived_accelerations_at_a_range_boundary_are_one_runs() {
+    let case = common::noisy_impact_on_disk(3);
+    let diameter = 2.0 * case.run.frames[0].grains[0].radius.unwrap();
+    let position_sd = (1e-3 * diameter).to_string();
+    let first = case.noisy[0].frame.unwrap();
+    let last = case.noisy.last().unwrap().frame.unwrap();
+    // A boundary where the ball is near the disk (a busy stretch of the tracks).
+    let cut = first + (last - first) / 2;
+    for (smoother, extra) in [("fir", &[][..]), ("savgol", &["--savgol-window", "15"][..])] {
+        let common = |out: &Path| -> Vec<String> {
+            let mut a: Vec<String> = ["-m", "dynamic", "-q", "--smoother", smoother, "--position-sd"]
+                .iter()
+                .map(|s| s.to_string())
+                .collect();
+            a.push(position_sd.clone());
+            a.extend(extra.iter().map(|s| s.to_string()));
+            a.extend(["-o".to_string(), out.to_str().unwrap().to_string()]);
+            a
+        };
+        let whole = case.dir.path().join(format!("whole-{smoother}.csv"));
+        let done = case.infer_from_tracks(&common(&whole).iter().map(String::as_str).collect::<Vec<_>>());
+        assert!(done.status.success(), "{}", String::from_utf8_lossy(&done.stderr));
+        let whole = std::fs::read_to_string(whole).unwrap();
+        for (a, b) in [(first, first + 3), (cut - 4, cut), (cut + 1, cut + 6)] {
+            let part = case.dir.path().join(format!("part-{smoother}-{a}.csv"));
+            let mut args = common(&part);
+            args.extend(["--frames".to_string(), format!("{a}..{b}")]);
+            let done =
+                case.infer_from_tracks(&args.iter().map(String::as_str).collect::<Vec<_>>());
+            assert!(done.status.success(), "{}", String::from_utf8_lossy(&done.stderr));
+            let part = std::fs::read_to_string(part).unwrap();
+            let expected = rows_of_frames(&whole, a, b);
+            assert!(!expected.is_empty());
+            assert_eq!(rows_of_frames(&part, i64::MIN, i64::MAX), expected, "{smoother} {a}..{b}");
+        }
+    }
+
+    // The range reads its frames and the smoother's margin only, unless the
+    // weights need the noise estimated from every track.
+    let opts = InferOptions {
+        method: Method::Dynamic,
+        ..Default::default()
+    };
+    let mut plan = SequencePlan {
+        frame_range: Some((cut as f64, (cut + 5) as f64)),
+        derive_accelerations: true,
+        fps: Some(case.fps),
+        smoother: Smoother::default_fir(),
+        selection: Selection::All,
+        acceleration_sd_given: false,
+        position_sd: Some(1e-3 * diameter),
+    };
+    let margin = Smoother::default_fir().margin().unwrap() as i64;
+    let (frames, scope) = sequence::read(&case.scene, &opts, &plan).unwrap();
+    assert_eq!(scope.frames, Some((cut - margin, cut + 5 + margin)));
+    assert_eq!(frames.len() as i64, 6 + 2 * margin);
+    // The margin matters: the block's accelerations are the whole run's to
+    // the bit with it, and not without it.
+    let accelerations = |frames: Vec<grainforce::scene::Scene>| -> Vec<Option<[f64; 3]>> {
+        let prepared = sequence::prepare(frames, &opts, &plan).unwrap();
+        prepared.frames[0].grains.iter().map(|g| g.acceleration).collect()
+    };
+    let from_block = accelerations(frames);
+    let from_all = accelerations(grainforce::scene::read_sequence(&case.scene).unwrap());
+    let unpadded =
+        accelerations(grainforce::scene::read_sequence_frames(&case.scene, cut, cut + 5).unwrap());
+    assert_eq!(from_block, from_all);
+    assert_ne!(unpadded, from_all);
+    plan.position_sd = None;
+    let (frames, scope) = sequence::read(&case.scene, &opts, &plan).unwrap();
+    assert!(scope.frames.is_none() && scope.whole_because.is_some());
+    assert_eq!(frames.len(), case.noisy.len());
 }
