@@ -252,3 +252,115 @@ fn derived_accelerations_at_a_range_boundary_are_one_runs() {
     assert!(scope.frames.is_none() && scope.whole_because.is_some());
     assert_eq!(frames.len(), case.noisy.len());
 }
+
+/// A report with its timings (which differ from run to run) removed.
+fn without_timings(mut value: serde_json::Value) -> serde_json::Value {
+    match &mut value {
+        serde_json::Value::Object(map) => {
+            map.retain(|k, _| !(k == "time" || k.ends_with("_time")));
+            for v in map.values_mut() {
+                *v = without_timings(v.take());
+            }
+        }
+        serde_json::Value::Array(items) => {
+            for v in items {
+                *v = without_timings(v.take());
+            }
+        }
+        _ => {}
+    }
+    value
+}
+
+/// `infer` over the whole sequence and over blocks, then `merge` of the
+/// blocks' forces and reports: the forces byte for byte, the reports entry
+/// for entry (timings aside) and in the same layout.
+fn merged_blocks_are_one_run(scene: &Path, work: &Path, args: &[&str], blocks: &[(i64, i64)]) {
+    let run = |out: &str, report: &str, extra: &[&str]| {
+        let mut all: Vec<&str> = args.to_vec();
+        all.extend(["-q", "-o", out, "--report", report]);
+        all.extend(extra);
+        let done = infer(scene, &all);
+        assert!(
+            matches!(done.status.code(), Some(0 | 3)),
+            "{}",
+            String::from_utf8_lossy(&done.stderr)
+        );
+        done.status.code()
+    };
+    let path = |name: String| work.join(name).to_str().unwrap().to_owned();
+    let whole_status = run(&path("whole.csv".into()), &path("whole.json".into()), &[]);
+    let mut statuses = Vec::new();
+    // Listed backwards: merge orders the blocks by frame.
+    for (k, (a, b)) in blocks.iter().enumerate().rev() {
+        let range = format!("{a}..{b}");
+        statuses.push(run(
+            &path(format!("forces-{k}.csv")),
+            &path(format!("report-{k}.json")),
+            &["--frames", &range],
+        ));
+    }
+    assert_eq!(statuses.contains(&Some(3)), whole_status == Some(3));
+    for (kind, whole) in [("forces-{}.csv", "whole.csv"), ("report-{}.json", "whole.json")] {
+        let out = path(format!("merged-{whole}"));
+        let mut args = vec!["merge".to_string(), out.clone()];
+        args.extend((0..blocks.len()).rev().map(|k| path(kind.replace("{}", &k.to_string()))));
+        let done = Command::new(env!("CARGO_BIN_EXE_grainforce"))
+            .args(&args)
+            .output()
+            .unwrap();
+        assert!(done.status.success(), "{}", String::from_utf8_lossy(&done.stderr));
+        let (merged, whole) = (
+            std::fs::read_to_string(&out).unwrap(),
+            std::fs::read_to_string(path(whole.into())).unwrap(),
+        );
+        if whole.starts_with('[') {
+            let parse = |t: &str| without_timings(serde_json::from_str(t).unwrap());
+            assert_eq!(parse(&merged), parse(&whole));
+            // The same text, timings aside.
+            let untimed = |t: &str| -> Vec<String> {
+                t.lines().filter(|l| !l.contains("time\"")).map(str::to_owned).collect()
+            };
+            assert_eq!(untimed(&merged), untimed(&whole));
+        } else {
+            assert_eq!(merged, whole);
+        }
+    }
+}
+
+#[test]
+fn merged_blocks_give_one_runs_files() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = tmp.path().join("impact");
+    let run = grainforce::dem::simulate(
+        &grainforce::dem::DemConfig::preset(grainforce::dem::Preset::Impact, 2)
+            .seed(2),
+    )
+    .unwrap();
+    grainforce::scene::write_sequence(&scene, &run.frames).unwrap();
+    let (first, last) = (run.frames[0].frame.unwrap(), run.frames.last().unwrap().frame.unwrap());
+    let cut = (first + last) / 2;
+    // The middle block is one frame (its report a single object).
+    let blocks = [(first, cut - 1), (cut, cut), (cut + 1, last)];
+    merged_blocks_are_one_run(&scene, tmp.path(), &["-m", "dynamic"], &blocks);
+
+    // With a failed frame (2): its block exits 3, and the merge still lists it.
+    let disks = tmp.path().join("disks");
+    sideways_disks(&disks, &[2.0, 2.0, 1e-3, 2.0, 2.0]);
+    let work = tmp.path().join("disk-runs");
+    std::fs::create_dir(&work).unwrap();
+    merged_blocks_are_one_run(&disks, &work, &["-m", "qs"], &[(0, 1), (2, 4)]);
+
+    // Blocks that overlap do not merge.
+    let out = tmp.path().join("bad.csv");
+    let done = Command::new(env!("CARGO_BIN_EXE_grainforce"))
+        .arg("merge")
+        .arg(&out)
+        .arg(tmp.path().join("forces-0.csv"))
+        .arg(tmp.path().join("whole.csv"))
+        .output()
+        .unwrap();
+    assert!(!done.status.success());
+    assert!(String::from_utf8_lossy(&done.stderr).contains("both hold frame"));
+    assert!(!out.exists());
+}

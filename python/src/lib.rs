@@ -395,7 +395,7 @@ fn infer_forces<'py>(
     let report = if single_frame {
         to_json(reports[0])?
     } else {
-        to_json(&cli_infer::sequence_report(&entries, &reports).map_err(to_py)?)?
+        to_json(&cli_infer::sequence_report(&entries, &reports))?
     };
     Ok((forces_table(py, &forces)?, report, failures))
 }

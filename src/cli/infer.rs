@@ -687,7 +687,7 @@ pub fn run(args: Args) -> Result<Finished> {
         } else if single_frame {
             serde_json::to_string_pretty(reports[0])
         } else {
-            serde_json::to_string_pretty(&sequence_report(&entries, &reports)?)
+            serde_json::to_string_pretty(&sequence_report(&entries, &reports))
         }
         .map_err(|e| Error::Invalid(e.to_string()))?;
         pending.push((path.clone(), json.into_bytes()));
@@ -861,21 +861,31 @@ pub struct Solved {
     pub entries: Vec<Option<(i64, String)>>,
 }
 
+/// An entry of a sequence's JSON report.
+#[derive(serde::Serialize)]
+#[serde(untagged)]
+pub enum ReportEntry<'a> {
+    Inferred(&'a infer::InferenceReport),
+    Failed { frame: i64, error: &'a str },
+}
+
 /// A sequence's JSON report: one entry per frame in frame order, a failed
 /// frame's `{"frame": k, "error": "…"}`.
-pub fn sequence_report(
-    entries: &[Option<(i64, String)>],
-    reports: &[&infer::InferenceReport],
-) -> Result<Vec<serde_json::Value>> {
+pub fn sequence_report<'a>(
+    entries: &'a [Option<(i64, String)>],
+    reports: &[&'a infer::InferenceReport],
+) -> Vec<ReportEntry<'a>> {
     let mut reports = reports.iter();
     entries
         .iter()
-        .map(|entry| match entry {
-            Some((frame, error)) => Ok(serde_json::json!({ "frame": frame, "error": error })),
-            None => serde_json::to_value(reports.next()),
+        .filter_map(|entry| match entry {
+            Some((frame, error)) => Some(ReportEntry::Failed {
+                frame: *frame,
+                error,
+            }),
+            None => reports.next().map(|r| ReportEntry::Inferred(r)),
         })
-        .collect::<std::result::Result<_, _>>()
-        .map_err(|e| Error::Invalid(e.to_string()))
+        .collect()
 }
 
 /// Sorts the frames' outcomes; an error when the run must stop (a failure

@@ -17,6 +17,7 @@ pub mod noise;
 mod polish;
 mod report;
 pub mod sequence;
+pub mod shards;
 pub mod time_fit;
 pub mod uncertainty;
 

@@ -5,7 +5,7 @@
 
 use super::{Body, Contact, Grain, Inertia, Scene, Settings, Sym, Vec3, Wall};
 use crate::error::{Error, Result};
-use std::collections::{BTreeMap, HashMap, HashSet};
+use std::collections::{BTreeMap, BTreeSet, HashMap, HashSet};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
@@ -384,19 +384,25 @@ pub fn read_sequence_frames(dir: &Path, first: i64, last: i64) -> Result<Vec<Sce
 /// Whether a sequence folder's grains.csv has acceleration columns (read
 /// from its header only).
 pub fn sequence_has_acceleration_columns(dir: &Path) -> Result<bool> {
+    check_folder(dir)?;
     let header = csv_header(&dir.join("grains.csv"))?;
     Ok(header
         .iter()
         .any(|c| matches!(c.as_str(), "a_x" | "alpha" | "alpha_x")))
 }
 
-fn read_sequence_where(dir: &Path, range: Option<(i64, i64)>) -> Result<Vec<Scene>> {
+fn check_folder(dir: &Path) -> Result<()> {
     if !dir.is_dir() {
         return Err(Error::io(
             dir,
             std::io::Error::new(std::io::ErrorKind::NotFound, "scene folder not found"),
         ));
     }
+    Ok(())
+}
+
+fn read_sequence_where(dir: &Path, range: Option<(i64, i64)>) -> Result<Vec<Scene>> {
+    check_folder(dir)?;
     let settings = read_settings(&dir.join("scene.json"))?;
     let read = |path: &Path| match range {
         None => Table::read(path),
@@ -465,7 +471,9 @@ fn read_sequence_where(dir: &Path, range: Option<(i64, i64)>) -> Result<Vec<Scen
     }
 
     let mut wall_loads: HashMap<(Option<i64>, String), Vec3> = HashMap::new();
-    let mut wall_names: HashSet<String> = HashSet::new();
+    // Sorted: walls a frame's contacts do not name join it in an order that
+    // does not depend on the run (nor on the frames read).
+    let mut wall_names: BTreeSet<String> = BTreeSet::new();
     if let Some(walls) = &walls {
         walls.require("wall")?;
         for (line, record) in &walls.rows {
