@@ -82,13 +82,19 @@ fn a_failed_frame_is_reported_and_the_others_are_written() {
             pair[0].force[1] + pair[1].force[1],
         ];
         // Σ f = −m g with m = 0.1, g = (−9.81, −1).
-        assert!((total[0] - 0.981).abs() < 1e-6 && (total[1] - 0.1).abs() < 1e-6, "{total:?}");
+        assert!(
+            (total[0] - 0.981).abs() < 1e-6 && (total[1] - 0.1).abs() < 1e-6,
+            "{total:?}"
+        );
     }
     let entries: Vec<serde_json::Value> =
         serde_json::from_str(&std::fs::read_to_string(&report).unwrap()).unwrap();
     assert_eq!(entries.len(), 4);
     assert_eq!(entries[2]["frame"], 2);
-    assert!(entries[2]["error"].as_str().unwrap().contains("μ too small"));
+    assert!(entries[2]["error"]
+        .as_str()
+        .unwrap()
+        .contains("μ too small"));
     for k in [0, 1, 3] {
         assert_eq!(entries[k]["frame"], k as i64);
         assert!(entries[k].get("error").is_none() && entries[k]["stress_residual"].is_number());
@@ -98,7 +104,14 @@ fn a_failed_frame_is_reported_and_the_others_are_written() {
     let stopped = tmp.path().join("stopped.csv");
     let run = infer(
         &scene,
-        &["-m", "qs", "-o", stopped.to_str().unwrap(), "--stop-on-failure", "-q"],
+        &[
+            "-m",
+            "qs",
+            "-o",
+            stopped.to_str().unwrap(),
+            "--stop-on-failure",
+            "-q",
+        ],
     );
     assert_eq!(run.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&run.stderr).contains("frame 2"));
@@ -139,7 +152,10 @@ fn a_frame_range_reads_its_frames_and_gets_one_runs_forces() {
     )
     .unwrap();
     grainforce::scene::write_sequence(&scene, &run.frames).unwrap();
-    let (first, last) = (run.frames[0].frame.unwrap(), run.frames.last().unwrap().frame.unwrap());
+    let (first, last) = (
+        run.frames[0].frame.unwrap(),
+        run.frames.last().unwrap().frame.unwrap(),
+    );
     let cut = (first + last) / 2;
     let opts = InferOptions {
         method: Method::Dynamic,
@@ -166,7 +182,11 @@ fn a_frame_range_reads_its_frames_and_gets_one_runs_forces() {
         let mut args = vec!["-m", "dynamic", "-q", "-o", out.to_str().unwrap()];
         args.extend(extra);
         let done = infer(&scene, &args);
-        assert!(done.status.success(), "{}", String::from_utf8_lossy(&done.stderr));
+        assert!(
+            done.status.success(),
+            "{}",
+            String::from_utf8_lossy(&done.stderr)
+        );
     }
     let (whole, part) = (
         std::fs::read_to_string(whole).unwrap(),
@@ -189,30 +209,53 @@ fn derived_accelerations_at_a_range_boundary_are_one_runs() {
     let cut = first + (last - first) / 2;
     for (smoother, extra) in [("fir", &[][..]), ("savgol", &["--savgol-window", "15"][..])] {
         let common = |out: &Path| -> Vec<String> {
-            let mut a: Vec<String> = ["-m", "dynamic", "-q", "--smoother", smoother, "--position-sd"]
-                .iter()
-                .map(|s| s.to_string())
-                .collect();
+            let mut a: Vec<String> = [
+                "-m",
+                "dynamic",
+                "-q",
+                "--smoother",
+                smoother,
+                "--position-sd",
+            ]
+            .iter()
+            .map(|s| s.to_string())
+            .collect();
             a.push(position_sd.clone());
             a.extend(extra.iter().map(|s| s.to_string()));
             a.extend(["-o".to_string(), out.to_str().unwrap().to_string()]);
             a
         };
         let whole = case.dir.path().join(format!("whole-{smoother}.csv"));
-        let done = case.infer_from_tracks(&common(&whole).iter().map(String::as_str).collect::<Vec<_>>());
-        assert!(done.status.success(), "{}", String::from_utf8_lossy(&done.stderr));
+        let done = case.infer_from_tracks(
+            &common(&whole)
+                .iter()
+                .map(String::as_str)
+                .collect::<Vec<_>>(),
+        );
+        assert!(
+            done.status.success(),
+            "{}",
+            String::from_utf8_lossy(&done.stderr)
+        );
         let whole = std::fs::read_to_string(whole).unwrap();
         for (a, b) in [(first, first + 3), (cut - 4, cut), (cut + 1, cut + 6)] {
             let part = case.dir.path().join(format!("part-{smoother}-{a}.csv"));
             let mut args = common(&part);
             args.extend(["--frames".to_string(), format!("{a}..{b}")]);
-            let done =
-                case.infer_from_tracks(&args.iter().map(String::as_str).collect::<Vec<_>>());
-            assert!(done.status.success(), "{}", String::from_utf8_lossy(&done.stderr));
+            let done = case.infer_from_tracks(&args.iter().map(String::as_str).collect::<Vec<_>>());
+            assert!(
+                done.status.success(),
+                "{}",
+                String::from_utf8_lossy(&done.stderr)
+            );
             let part = std::fs::read_to_string(part).unwrap();
             let expected = rows_of_frames(&whole, a, b);
             assert!(!expected.is_empty());
-            assert_eq!(rows_of_frames(&part, i64::MIN, i64::MAX), expected, "{smoother} {a}..{b}");
+            assert_eq!(
+                rows_of_frames(&part, i64::MIN, i64::MAX),
+                expected,
+                "{smoother} {a}..{b}"
+            );
         }
     }
 
@@ -239,7 +282,11 @@ fn derived_accelerations_at_a_range_boundary_are_one_runs() {
     // the bit with it, and not without it.
     let accelerations = |frames: Vec<grainforce::scene::Scene>| -> Vec<Option<[f64; 3]>> {
         let prepared = sequence::prepare(frames, &opts, &plan).unwrap();
-        prepared.frames[0].grains.iter().map(|g| g.acceleration).collect()
+        prepared.frames[0]
+            .grains
+            .iter()
+            .map(|g| g.acceleration)
+            .collect()
     };
     let from_block = accelerations(frames);
     let from_all = accelerations(grainforce::scene::read_sequence(&case.scene).unwrap());
@@ -301,15 +348,26 @@ fn merged_blocks_are_one_run(scene: &Path, work: &Path, args: &[&str], blocks: &
         ));
     }
     assert_eq!(statuses.contains(&Some(3)), whole_status == Some(3));
-    for (kind, whole) in [("forces-{}.csv", "whole.csv"), ("report-{}.json", "whole.json")] {
+    for (kind, whole) in [
+        ("forces-{}.csv", "whole.csv"),
+        ("report-{}.json", "whole.json"),
+    ] {
         let out = path(format!("merged-{whole}"));
         let mut args = vec!["merge".to_string(), out.clone()];
-        args.extend((0..blocks.len()).rev().map(|k| path(kind.replace("{}", &k.to_string()))));
+        args.extend(
+            (0..blocks.len())
+                .rev()
+                .map(|k| path(kind.replace("{}", &k.to_string()))),
+        );
         let done = Command::new(env!("CARGO_BIN_EXE_grainforce"))
             .args(&args)
             .output()
             .unwrap();
-        assert!(done.status.success(), "{}", String::from_utf8_lossy(&done.stderr));
+        assert!(
+            done.status.success(),
+            "{}",
+            String::from_utf8_lossy(&done.stderr)
+        );
         let (merged, whole) = (
             std::fs::read_to_string(&out).unwrap(),
             std::fs::read_to_string(path(whole.into())).unwrap(),
@@ -319,7 +377,10 @@ fn merged_blocks_are_one_run(scene: &Path, work: &Path, args: &[&str], blocks: &
             assert_eq!(parse(&merged), parse(&whole));
             // The same text, timings aside.
             let untimed = |t: &str| -> Vec<String> {
-                t.lines().filter(|l| !l.contains("time\"")).map(str::to_owned).collect()
+                t.lines()
+                    .filter(|l| !l.contains("time\""))
+                    .map(str::to_owned)
+                    .collect()
             };
             assert_eq!(untimed(&merged), untimed(&whole));
         } else {
@@ -333,12 +394,14 @@ fn merged_blocks_give_one_runs_files() {
     let tmp = tempfile::tempdir().unwrap();
     let scene = tmp.path().join("impact");
     let run = grainforce::dem::simulate(
-        &grainforce::dem::DemConfig::preset(grainforce::dem::Preset::Impact, 2)
-            .seed(2),
+        &grainforce::dem::DemConfig::preset(grainforce::dem::Preset::Impact, 2).seed(2),
     )
     .unwrap();
     grainforce::scene::write_sequence(&scene, &run.frames).unwrap();
-    let (first, last) = (run.frames[0].frame.unwrap(), run.frames.last().unwrap().frame.unwrap());
+    let (first, last) = (
+        run.frames[0].frame.unwrap(),
+        run.frames.last().unwrap().frame.unwrap(),
+    );
     let cut = (first + last) / 2;
     // The middle block is one frame (its report a single object).
     let blocks = [(first, cut - 1), (cut, cut), (cut + 1, last)];

@@ -264,7 +264,7 @@ fn solve(
     if frames.len() == 1 {
         let result = infer::infer(&frames[0], &per_frame[0]);
         report_progress(progress, 1, 1, callback_error);
-        return Ok(vec![FrameOutcome::Inferred(result?)]);
+        return Ok(vec![FrameOutcome::Inferred(Box::new(result?))]);
     }
     let report = |p: infer::Progress| report_progress(progress, p.done, p.total, callback_error);
     infer::sequence::solve_frames(frames, per_frame, on_failure, progress.map(|_| &report as _))

@@ -2,14 +2,14 @@
 
 use grainforce::error::{Error, Result};
 use grainforce::infer::kinematics::{self, Smoother};
+use grainforce::infer::sequence::{self, FrameOutcome, OnFrameFailure};
+use grainforce::infer::time_fit;
 use grainforce::infer::uncertainty::{
     force_uncertainty, NoiseEstimate, Uncertainty, UncertaintyOptions,
 };
 use grainforce::infer::{
     self, ConeModel, ConstrainedSolver, InferOptions, LambdaRule, Method, OnCollapse, StressNoise,
 };
-use grainforce::infer::sequence::{self, FrameOutcome, OnFrameFailure};
-use grainforce::infer::time_fit;
 use grainforce::scene::{self, Forces, Selection};
 use grainforce::solver::sparse_ls::Ordering;
 use std::path::PathBuf;
@@ -596,7 +596,10 @@ pub fn run(args: Args) -> Result<Finished> {
         ..
     } = prepared;
     let outcomes = if frames.len() == 1 {
-        vec![FrameOutcome::Inferred(infer::infer(&frames[0], &per_frame[0])?)]
+        vec![FrameOutcome::Inferred(Box::new(infer::infer(
+            &frames[0],
+            &per_frame[0],
+        )?))]
     } else {
         let bar = (!args.quiet).then(|| frame_bar(frames.len()));
         let advance = |p: infer::Progress| {
@@ -909,7 +912,7 @@ pub fn split_outcomes(
             FrameOutcome::Inferred(r) => {
                 solved.frames.push(frame);
                 solved.per_frame.push(opts);
-                solved.results.push(r);
+                solved.results.push(*r);
                 solved.entries.push(None);
             }
             FrameOutcome::Failed(e) => {

@@ -477,7 +477,8 @@ pub fn savitzky_golay(x: &[f64], dt: f64, window: usize, degree: usize, deriv: u
             });
             // Relative to the sample itself (see `differentiate`); the
             // constant term takes it back.
-            let b = nalgebra::DVector::from_iterator(w, x[start..start + w].iter().map(|v| v - x[i]));
+            let b =
+                nalgebra::DVector::from_iterator(w, x[start..start + w].iter().map(|v| v - x[i]));
             let coef = a
                 .svd(true, true)
                 .solve(&b, 1e-12)

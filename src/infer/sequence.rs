@@ -234,7 +234,7 @@ pub enum OnFrameFailure {
 /// One frame's end.
 #[derive(Debug)]
 pub enum FrameOutcome {
-    Inferred(super::Inference),
+    Inferred(Box<super::Inference>),
     /// The frame's error (its message names the frame).
     Failed(Error),
     /// Not started: an earlier failure stopped the run ([`OnFrameFailure::Stop`]).
@@ -274,14 +274,16 @@ pub fn infer_frames(
     let mut not_run = false;
     for outcome in outcomes {
         match outcome {
-            FrameOutcome::Inferred(r) => results.push(r),
+            FrameOutcome::Inferred(r) => results.push(*r),
             FrameOutcome::Failed(e) => return Err(e),
             FrameOutcome::NotRun => not_run = true,
         }
     }
     if not_run {
         // Only a failure stops frames, and it was returned above.
-        return Err(Error::Solver("frames were left out without a failure".into()));
+        return Err(Error::Solver(
+            "frames were left out without a failure".into(),
+        ));
     }
     Ok(results)
 }
@@ -312,7 +314,7 @@ pub fn solve_frames(
                 return FrameOutcome::NotRun;
             }
             let outcome = match super::infer(scene, opts) {
-                Ok(r) => FrameOutcome::Inferred(r),
+                Ok(r) => FrameOutcome::Inferred(Box::new(r)),
                 Err(e) => {
                     if on_failure == OnFrameFailure::Stop {
                         stopped.store(true, Ordering::Relaxed);

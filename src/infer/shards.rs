@@ -49,9 +49,14 @@ pub fn merge_frame_tables(shards: &[PathBuf]) -> Result<Vec<u8>> {
         let mut frames = Vec::new();
         loop {
             let start = reader.position().byte() as usize;
-            let more = reader
-                .read_byte_record(&mut record)
-                .map_err(|e| Error::data(path, e.position().map(|p| p.line() as usize), None, e.to_string()))?;
+            let more = reader.read_byte_record(&mut record).map_err(|e| {
+                Error::data(
+                    path,
+                    e.position().map(|p| p.line() as usize),
+                    None,
+                    e.to_string(),
+                )
+            })?;
             if !more {
                 break;
             }
@@ -71,7 +76,12 @@ pub fn merge_frame_tables(shards: &[PathBuf]) -> Result<Vec<u8>> {
                     .ok()
                     .and_then(|s| s.parse::<i64>().ok())
                     .ok_or_else(|| {
-                        Error::data(path, Some(line), Some("frame"), "not an integer frame number")
+                        Error::data(
+                            path,
+                            Some(line),
+                            Some("frame"),
+                            "not an integer frame number",
+                        )
                     })?;
                 if frames.last().is_some_and(|&k| frame < k) {
                     return Err(Error::data(
@@ -126,7 +136,12 @@ pub fn merge_reports(shards: &[PathBuf]) -> Result<Vec<u8>> {
     for path in shards {
         let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
         let bad = |e: serde_json::Error| {
-            Error::data(path, Some(e.line()), None, format!("not a JSON report: {e}"))
+            Error::data(
+                path,
+                Some(e.line()),
+                None,
+                format!("not a JSON report: {e}"),
+            )
         };
         let entries: Vec<Box<serde_json::value::RawValue>> = if text.trim_start().starts_with('[') {
             serde_json::from_str(&text).map_err(bad)?
@@ -148,11 +163,24 @@ pub fn merge_reports(shards: &[PathBuf]) -> Result<Vec<u8>> {
                     "a joint time fit is one problem over every frame: its report does not merge",
                 ));
             }
-            let frame = value.get("frame").and_then(serde_json::Value::as_i64).ok_or_else(|| {
-                Error::data(path, None, Some("frame"), "a report entry without a frame number")
-            })?;
+            let frame = value
+                .get("frame")
+                .and_then(serde_json::Value::as_i64)
+                .ok_or_else(|| {
+                    Error::data(
+                        path,
+                        None,
+                        Some("frame"),
+                        "a report entry without a frame number",
+                    )
+                })?;
             if frames.last().is_some_and(|&k| frame <= k) {
-                return Err(Error::data(path, None, Some("frame"), "the entries are not in frame order"));
+                return Err(Error::data(
+                    path,
+                    None,
+                    Some("frame"),
+                    "the entries are not in frame order",
+                ));
             }
             frames.push(frame);
         }
@@ -182,7 +210,10 @@ pub fn merge_reports(shards: &[PathBuf]) -> Result<Vec<u8>> {
 /// Merges shards into `out`: reports when `out` ends in `.json`, frame
 /// tables otherwise. Written atomically.
 pub fn merge(out: &Path, shards: &[PathBuf]) -> Result<()> {
-    let bytes = if out.extension().is_some_and(|e| e.eq_ignore_ascii_case("json")) {
+    let bytes = if out
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("json"))
+    {
         merge_reports(shards)?
     } else {
         merge_frame_tables(shards)?
