@@ -69,7 +69,7 @@ fn a_failed_frame_is_reported_and_the_others_are_written() {
     let stderr = String::from_utf8_lossy(&run.stderr);
     assert_eq!(run.status.code(), Some(3), "{stderr}");
     assert!(
-        stderr.contains("frame 2: failed") && stderr.contains("μ too small"),
+        stderr.contains("not written: infeasible: frame 2:") && stderr.contains("μ too small"),
         "{stderr}"
     );
     // The other three frames' forces, each balancing its disk.

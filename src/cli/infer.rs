@@ -583,11 +583,16 @@ pub fn run(args: Args) -> Result<Finished> {
     let prepared = sequence::prepare(frames, &opts, &plan)?;
     if let (Some(k), false) = (&prepared.derived, args.quiet) {
         eprintln!(
-            "accelerations derived from {} tracks ({} partial, {} too short: zero); position noise {:.3e} m estimated from the tracks",
+            "accelerations derived from {} tracks ({} partial, {} too short: zero); position noise {:.3e} m {}",
             k.tracks,
             k.partial_tracks,
             k.short_tracks.len(),
-            k.position_sd
+            k.position_sd,
+            if args.position_sd.is_some() {
+                "(stated)"
+            } else {
+                "estimated from the tracks"
+            }
         );
     }
     let sequence::PreparedSequence {
@@ -626,8 +631,8 @@ pub fn run(args: Args) -> Result<Finished> {
         failures,
         entries,
     } = split_outcomes(&args, frames, per_frame, outcomes)?;
-    for (frame, error) in &failures {
-        eprintln!("frame {frame}: failed, not written: {error}");
+    for (_, error) in &failures {
+        eprintln!("not written: {error}");
     }
     if !failures.is_empty() && joint_fps.is_some() {
         return Err(Error::Invalid(format!(
