@@ -427,3 +427,56 @@ fn merged_blocks_give_one_runs_files() {
     assert!(String::from_utf8_lossy(&done.stderr).contains("both hold frame"));
     assert!(!out.exists());
 }
+
+#[test]
+fn a_frame_range_of_files_not_sorted_by_frame_reads_the_same_scenes() {
+    let tmp = tempfile::tempdir().unwrap();
+    let sorted = tmp.path().join("sorted");
+    let run = grainforce::dem::simulate(
+        &grainforce::dem::DemConfig::preset(grainforce::dem::Preset::Impact, 2)
+            .seed(1)
+            .duration(0.004),
+    )
+    .unwrap();
+    grainforce::scene::write_sequence(&sorted, &run.frames).unwrap();
+    // The same rows, frames in reverse order (each frame's rows in order).
+    let shuffled = tmp.path().join("shuffled");
+    std::fs::create_dir(&shuffled).unwrap();
+    for entry in std::fs::read_dir(&sorted).unwrap() {
+        let path = entry.unwrap().path();
+        let name = path.file_name().unwrap();
+        let text = std::fs::read_to_string(&path).unwrap();
+        if path.extension().is_some_and(|e| e == "csv") && text.starts_with("frame,") {
+            let mut lines = text.lines();
+            let header = lines.next().unwrap();
+            let mut rows: Vec<&str> = lines.collect();
+            rows.sort_by_key(|l| -l.split(',').next().unwrap().parse::<i64>().unwrap());
+            std::fs::write(
+                shuffled.join(name),
+                format!("{header}\n{}\n", rows.join("\n")),
+            )
+            .unwrap();
+        } else {
+            std::fs::write(shuffled.join(name), text).unwrap();
+        }
+    }
+    let first = run.frames[0].frame.unwrap();
+    let (a, b) = (first + 3, first + 9);
+    let expected: Vec<_> = grainforce::scene::read_sequence(&sorted)
+        .unwrap()
+        .into_iter()
+        .filter(|f| (a..=b).contains(&f.frame.unwrap()))
+        .collect();
+    assert_eq!(expected.len(), 7);
+    for dir in [&sorted, &shuffled] {
+        assert_eq!(
+            grainforce::scene::read_sequence_frames(dir, a, b).unwrap(),
+            expected
+        );
+    }
+    let none = grainforce::scene::read_sequence_frames(&shuffled, 10_000, 10_010);
+    assert!(none
+        .unwrap_err()
+        .to_string()
+        .contains("no frame of the sequence lies in the range"));
+}
