@@ -21,7 +21,7 @@ fn main() -> grainforce::Result<()> {
         method: Method::Dynamic,
         ..InferOptions::default()
     };
-    let results = infer_sequence(&run.frames, &opts, false)?;
+    let results = infer_sequence(&run.frames, &opts, None)?;
     let seconds = start.elapsed().as_secs_f64();
     eprintln!(
         "{} frames in {seconds:.2} s ({:.0} frames/s)",

@@ -57,7 +57,7 @@ fn main() -> grainforce::Result<()> {
             }
             None => weight_derived_momentum(&noisy, &mut per_frame, &report, 0.1)?,
         }
-        let results = infer_frames(&noisy, &per_frame, false)?;
+        let results = infer_frames(&noisy, &per_frame, None)?;
         let forces = results.into_iter().map(|r| r.forces).collect();
         Ok((noisy, forces))
     })?;

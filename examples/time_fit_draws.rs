@@ -35,7 +35,7 @@ fn main() -> grainforce::Result<()> {
         let report = derive_accelerations(&mut noisy, fps, Smoother::default_fir())?;
         let mut per_frame = vec![opts.clone(); noisy.len()];
         weight_derived_momentum(&noisy, &mut per_frame, &report, stress_sd)?;
-        let frame_by_frame: Vec<_> = infer_frames(&noisy, &per_frame, false)?
+        let frame_by_frame: Vec<_> = infer_frames(&noisy, &per_frame, None)?
             .into_iter()
             .map(|r| r.forces)
             .collect();

@@ -37,7 +37,7 @@ fn impact_with_exact_accelerations_per_frame() {
             method: Method::Dynamic,
             ..Default::default()
         },
-        false,
+        None,
     )
     .unwrap();
     let mut loaded = 0;
@@ -58,7 +58,7 @@ fn bed_impact_with_stress_noise_and_exact_accelerations() {
     // boundary grains, measured 0.065.
     let run = simulate(&DemConfig::preset(Preset::BedImpact, 2).seed(1)).unwrap();
     // Exact data first: every frame recovered.
-    let exact = infer_sequence(&run.frames, &dynamic(LambdaRule::Hard), false).unwrap();
+    let exact = infer_sequence(&run.frames, &dynamic(LambdaRule::Hard), None).unwrap();
     let forces: Vec<Vec<Vec3>> = exact.iter().map(|r| r.forces_or_zero()).collect();
     assert!(overall(&run.forces, &forces) <= 1e-4);
     // The original stress noise: the default rule trusts the accelerations.
@@ -75,7 +75,7 @@ fn bed_impact_with_stress_noise_and_exact_accelerations() {
             method: Method::Dynamic,
             ..Default::default()
         },
-        false,
+        None,
     )
     .unwrap();
     let forces: Vec<Vec<Vec3>> = default.iter().map(|r| r.forces_or_zero()).collect();
@@ -112,7 +112,7 @@ fn impact_with_accelerations_from_noisy_tracks() {
         let report = derive_accelerations(&mut noisy, fps, Smoother::default_fir()).unwrap();
         let mut per_frame = vec![dynamic(LambdaRule::Knee); noisy.len()];
         weight_derived_momentum(&noisy, &mut per_frame, &report, 0.1).unwrap();
-        let results = infer_frames(&noisy, &per_frame, false).unwrap();
+        let results = infer_frames(&noisy, &per_frame, None).unwrap();
         let forces: Vec<Vec<Vec3>> = results.iter().map(|r| r.forces_or_zero()).collect();
         let e = overall(&run.forces, &forces);
         let inferred: Vec<Vec<Option<Vec3>>> = results.iter().map(|r| r.forces.clone()).collect();
@@ -157,7 +157,7 @@ fn impact_with_accelerations_from_noisy_tracks() {
             // Trusting these accelerations exactly is refused (noisy
             // accelerations of grains at rest would need tension), not
             // answered with garbage.
-            match infer_sequence(&noisy, &dynamic(LambdaRule::Hard), false) {
+            match infer_sequence(&noisy, &dynamic(LambdaRule::Hard), None) {
                 Err(err) => assert!(err.to_string().contains("infeasible"), "{err}"),
                 Ok(_) => panic!("hard momentum on noisy accelerations should be infeasible"),
             }

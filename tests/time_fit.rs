@@ -44,7 +44,7 @@ fn frame_by_frame(noisy: &mut [Scene]) -> Vec<Vec<Option<Vec3>>> {
     let report = derive_accelerations(noisy, FPS, Smoother::default_fir()).unwrap();
     let mut per_frame = vec![dynamic(); noisy.len()];
     weight_derived_momentum(noisy, &mut per_frame, &report, 0.1).unwrap();
-    infer_frames(noisy, &per_frame, false)
+    infer_frames(noisy, &per_frame, None)
         .unwrap()
         .into_iter()
         .map(|r| r.forces)

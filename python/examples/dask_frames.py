@@ -17,21 +17,25 @@ import grainforce as gf
 
 
 def infer_block(scene_dir, first, last, options):
-    """One task: frames first..last of the sequence in scene_dir."""
-    scene = gf.read_scene(scene_dir)
-    return gf.infer(scene, frames=(first, last), **options).forces
+    """One task: frames first..last of the sequence in scene_dir (only those
+    frames, and the filter's margin, are read)."""
+    return gf.infer(scene_dir, frames=(first, last), **options).forces
 
 
-def infer_in_blocks(client, scene_dir, block=20, **options):
-    """The forces of every frame, one Dask task per `block` frames."""
-    frames = [f for f in gf.read_scene(scene_dir).frames if f is not None]
-    if not frames:
-        raise ValueError(f"{scene_dir}: not a sequence (no frame column)")
-    starts = range(min(frames), max(frames) + 1, block)
+def infer_in_blocks(client, scene_dir, block=20, frames=None, **options):
+    """The forces of every frame, one Dask task per `block` frames.
+
+    frames: (first, last) frame numbers; read from the scene when not given
+    (which reads it whole once, here)."""
+    if frames is None:
+        numbers = [f for f in gf.read_scene(scene_dir).frames if f is not None]
+        if not numbers:
+            raise ValueError(f"{scene_dir}: not a sequence (no frame column)")
+        frames = (min(numbers), max(numbers))
+    first, last = frames
     tasks = [
-        client.submit(infer_block, scene_dir, a, min(a + block - 1, max(frames)), options, pure=False)
-        for a in starts
-        if any(a <= f < a + block for f in frames)
+        client.submit(infer_block, scene_dir, a, min(a + block - 1, last), options, pure=False)
+        for a in range(first, last + 1, block)
     ]
     return pd.concat(client.gather(tasks), ignore_index=True)
 

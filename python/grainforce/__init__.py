@@ -21,6 +21,7 @@ import math
 import os
 import sys
 import tempfile
+import warnings
 from collections.abc import Mapping
 from typing import Any, Callable, Optional, Sequence, Tuple, Union
 
@@ -45,7 +46,14 @@ __all__ = [
     "packing",
     "InfeasibleError",
     "SolverError",
+    "FrameFailureWarning",
 ]
+
+
+
+class FrameFailureWarning(UserWarning):
+    """Some frames of a sequence failed; the result holds the others."""
+
 
 Table = Any  # a pandas DataFrame, or a dict of column name -> array
 Progress = Union[None, bool, Callable[[int, int], Any]]
@@ -223,18 +231,22 @@ class Inference:
     forces: the columns of forces.csv (frame for sequences, contact, f_x, f_y
     [, f_z]; force on grain ``a`` by ``b``), a DataFrame or a dict of arrays.
     report: the CLI's JSON report as a dict (a list of dicts, one per frame,
-    for a sequence).
+    for a sequence; a failed frame's is ``{"frame": k, "error": message}``).
+    failed_frames: ``(frame, error message)`` of each frame of a sequence
+    whose inference failed (its forces are absent), in frame order.
     """
 
-    __slots__ = ("forces", "report")
+    __slots__ = ("forces", "report", "failed_frames")
 
-    def __init__(self, forces: Table, report: Any):
+    def __init__(self, forces: Table, report: Any, failed_frames: Sequence = ()):
         self.forces = forces
         self.report = report
+        self.failed_frames = list(failed_frames)
 
     def __repr__(self) -> str:
         n = len(self.forces["contact"])
-        return f"Inference({n} forces)"
+        failed = f", {len(self.failed_frames)} frames failed" if self.failed_frames else ""
+        return f"Inference({n} forces{failed})"
 
 
 _FLAGS: Optional[dict] = None
@@ -299,7 +311,7 @@ def _argv(options: Mapping[str, Any]) -> list:
     return argv
 
 
-def _progress_callback(progress: Progress, total: int):
+def _progress_callback(progress: Progress, total: Optional[int]):
     if progress is None or progress is False:
         return None, None
     if callable(progress):
@@ -314,15 +326,26 @@ def _progress_callback(progress: Progress, total: int):
     bar = tqdm(total=total, unit="frame")
 
     def advance(done, total):
+        # The frames inferred (a range of the scene's) set the length.
+        if bar.total != total:
+            bar.total = total
         bar.update(done - bar.n)
 
     return advance, bar
 
 
 def infer(
-    scene: Scene, method: Optional[str] = None, *, progress: Progress = None, **options: Any
+    scene: Union[Scene, str, os.PathLike],
+    method: Optional[str] = None,
+    *,
+    progress: Progress = None,
+    **options: Any,
 ) -> Inference:
     """Infers the contact forces of a scene (``grainforce infer``).
+
+    scene: a Scene, or the path of a scene folder, of which only the frames
+    the options need are read (``frames=(a, b)`` plus the filter's margin
+    when accelerations are derived from the tracks), as the CLI reads it.
 
     method: None (the CLI's default: qs, switching to soft and saying so in
     the report when the data do not balance), qs (least squares on the
@@ -336,25 +359,45 @@ def infer(
     allow_infeasible=True, accept_degenerate=True, wall_weight, lambda_rule,
     stress_sd, accel_sd, sweep, sweep_points, frames=(a, b), fps,
     derive_accelerations, smoother, fir_order, cutoff, savgol_window,
-    savgol_degree. Defaults are the CLI's.
+    savgol_degree, position_sd, stop_on_failure. Defaults are the CLI's.
 
     progress: for sequences, True for a tqdm bar (a line on stderr without
     tqdm) or a callable ``progress(done, total)`` called after each frame.
+
+    A frame of a sequence whose inference fails does not stop the others:
+    the result lists it in ``failed_frames`` and a FrameFailureWarning is
+    issued; with stop_on_failure=True the first failure raises instead, as
+    it does for a single scene or when every frame fails.
 
     The solve runs with the GIL released. Bad options or data raise
     ValueError with the library's message; infeasible data InfeasibleError
     (a ValueError); a failed solve SolverError (a RuntimeError).
     """
-    if not isinstance(scene, Scene):
-        raise TypeError(f"infer() needs a grainforce.Scene, got {type(scene).__name__}")
+    if isinstance(scene, (str, os.PathLike)):
+        source, frames = os.fspath(scene), None
+    elif isinstance(scene, Scene):
+        source, frames = scene._native, len(scene)
+    else:
+        raise TypeError(
+            f"infer() needs a grainforce.Scene or a folder path, got {type(scene).__name__}"
+        )
     argv = _argv({"method": method, **options})
-    callback, bar = _progress_callback(progress, len(scene))
+    callback, bar = _progress_callback(progress, frames)
     try:
-        columns, report = _native.infer(scene._native, argv, callback)
+        columns, report, failed = _native.infer(source, argv, callback)
     finally:
         if bar is not None:
             bar.close()
-    return Inference(_table(columns), json.loads(report))
+    if failed:
+        listed = "; ".join(message for _, message in failed[:3])
+        more = f" (and {len(failed) - 3} more)" if len(failed) > 3 else ""
+        warnings.warn(
+            f"{len(failed)} frames failed and have no forces "
+            f"(result.failed_frames): {listed}{more}",
+            FrameFailureWarning,
+            stacklevel=2,
+        )
+    return Inference(_table(columns), json.loads(report), failed)
 
 
 class DemRun:

@@ -22,6 +22,9 @@ class InfeasibleError(ValueError):
 class SolverError(RuntimeError):
     """The solver failed; the message carries its diagnostics."""
 
+class FrameFailureWarning(UserWarning):
+    """Some frames of a sequence failed; the result holds the others."""
+
 class Scene:
     """A scene: one frame (static) or a sequence of frames (dynamic)."""
 
@@ -53,10 +56,12 @@ class Scene:
         """The tables (grains, contacts, walls or None)."""
 
 class Inference:
-    """forces: forces.csv's columns; report: the CLI's JSON report (a list per frame for sequences)."""
+    """forces: forces.csv's columns; report: the CLI's JSON report (a list per
+    frame for sequences); failed_frames: (frame, error) of each failed frame."""
 
     forces: Table
     report: Union[dict[str, Any], list[dict[str, Any]]]
+    failed_frames: list[Tuple[int, str]]
 
 class DemRun:
     """scene, its exact forces (forces.csv columns) and dem_report.json as a dict."""
@@ -69,7 +74,7 @@ def read_scene(path: PathLike) -> Scene:
     """Reads a scene folder: one frame, or a sequence when the files carry `frame`."""
 
 def infer(
-    scene: Scene,
+    scene: Union[Scene, PathLike],
     method: Optional[Literal["qs", "tikhonov", "scaled", "ls", "dynamic", "soft"]] = None,
     *,
     progress: Progress = None,
@@ -93,6 +98,7 @@ def infer(
     sweep: Optional[Tuple[float, float]] = None,
     sweep_points: Optional[int] = None,
     frames: Optional[Tuple[int, int]] = None,
+    stop_on_failure: bool = False,
     fps: Optional[float] = None,
     derive_accelerations: bool = False,
     smoother: Optional[Literal["fir", "savgol", "whittaker"]] = None,
@@ -100,6 +106,7 @@ def infer(
     cutoff: Optional[float] = None,
     savgol_window: Optional[int] = None,
     savgol_degree: Optional[int] = None,
+    position_sd: Optional[float] = None,
 ) -> Inference:
     """Infers the contact forces of a scene (``grainforce infer``); options are the CLI's flags."""
 

@@ -1,5 +1,5 @@
 # The compiled half of grainforce; use the functions of `grainforce` instead.
-from typing import Any, Callable, Optional
+from typing import Any, Callable, Optional, Union
 
 import numpy as np
 import numpy.typing as npt
@@ -24,8 +24,8 @@ Columns = dict[str, Any]
 def read_scene(path: str) -> Scene: ...
 def infer_flags() -> list[tuple[str, bool, Optional[str], list[str], str]]: ...
 def infer(
-    scene: Scene, argv: list[str], progress: Optional[Callable[[int, int], Any]] = None
-) -> tuple[Columns, str]: ...
+    scene: Union[Scene, str], argv: list[str], progress: Optional[Callable[[int, int], Any]] = None
+) -> tuple[Columns, str, list[tuple[int, str]]]: ...
 def dem(
     preset: str,
     dim: int = 2,

@@ -5,7 +5,8 @@
 
 use clap::{CommandFactory, Parser};
 use grainforce::error::Error;
-use grainforce::infer::{self, InferOptions, Inference};
+use grainforce::infer::sequence::{FrameOutcome, OnFrameFailure};
+use grainforce::infer::{self, InferOptions};
 use grainforce::scene::{self, ForceRow, Forces, Selection};
 use numpy::{PyArray1, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::create_exception;
@@ -13,7 +14,6 @@ use pyo3::exceptions::{PyFileNotFoundError, PyOSError, PyRuntimeError, PyValueEr
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Mutex;
 
 // The CLI's own flags and their checks, so `infer(**options)` takes exactly
@@ -187,7 +187,6 @@ const NOT_OFFERED: &[&str] = &[
     "pareto",
     "impulse",
     "impulse-window",
-    "position-sd",
     "quiet",
     "uncertainty",
     "noise-level",
@@ -227,6 +226,12 @@ fn infer_flags() -> Vec<Flag> {
         .collect()
 }
 
+/// What `infer` infers: a scene in memory, or a folder read as the CLI does.
+enum Source {
+    Frames(Vec<scene::Scene>),
+    Folder(PathBuf),
+}
+
 /// Frames to infer, each with its options: the library's sequence steps
 /// (frame range, accelerations from the tracks, per-frame momentum weights)
 /// as the CLI's flags ask for them.
@@ -234,43 +239,35 @@ fn prepare(
     args: &cli_infer::Args,
     opts: &InferOptions,
     selection: &Selection,
-    frames: Vec<scene::Scene>,
+    source: &Source,
 ) -> Result<(Vec<scene::Scene>, Vec<InferOptions>), Error> {
     let plan = cli_infer::sequence_plan(args, selection.clone())?;
+    let frames = match source {
+        Source::Frames(frames) => frames.clone(),
+        // Only the frames the plan needs, as the CLI reads them.
+        Source::Folder(dir) => infer::sequence::read(dir, opts, &plan)?.0,
+    };
     let prepared = infer::sequence::prepare(frames, opts, &plan)?;
     Ok((prepared.frames, prepared.options))
 }
 
-/// Infers the frames in parallel (as `infer::infer_frames`), calling
+/// Infers the frames in parallel (the library's `solve_frames`), calling
 /// `progress(done, total)` with the GIL taken after each frame. The first
 /// exception the callback raises is kept and raised once the solves end.
 fn solve(
     frames: &[scene::Scene],
     per_frame: &[InferOptions],
+    on_failure: OnFrameFailure,
     progress: Option<&Py<PyAny>>,
     callback_error: &Mutex<Option<PyErr>>,
-) -> Result<Vec<Inference>, Error> {
-    use rayon::prelude::*;
+) -> Result<Vec<FrameOutcome>, Error> {
     if frames.len() == 1 {
         let result = infer::infer(&frames[0], &per_frame[0]);
         report_progress(progress, 1, 1, callback_error);
-        return result.map(|r| vec![r]);
+        return Ok(vec![FrameOutcome::Inferred(Box::new(result?))]);
     }
-    let done = AtomicUsize::new(0);
-    let results: Vec<Result<Inference, Error>> = frames
-        .par_iter()
-        .zip(per_frame.par_iter())
-        .map(|(scene, opts)| {
-            let r = infer::infer(scene, opts).map_err(|e| match scene.frame {
-                Some(k) => Error::Solver(format!("frame {k}: {e}")),
-                None => e,
-            });
-            let n = done.fetch_add(1, Ordering::SeqCst) + 1;
-            report_progress(progress, n, frames.len(), callback_error);
-            r
-        })
-        .collect();
-    results.into_iter().collect()
+    let report = |p: infer::Progress| report_progress(progress, p.done, p.total, callback_error);
+    infer::sequence::solve_frames(frames, per_frame, on_failure, progress.map(|_| &report as _))
 }
 
 fn report_progress(
@@ -280,6 +277,7 @@ fn report_progress(
     callback_error: &Mutex<Option<PyErr>>,
 ) {
     let Some(callback) = progress else { return };
+    // Called from a solving thread, which holds no GIL: take it for the call.
     Python::attach(|py| {
         if let Err(e) = callback.call1(py, (done, total)) {
             if let Ok(mut slot) = callback_error.lock() {
@@ -310,17 +308,27 @@ fn to_json<T: serde::Serialize + ?Sized>(value: &T) -> PyResult<String> {
     serde_json::to_string(value).map_err(|e| PyValueError::new_err(e.to_string()))
 }
 
-/// Infers the contact forces of a scene. `argv` holds `grainforce infer`'s
+/// A scene object, or the path of a scene folder.
+#[derive(FromPyObject)]
+enum SceneOrFolder<'py> {
+    Scene(PyRef<'py, Scene>),
+    Folder(PathBuf),
+}
+
+/// Infers the contact forces of a scene (or of a scene folder, reading only
+/// the frames the options need). `argv` holds `grainforce infer`'s
 /// flags (the Python layer builds them from keyword options). Returns the
-/// forces.csv columns and the JSON report (one object, or a list per frame).
+/// forces.csv columns, the JSON report (one object, or a list per frame) and
+/// the failed frames (number, error; the others go on unless
+/// stop_on_failure).
 #[pyfunction]
 #[pyo3(name = "infer", signature = (scene, argv, progress=None))]
 fn infer_forces<'py>(
     py: Python<'py>,
-    scene: &Scene,
+    scene: SceneOrFolder<'py>,
     argv: Vec<String>,
     progress: Option<Py<PyAny>>,
-) -> PyResult<(Bound<'py, PyDict>, String)> {
+) -> PyResult<(Bound<'py, PyDict>, String, Vec<(i64, String)>)> {
     let mut full = vec!["<scene>".to_owned(), "--output".into(), "<memory>".into()];
     full.extend(argv);
     let call = InferCall::try_parse_from(full)
@@ -331,17 +339,41 @@ fn infer_forces<'py>(
             "time_fit='joint' is offered by the CLI only (grainforce infer --time-fit joint)",
         ));
     }
+    let on_failure = if args.stop_on_failure {
+        OnFrameFailure::Stop
+    } else {
+        OnFrameFailure::Continue
+    };
+    let source = match scene {
+        SceneOrFolder::Scene(s) => Source::Frames(s.frames.clone()),
+        SceneOrFolder::Folder(dir) => Source::Folder(dir),
+    };
     let callback_error = Mutex::new(None);
     let outcome = py.detach(|| {
         let (opts, selection) = cli_infer::options(&args)?;
-        let (frames, per_frame) = prepare(&args, &opts, &selection, scene.frames.clone())?;
-        let results = solve(&frames, &per_frame, progress.as_ref(), &callback_error)?;
-        Ok::<_, Error>((frames, results))
+        let (frames, per_frame) = prepare(&args, &opts, &selection, &source)?;
+        let single_frame = frames.len() == 1;
+        let outcomes = solve(
+            &frames,
+            &per_frame,
+            on_failure,
+            progress.as_ref(),
+            &callback_error,
+        )?;
+        let solved = cli_infer::split_outcomes(&args, frames, per_frame, outcomes)?;
+        Ok::<_, Error>((single_frame, solved))
     });
     if let Some(e) = callback_error.into_inner().ok().flatten() {
         return Err(e);
     }
-    let (frames, results) = outcome.map_err(to_py)?;
+    let (single_frame, solved) = outcome.map_err(to_py)?;
+    let cli_infer::Solved {
+        frames,
+        results,
+        failures,
+        entries,
+        ..
+    } = solved;
     let mut rows = Vec::new();
     for (frame, result) in frames.iter().zip(&results) {
         for (c, f) in result.forces.iter().enumerate() {
@@ -360,12 +392,12 @@ fn infer_forces<'py>(
         rows,
     };
     let reports: Vec<&infer::InferenceReport> = results.iter().map(|r| &r.report).collect();
-    let report = if reports.len() == 1 {
+    let report = if single_frame {
         to_json(reports[0])?
     } else {
-        to_json(&reports)?
+        to_json(&cli_infer::sequence_report(&entries, &reports))?
     };
-    Ok((forces_table(py, &forces)?, report))
+    Ok((forces_table(py, &forces)?, report, failures))
 }
 
 /// Runs a DEM preset. Returns the scene, its exact forces as forces.csv

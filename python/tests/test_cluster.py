@@ -35,9 +35,9 @@ def test_cli_shards_concatenate_to_one_run(tmp_path, sequence):
             check=True,
         )
     # docs/cluster.md's merge, as written there.
-    merge = 'files=(shards/forces-*.csv)\n{ head -n 1 "${files[0]}"; for f in "${files[@]}"; do tail -n +2 "$f"; done; } > forces.csv'
+    merge = "grainforce merge forces.csv shards/forces-*.csv"
     assert merge in (Path(__file__).resolve().parents[2] / "docs" / "cluster.md").read_text()
-    subprocess.run(["bash", "-c", merge], cwd=tmp_path, check=True)
+    subprocess.run(["bash", "-c", merge.replace("grainforce", f"'{cli()}'", 1)], cwd=tmp_path, check=True)
     merged = (tmp_path / "forces.csv").read_bytes()
     assert merged == whole.read_bytes()
 
@@ -55,3 +55,13 @@ def test_dask_blocks_give_one_runs_forces(sequence, monkeypatch):
             forces = infer_in_blocks(client, str(folder), block=7, method="dynamic")
             assert len(client.scheduler_info()["workers"]) == 2
     pd.testing.assert_frame_equal(forces, expected)
+
+
+def test_a_folder_and_a_frame_range_read_only_the_block(sequence):
+    folder, frames = sequence
+    whole = gf.infer(gf.read_scene(folder), method="dynamic").forces
+    a, b = frames[len(frames) // 3], frames[len(frames) // 2]
+    block = gf.infer(folder, method="dynamic", frames=(a, b)).forces
+    expected = whole[(whole["frame"] >= a) & (whole["frame"] <= b)].reset_index(drop=True)
+    assert len(expected) > 0
+    pd.testing.assert_frame_equal(block, expected)

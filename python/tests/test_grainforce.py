@@ -233,6 +233,40 @@ def sideways_loaded_disk():
     return gf.Scene.from_frames(grains, contacts, gravity=[-9.81, -1.0])
 
 
+def sideways_loaded_disks(mus):
+    """sideways_loaded_disk, one frame per μ: a small μ parses like the
+    others, but only the solver finds that no force set balances it."""
+    a, r = np.radians(30), np.sqrt(0.01 / np.pi)
+    normals = np.array([[-np.sin(a), -np.cos(a)], [np.sin(a), -np.cos(a)]])
+    n = len(mus)
+    grains = {"frame": np.arange(n), "id": [1] * n, "x": np.zeros(n), "y": np.zeros(n),
+              "volume": np.full(n, 0.01), "s_xx": np.zeros(n), "s_yy": np.zeros(n),
+              "s_xy": np.zeros(n), "mass": np.full(n, 0.1)}
+    contacts = {"frame": np.repeat(np.arange(n), 2), "id": ["c1", "c2"] * n, "a": [1] * (2 * n),
+                "b": ["left", "right"] * n, "x": np.tile(r * normals[:, 0], n),
+                "y": np.tile(r * normals[:, 1], n), "n_x": np.tile(normals[:, 0], n),
+                "n_y": np.tile(normals[:, 1], n), "mu": np.repeat(np.asarray(mus, float), 2)}
+    return gf.Scene.from_frames(grains, contacts, gravity=[-9.81, -1.0])
+
+
+def test_a_failed_frame_warns_and_the_others_are_kept():
+    scene = sideways_loaded_disks([2.0, 2.0, 1e-3, 2.0])
+    calls = []
+    with pytest.warns(gf.FrameFailureWarning, match="μ too small"):
+        result = gf.infer(scene, method="qs", progress=lambda done, total: calls.append((done, total)))
+    assert calls == [(k, 4) for k in range(1, 5)]
+    assert [frame for frame, _ in result.failed_frames] == [2]
+    assert "μ too small" in result.failed_frames[0][1]
+    assert sorted(set(result.forces["frame"])) == [0, 1, 3]
+    # Each kept frame balances its disk: Σ f = −m g.
+    forces = result.forces.groupby("frame")[["f_x", "f_y"]].sum()
+    np.testing.assert_allclose(forces.to_numpy(), [[0.981, 0.1]] * 3, atol=1e-6)
+    assert [entry["frame"] for entry in result.report] == [0, 1, 2, 3]
+    assert "μ too small" in result.report[2]["error"] and "error" not in result.report[0]
+    with pytest.raises(gf.InfeasibleError, match="frame 2"):
+        gf.infer(scene, method="qs", stop_on_failure=True)
+
+
 def test_two_threads_solve_in_parallel_with_the_gil_released():
     scene, _ = gf.packing(dim=2, grains=4000, seed=5)
     alone = time.perf_counter()

@@ -2,13 +2,14 @@
 
 use grainforce::error::{Error, Result};
 use grainforce::infer::kinematics::{self, Smoother};
+use grainforce::infer::sequence::{self, FrameOutcome, OnFrameFailure};
+use grainforce::infer::time_fit;
 use grainforce::infer::uncertainty::{
     force_uncertainty, NoiseEstimate, Uncertainty, UncertaintyOptions,
 };
 use grainforce::infer::{
     self, ConeModel, ConstrainedSolver, InferOptions, LambdaRule, Method, OnCollapse, StressNoise,
 };
-use grainforce::infer::{sequence, time_fit};
 use grainforce::scene::{self, Forces, Selection};
 use grainforce::solver::sparse_ls::Ordering;
 use std::path::PathBuf;
@@ -121,10 +122,19 @@ pub struct Args {
     #[arg(long, value_name = "PARETO.csv")]
     pub pareto: Option<PathBuf>,
     /// Sequences: infer only frames A..B (inclusive), e.g. to split a long
-    /// experiment across a cluster job array. Accelerations are still derived
-    /// from the whole tracks, so a range gets the forces a full run gives it.
+    /// experiment across a cluster job array. Only those frames are read,
+    /// with the filter's margin when accelerations are derived from the
+    /// tracks, so a range gets the forces a full run gives it. Deriving with
+    /// the Whittaker smoother, or weighting by a position noise estimated
+    /// from the tracks (no --position-sd or --accel-sd), reads every frame.
     #[arg(long, value_name = "A..B")]
     pub frames: Option<String>,
+    /// Sequences: stop at the first frame whose inference fails, writing
+    /// nothing (exit status 1). Default: infer every other frame, write their
+    /// forces, list the failed frames on stderr and in the report, and exit
+    /// with status 3.
+    #[arg(long)]
+    pub stop_on_failure: bool,
     /// Sequences: frames per second. Needed to derive accelerations from the
     /// centroid tracks (done when grains.csv has no a_x column, or with
     /// --derive-accelerations) and for --impulse.
@@ -184,8 +194,9 @@ pub struct Args {
     /// (up to half the track). Longer windows give quieter velocities.
     #[arg(long, default_value_t = 21)]
     pub impulse_window: usize,
-    /// Standard deviation of each tracked coordinate (metres) for the impulse
-    /// check's dv_sd; estimated from the tracks when not given.
+    /// Standard deviation of each tracked coordinate (metres), which weights
+    /// accelerations derived from the tracks and the impulse check's dv_sd;
+    /// estimated from the tracks when not given.
     #[arg(long, value_name = "METRES")]
     pub position_sd: Option<f64>,
     /// Also draw the force chains of the (first) frame to this PNG.
@@ -321,6 +332,7 @@ pub fn sequence_plan(args: &Args, selection: Selection) -> Result<sequence::Sequ
         smoother,
         selection,
         acceleration_sd_given: args.accel_sd.is_some(),
+        position_sd: args.position_sd,
     })
 }
 
@@ -545,21 +557,42 @@ fn time_fit(
     time_fit::infer_time_fit(frames, opts, &fit, Some(&frame_by_frame))
 }
 
-pub fn run(args: Args) -> Result<()> {
+/// The bar drawn on stderr while the frames of a sequence are inferred.
+fn frame_bar(frames: usize) -> indicatif::ProgressBar {
+    let bar = indicatif::ProgressBar::new(frames as u64);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template(
+            "{bar:40} {pos}/{len} frames, {elapsed} elapsed, ETA {eta}",
+        )
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    bar
+}
+
+pub fn run(args: Args) -> Result<Finished> {
     let (opts, selection) = options(&args)?;
     let joint_fps = match args.time_fit {
         TimeFitArg::Frames => None,
         TimeFitArg::Joint => Some(check_time_fit(&args, &opts, &selection)?),
     };
     let plan = sequence_plan(&args, selection)?;
-    let prepared = sequence::prepare(scene::read_sequence(&args.scene)?, &opts, &plan)?;
+    let (frames, scope) = sequence::read(&args.scene, &opts, &plan)?;
+    if let (Some(reason), false) = (scope.whole_because, args.quiet) {
+        eprintln!("note: --frames reads every frame: {reason} (--position-sd or --accel-sd)");
+    }
+    let prepared = sequence::prepare(frames, &opts, &plan)?;
     if let (Some(k), false) = (&prepared.derived, args.quiet) {
         eprintln!(
-            "accelerations derived from {} tracks ({} partial, {} too short: zero); position noise {:.3e} m estimated from the tracks",
+            "accelerations derived from {} tracks ({} partial, {} too short: zero); position noise {:.3e} m {}",
             k.tracks,
             k.partial_tracks,
             k.short_tracks.len(),
-            k.position_sd
+            k.position_sd,
+            if args.position_sd.is_some() {
+                "(stated)"
+            } else {
+                "estimated from the tracks"
+            }
         );
     }
     let sequence::PreparedSequence {
@@ -567,11 +600,46 @@ pub fn run(args: Args) -> Result<()> {
         options: per_frame,
         ..
     } = prepared;
-    let mut results = if frames.len() == 1 {
-        vec![infer::infer(&frames[0], &per_frame[0])?]
+    let outcomes = if frames.len() == 1 {
+        vec![FrameOutcome::Inferred(Box::new(infer::infer(
+            &frames[0],
+            &per_frame[0],
+        )?))]
     } else {
-        infer::infer_frames(&frames, &per_frame, !args.quiet)?
+        let bar = (!args.quiet).then(|| frame_bar(frames.len()));
+        let advance = |p: infer::Progress| {
+            if let Some(bar) = &bar {
+                bar.set_position(p.done as u64);
+            }
+        };
+        let on_failure = if args.stop_on_failure {
+            OnFrameFailure::Stop
+        } else {
+            OnFrameFailure::Continue
+        };
+        let outcomes = sequence::solve_frames(&frames, &per_frame, on_failure, Some(&advance));
+        if let Some(bar) = bar {
+            bar.finish_and_clear();
+        }
+        outcomes?
     };
+    let single_frame = frames.len() == 1;
+    let Solved {
+        frames,
+        per_frame,
+        mut results,
+        failures,
+        entries,
+    } = split_outcomes(&args, frames, per_frame, outcomes)?;
+    for (_, error) in &failures {
+        eprintln!("not written: {error}");
+    }
+    if !failures.is_empty() && joint_fps.is_some() {
+        return Err(Error::Invalid(format!(
+            "--time-fit joint fits every frame at once, and {} frames failed (listed above)",
+            failures.len()
+        )));
+    }
     let time_fit = match joint_fps {
         None => None,
         Some(fps) => {
@@ -624,15 +692,21 @@ pub fn run(args: Args) -> Result<()> {
                 "time_fit": fit,
                 "frame_by_frame": reports,
             }))
-        } else if reports.len() == 1 {
+        } else if single_frame {
             serde_json::to_string_pretty(reports[0])
         } else {
-            serde_json::to_string_pretty(&reports)
+            serde_json::to_string_pretty(&sequence_report(&entries, &reports))
         }
         .map_err(|e| Error::Invalid(e.to_string()))?;
         pending.push((path.clone(), json.into_bytes()));
     }
-    if let Some(path) = &args.impulse {
+    if let (Some(path), false) = (&args.impulse, failures.is_empty()) {
+        eprintln!(
+            "impulse check not written to {}: it integrates every frame's forces, and {} frames failed",
+            path.display(),
+            failures.len()
+        );
+    } else if let Some(path) = &args.impulse {
         let fps = args
             .fps
             .ok_or_else(|| Error::Invalid("--impulse needs the frame rate: give --fps".into()))?;
@@ -760,5 +834,103 @@ pub fn run(args: Args) -> Result<()> {
             args.output.display()
         );
     }
-    Ok(())
+    if failures.is_empty() {
+        Ok(Finished::AllFrames)
+    } else {
+        eprintln!(
+            "{} of {} frames failed (listed above); the others were written",
+            failures.len(),
+            failures.len() + results.len()
+        );
+        Ok(Finished::FramesFailed)
+    }
+}
+
+/// How `infer` ended when it wrote its outputs.
+pub enum Finished {
+    AllFrames,
+    /// Some frames failed and the others were written (exit status
+    /// [`FRAMES_FAILED_EXIT`]).
+    FramesFailed,
+}
+
+/// Exit status when some frames of a sequence failed and the others were written.
+pub const FRAMES_FAILED_EXIT: u8 = 3;
+
+/// The frames that were inferred, with their options and results, and the
+/// failed ones.
+pub struct Solved {
+    pub frames: Vec<scene::Scene>,
+    pub per_frame: Vec<InferOptions>,
+    pub results: Vec<infer::Inference>,
+    /// Frame number and error of each failed frame.
+    pub failures: Vec<(i64, String)>,
+    /// Every frame in order: `None` when inferred, else its failure.
+    pub entries: Vec<Option<(i64, String)>>,
+}
+
+/// An entry of a sequence's JSON report.
+#[derive(serde::Serialize)]
+#[serde(untagged)]
+pub enum ReportEntry<'a> {
+    Inferred(&'a infer::InferenceReport),
+    Failed { frame: i64, error: &'a str },
+}
+
+/// A sequence's JSON report: one entry per frame in frame order, a failed
+/// frame's `{"frame": k, "error": "…"}`.
+pub fn sequence_report<'a>(
+    entries: &'a [Option<(i64, String)>],
+    reports: &[&'a infer::InferenceReport],
+) -> Vec<ReportEntry<'a>> {
+    let mut reports = reports.iter();
+    entries
+        .iter()
+        .filter_map(|entry| match entry {
+            Some((frame, error)) => Some(ReportEntry::Failed {
+                frame: *frame,
+                error,
+            }),
+            None => reports.next().map(|r| ReportEntry::Inferred(r)),
+        })
+        .collect()
+}
+
+/// Sorts the frames' outcomes; an error when the run must stop (a failure
+/// under `--stop-on-failure`, or no frame inferred).
+pub fn split_outcomes(
+    args: &Args,
+    frames: Vec<scene::Scene>,
+    per_frame: Vec<InferOptions>,
+    outcomes: Vec<FrameOutcome>,
+) -> Result<Solved> {
+    let mut solved = Solved {
+        frames: Vec::new(),
+        per_frame: Vec::new(),
+        results: Vec::new(),
+        failures: Vec::new(),
+        entries: Vec::new(),
+    };
+    let mut first_error = None;
+    for ((frame, opts), outcome) in frames.into_iter().zip(per_frame).zip(outcomes) {
+        match outcome {
+            FrameOutcome::Inferred(r) => {
+                solved.frames.push(frame);
+                solved.per_frame.push(opts);
+                solved.results.push(*r);
+                solved.entries.push(None);
+            }
+            FrameOutcome::Failed(e) => {
+                let failure = (frame.frame.unwrap_or_default(), e.to_string());
+                solved.failures.push(failure.clone());
+                solved.entries.push(Some(failure));
+                first_error.get_or_insert(e);
+            }
+            FrameOutcome::NotRun => {}
+        }
+    }
+    match first_error {
+        Some(e) if args.stop_on_failure || solved.results.is_empty() => Err(e),
+        _ => Ok(solved),
+    }
 }

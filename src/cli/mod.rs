@@ -27,6 +27,7 @@ mod detect;
 mod export;
 mod import;
 mod infer;
+mod merge;
 mod perturb;
 mod plot;
 mod render;
@@ -55,6 +56,8 @@ struct Cli {
 enum Command {
     /// Infer contact forces of a scene (or of every frame of a sequence).
     Infer(infer::Args),
+    /// Merge the outputs of `infer --frames` blocks into one run's files.
+    Merge(merge::Args),
     /// Compare inferred forces with ground truth: relative error and more.
     Score(score::Args),
     /// Draw a force-chain picture (or a Pareto front).
@@ -85,8 +88,14 @@ pub fn main() -> std::process::ExitCode {
     let result = match cli.command {
         Command::Infer(mut a) => {
             a.quiet = cli.quiet;
-            infer::run(a)
+            match infer::run(a) {
+                Ok(infer::Finished::FramesFailed) => {
+                    return std::process::ExitCode::from(infer::FRAMES_FAILED_EXIT)
+                }
+                other => other.map(drop),
+            }
         }
+        Command::Merge(a) => merge::run(a),
         Command::Score(a) => score::run(a),
         Command::Plot(a) => plot::run(a),
         Command::Dem(a) => dem::run(a),

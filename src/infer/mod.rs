@@ -18,6 +18,7 @@ pub mod noise;
 mod polish;
 mod report;
 pub mod sequence;
+pub mod shards;
 pub mod time_fit;
 pub mod uncertainty;
 
@@ -27,6 +28,7 @@ pub use dynamic::{DynamicOptions, Front, LambdaRule};
 pub use lambda::{LambdaSearch, LambdaTrace};
 pub use noise::StressNoise;
 pub use report::InferenceReport;
+pub use sequence::{infer_frames, infer_sequence, Progress};
 
 use crate::assemble::{self, AssembleOptions, Assembly, Friction, System};
 use crate::error::{Error, Result};
@@ -374,60 +376,6 @@ fn solve_method(
         }
     };
     Ok(solved)
-}
-
-/// Infers every frame of a sequence, frames in parallel.
-pub fn infer_sequence(
-    frames: &[Scene],
-    opts: &InferOptions,
-    progress: bool,
-) -> Result<Vec<Inference>> {
-    let per_frame = vec![opts.clone(); frames.len()];
-    infer_frames(frames, &per_frame, progress)
-}
-
-/// Infers frames in parallel, each with its own options, with a progress bar.
-pub fn infer_frames(
-    frames: &[Scene],
-    opts: &[InferOptions],
-    progress: bool,
-) -> Result<Vec<Inference>> {
-    use rayon::prelude::*;
-    if frames.len() != opts.len() {
-        return Err(Error::Invalid(
-            "one set of options per frame is needed".into(),
-        ));
-    }
-    let bar = if progress && frames.len() > 1 {
-        let bar = indicatif::ProgressBar::new(frames.len() as u64);
-        bar.set_style(
-            indicatif::ProgressStyle::with_template(
-                "{bar:40} {pos}/{len} frames, {elapsed} elapsed, ETA {eta}",
-            )
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-        );
-        Some(bar)
-    } else {
-        None
-    };
-    let results: Vec<Result<Inference>> = frames
-        .par_iter()
-        .zip(opts.par_iter())
-        .map(|(scene, opts)| {
-            let r = infer(scene, opts).map_err(|e| match scene.frame {
-                Some(k) => Error::Solver(format!("frame {k}: {e}")),
-                None => e,
-            });
-            if let Some(b) = &bar {
-                b.inc(1);
-            }
-            r
-        })
-        .collect();
-    if let Some(b) = bar {
-        b.finish_and_clear();
-    }
-    results.into_iter().collect()
 }
 
 /// The rule of `soft`: the user's if it weights momentum, else variance

@@ -5,7 +5,7 @@
 
 use super::{Body, Contact, Grain, Inertia, Scene, Settings, Sym, Vec3, Wall};
 use crate::error::{Error, Result};
-use std::collections::{BTreeMap, HashMap, HashSet};
+use std::collections::{BTreeMap, BTreeSet, HashMap, HashSet};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
@@ -28,6 +28,21 @@ pub(crate) fn read_csv(path: &Path) -> Result<CsvRows> {
         .comment(Some(b'#'))
         .from_reader(std::io::BufReader::new(file));
     let headers = reader.headers().map_err(|e| csv_error(path, e))?.clone();
+    let columns = read_header(path, &headers)?;
+    let mut rows = Vec::new();
+    for record in reader.records() {
+        let record = record.map_err(|e| csv_error(path, e))?;
+        let line = record.position().map(|p| p.line() as usize).unwrap_or(0);
+        if record.iter().all(str::is_empty) {
+            continue;
+        }
+        rows.push((line, record));
+    }
+    Ok((columns, rows))
+}
+
+/// The header's column positions by name (empty names ignored).
+fn read_header(path: &Path, headers: &csv::StringRecord) -> Result<HashMap<String, usize>> {
     let mut columns = HashMap::new();
     for (i, name) in headers.iter().enumerate() {
         if name.is_empty() {
@@ -42,16 +57,7 @@ pub(crate) fn read_csv(path: &Path) -> Result<CsvRows> {
             ));
         }
     }
-    let mut rows = Vec::new();
-    for record in reader.records() {
-        let record = record.map_err(|e| csv_error(path, e))?;
-        let line = record.position().map(|p| p.line() as usize).unwrap_or(0);
-        if record.iter().all(str::is_empty) {
-            continue;
-        }
-        rows.push((line, record));
-    }
-    Ok((columns, rows))
+    Ok(columns)
 }
 
 /// A required, non-empty cell.
@@ -113,6 +119,17 @@ pub(crate) fn parse_number(path: &Path, line: usize, column: &str, s: &str) -> R
     Ok(value)
 }
 
+/// Reads the header of a CSV (the column names).
+pub(crate) fn csv_header(path: &Path) -> Result<Vec<String>> {
+    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    let mut reader = csv::ReaderBuilder::new()
+        .trim(csv::Trim::All)
+        .comment(Some(b'#'))
+        .from_reader(std::io::BufReader::new(file));
+    let headers = reader.headers().map_err(|e| csv_error(path, e))?;
+    Ok(headers.iter().map(str::to_owned).collect())
+}
+
 impl Table {
     fn read(path: &Path) -> Result<Table> {
         let (columns, rows) = read_csv(path)?;
@@ -121,6 +138,46 @@ impl Table {
             columns,
             rows,
         })
+    }
+
+    /// Reads the rows whose frame `keep` accepts (rows without a frame
+    /// column or cell are kept); the others are only scanned for their frame
+    /// cell, so memory holds the kept frames only.
+    fn read_frames(path: &Path, keep: &dyn Fn(i64) -> bool) -> Result<Table> {
+        let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+        let mut reader = csv::ReaderBuilder::new()
+            .trim(csv::Trim::All)
+            .comment(Some(b'#'))
+            .from_reader(std::io::BufReader::new(file));
+        let header = reader.headers().map_err(|e| csv_error(path, e))?.clone();
+        let columns = read_header(path, &header)?;
+        let mut table = Table {
+            path: path.to_owned(),
+            columns,
+            rows: Vec::new(),
+        };
+        let frame_column = table.columns.get("frame").copied();
+        let mut record = csv::StringRecord::new();
+        while reader
+            .read_record(&mut record)
+            .map_err(|e| csv_error(path, e))?
+        {
+            let line = record.position().map(|p| p.line() as usize).unwrap_or(0);
+            if record.iter().all(str::is_empty) {
+                continue;
+            }
+            let wanted = match frame_column.and_then(|i| record.get(i)) {
+                Some(cell) if !cell.is_empty() => match table.frame(&record, line)? {
+                    Some(k) => keep(k),
+                    None => true,
+                },
+                _ => true,
+            };
+            if wanted {
+                table.rows.push((line, record.clone()));
+            }
+        }
+        Ok(table)
     }
 
     fn has(&self, column: &str) -> bool {
@@ -314,18 +371,49 @@ pub fn read_scene(dir: &Path) -> Result<Scene> {
 
 /// Reads a scene folder: one frame, or a sequence when the files carry `frame`.
 pub fn read_sequence(dir: &Path) -> Result<Vec<Scene>> {
+    read_sequence_where(dir, None)
+}
+
+/// Reads the frames numbered `first..=last` of a sequence folder (all of a
+/// scene without frame numbers). Rows of other frames are scanned for their
+/// frame number only: neither parsed nor kept, so a block of a long
+/// sequence costs the memory of the block.
+pub fn read_sequence_frames(dir: &Path, first: i64, last: i64) -> Result<Vec<Scene>> {
+    read_sequence_where(dir, Some((first, last)))
+}
+
+/// Whether a sequence folder's grains.csv has acceleration columns (read
+/// from its header only).
+pub fn sequence_has_acceleration_columns(dir: &Path) -> Result<bool> {
+    check_folder(dir)?;
+    let header = csv_header(&dir.join("grains.csv"))?;
+    Ok(header
+        .iter()
+        .any(|c| matches!(c.as_str(), "a_x" | "alpha" | "alpha_x")))
+}
+
+fn check_folder(dir: &Path) -> Result<()> {
     if !dir.is_dir() {
         return Err(Error::io(
             dir,
             std::io::Error::new(std::io::ErrorKind::NotFound, "scene folder not found"),
         ));
     }
+    Ok(())
+}
+
+fn read_sequence_where(dir: &Path, range: Option<(i64, i64)>) -> Result<Vec<Scene>> {
+    check_folder(dir)?;
     let settings = read_settings(&dir.join("scene.json"))?;
-    let grains = Table::read(&dir.join("grains.csv"))?;
-    let contacts = Table::read(&dir.join("contacts.csv"))?;
+    let read = |path: &Path| match range {
+        None => Table::read(path),
+        Some((first, last)) => Table::read_frames(path, &|k| (first..=last).contains(&k)),
+    };
+    let grains = read(&dir.join("grains.csv"))?;
+    let contacts = read(&dir.join("contacts.csv"))?;
     let walls_path = dir.join("walls.csv");
     let walls = if walls_path.exists() {
-        Some(Table::read(&walls_path)?)
+        Some(read(&walls_path)?)
     } else {
         None
     };
@@ -374,11 +462,19 @@ pub fn read_sequence(dir: &Path) -> Result<Vec<Scene>> {
         scene.grains.push(grain);
     }
     if frames.is_empty() {
-        return Err(Error::data(&grains.path, None, None, "no grains"));
+        return Err(match range {
+            Some((first, last)) if sequence => Error::Invalid(format!(
+                "{}: no frame of the sequence lies in the range {first}..{last}",
+                dir.display()
+            )),
+            _ => Error::data(&grains.path, None, None, "no grains"),
+        });
     }
 
     let mut wall_loads: HashMap<(Option<i64>, String), Vec3> = HashMap::new();
-    let mut wall_names: HashSet<String> = HashSet::new();
+    // Sorted: walls a frame's contacts do not name join it in an order that
+    // does not depend on the run (nor on the frames read).
+    let mut wall_names: BTreeSet<String> = BTreeSet::new();
     if let Some(walls) = &walls {
         walls.require("wall")?;
         for (line, record) in &walls.rows {

@@ -8,8 +8,9 @@ mod sums;
 mod validate;
 
 pub use io::{
-    body_name, read_forces, read_scene, read_sequence, write_file_atomically, write_forces,
-    write_scene, write_sequence, ForceRow, Forces,
+    body_name, read_forces, read_scene, read_sequence, read_sequence_frames,
+    sequence_has_acceleration_columns, write_file_atomically, write_forces, write_scene,
+    write_sequence, ForceRow, Forces,
 };
 /// The CSV reading every grainforce table shares (importers use it too).
 pub(crate) use io::{csv_cell, csv_number, parse_number, read_csv};

@@ -42,6 +42,17 @@ pub fn derive_accelerations(
     fps: f64,
     smoother: Smoother,
 ) -> Result<KinematicsReport> {
+    derive_accelerations_with_noise(frames, fps, smoother, None)
+}
+
+/// [`derive_accelerations`] with the position noise stated (`Some`) rather
+/// than estimated from these frames' tracks.
+pub fn derive_accelerations_with_noise(
+    frames: &mut [Scene],
+    fps: f64,
+    smoother: Smoother,
+    position_sd: Option<f64>,
+) -> Result<KinematicsReport> {
     check_frames(frames, fps)?;
     smoother.validate()?;
     let dt = 1.0 / fps;
@@ -65,7 +76,15 @@ pub fn derive_accelerations(
             ids
         })
         .collect();
-    report.position_sd = estimate_position_sd(frames);
+    report.position_sd = match position_sd {
+        Some(sd) if sd >= 0.0 && sd.is_finite() => sd,
+        Some(sd) => {
+            return Err(Error::Invalid(format!(
+                "the position noise must be finite and ≥ 0, got {sd}"
+            )))
+        }
+        None => estimate_position_sd(frames),
+    };
     let mut gain_sq = vec![(0.0, 0usize); frames.len()];
     let mut gains: BTreeMap<usize, Vec<f64>> = BTreeMap::new();
     let mut accel: Vec<BTreeMap<String, Vec3>> = vec![BTreeMap::new(); frames.len()];

@@ -45,6 +45,18 @@ impl Smoother {
         }
     }
 
+    /// Frames on either side of a block that deriving its accelerations
+    /// reads: a derivative's reach, and twice the noise gain's (which
+    /// depends on where a track ends) — so the block's accelerations and
+    /// noise are those of the whole tracks. `None` for Whittaker, a fit
+    /// over each whole track.
+    pub fn margin(&self) -> Option<usize> {
+        match self {
+            Smoother::Whittaker { .. } => None,
+            _ => Some(2 * (self.reach() + 1) + 1),
+        }
+    }
+
     pub(super) fn validate(&self) -> Result<()> {
         match *self {
             Smoother::Fir { order, cutoff } => {
@@ -83,13 +95,15 @@ pub(super) fn differentiate(
     deriv: usize,
     known: &[Option<Vec3>],
 ) -> Result<Vec<Vec3>> {
-    // Per axis, centred on the first sample: far from the origin, filtering
-    // raw coordinates would add rounding of the offset's size.
+    // Per axis. The FIR and Savitzky–Golay derivatives centre each output on
+    // a sample near it (far from the origin, filtering raw coordinates would
+    // add rounding of the offset's size), so an output depends on the
+    // samples within its reach only: a block of frames read with its margin
+    // gets the bits of the whole track.
     let per_axis = |points: &[Vec3], series: &dyn Fn(&[f64]) -> Vec<f64>| {
         let mut out = vec![[0.0; 3]; points.len()];
         for k in 0..3 {
-            let origin = points.first().map_or(0.0, |p| p[k]);
-            let x: Vec<f64> = points.iter().map(|p| p[k] - origin).collect();
+            let x: Vec<f64> = points.iter().map(|p| p[k]).collect();
             for (o, v) in out.iter_mut().zip(series(&x)) {
                 o[k] = v;
             }
@@ -97,16 +111,19 @@ pub(super) fn differentiate(
         out
     };
     Ok(match smoother {
-        Smoother::Fir { order, cutoff } => per_axis(samples, &|x| {
-            finite_difference(&fir_zero_phase(x, order, cutoff), dt, deriv)
-        }),
+        Smoother::Fir { order, cutoff } => {
+            per_axis(samples, &|x| fir_derivative(x, dt, order, cutoff, deriv))
+        }
         Smoother::SavitzkyGolay { window, degree } => {
             per_axis(samples, &|x| savitzky_golay(x, dt, window, degree, deriv))
         }
-        // The fit holds all three axes together (one analysis).
+        // The fit holds all three axes together (one analysis), over the
+        // whole track, centred on its first sample.
         Smoother::Whittaker { cutoff } => {
             per_axis(&whittaker_fit(samples, dt, cutoff, known)?, &|x| {
-                finite_difference(x, dt, deriv)
+                let origin = x.first().copied().unwrap_or(0.0);
+                let centred: Vec<f64> = x.iter().map(|v| v - origin).collect();
+                finite_difference(&centred, dt, deriv)
             })
         }
     })
@@ -275,6 +292,40 @@ pub fn fir_zero_phase(x: &[f64], order: usize, cutoff: f64) -> Vec<f64> {
     if n < 3 {
         return x.to_vec();
     }
+    let taps = fir_taps(order, cutoff);
+    (0..n).map(|i| fir_at(x, &taps, i, 0.0)).collect()
+}
+
+/// Derivative of order `deriv` of the zero-phase FIR-filtered series, by
+/// the differences of [`finite_difference`]; each output's filtered values
+/// are taken relative to the sample at its stencil's centre.
+fn fir_derivative(x: &[f64], dt: f64, order: usize, cutoff: f64, deriv: usize) -> Vec<f64> {
+    let n = x.len();
+    if n < 3 {
+        return finite_difference(x, dt, deriv);
+    }
+    let taps = fir_taps(order, cutoff);
+    (0..n)
+        .map(|i| {
+            let c = i.clamp(1, n - 2);
+            let y = |j: usize| fir_at(x, &taps, j, x[c]);
+            if deriv == 1 {
+                if i == c {
+                    (y(c + 1) - y(c - 1)) / (2.0 * dt)
+                } else if i == 0 {
+                    (y(1) - y(0)) / dt
+                } else {
+                    (y(n - 1) - y(n - 2)) / dt
+                }
+            } else {
+                (y(c + 1) - 2.0 * y(c) + y(c - 1)) / (dt * dt)
+            }
+        })
+        .collect()
+}
+
+/// The normalised taps of the windowed-sinc low-pass (`order` + 1).
+fn fir_taps(order: usize, cutoff: f64) -> Vec<f64> {
     let m = order / 2;
     let taps: Vec<f64> = (0..=order)
         .map(|i| {
@@ -289,27 +340,29 @@ pub fn fir_zero_phase(x: &[f64], order: usize, cutoff: f64) -> Vec<f64> {
         })
         .collect();
     let sum: f64 = taps.iter().sum();
-    let taps: Vec<f64> = taps.iter().map(|t| t / sum).collect();
-    // Odd reflection: x(−j) = 2x(0) − x(j).
+    taps.iter().map(|t| t / sum).collect()
+}
+
+/// The filtered value at sample `i` (n ≥ 3) of x − `origin`; the ends are
+/// extended by odd reflection, x(−j) = 2x(0) − x(j).
+fn fir_at(x: &[f64], taps: &[f64], i: usize, origin: f64) -> f64 {
+    let n = x.len();
+    let m = (taps.len() / 2) as isize;
     let at = |i: isize| -> f64 {
         if i < 0 {
             let j = ((-i) as usize).min(n - 1);
-            2.0 * x[0] - x[j]
+            2.0 * (x[0] - origin) - (x[j] - origin)
         } else if i as usize >= n {
             let j = (2 * (n - 1)).saturating_sub(i as usize);
-            2.0 * x[n - 1] - x[j]
+            2.0 * (x[n - 1] - origin) - (x[j] - origin)
         } else {
-            x[i as usize]
+            x[i as usize] - origin
         }
     };
-    (0..n)
-        .map(|i| {
-            taps.iter()
-                .enumerate()
-                .map(|(j, t)| t * at(i as isize + j as isize - m as isize))
-                .sum()
-        })
-        .collect()
+    taps.iter()
+        .enumerate()
+        .map(|(j, t)| t * at(i as isize + j as isize - m))
+        .sum()
 }
 
 fn finite_difference(x: &[f64], dt: f64, deriv: usize) -> Vec<f64> {
@@ -348,14 +401,18 @@ pub fn savitzky_golay(x: &[f64], dt: f64, window: usize, degree: usize, deriv: u
             let a = nalgebra::DMatrix::from_fn(w, p + 1, |r, c| {
                 ((start + r) as f64 - i as f64).powi(c as i32)
             });
-            let b = nalgebra::DVector::from_iterator(w, x[start..start + w].iter().copied());
+            // Relative to the sample itself (see `differentiate`); the
+            // constant term takes it back.
+            let b =
+                nalgebra::DVector::from_iterator(w, x[start..start + w].iter().map(|v| v - x[i]));
             let coef = a
                 .svd(true, true)
                 .solve(&b, 1e-12)
                 .unwrap_or_else(|_| nalgebra::DVector::zeros(p + 1));
             // d^k/dt^k of Σ c_j (t/dt)^j at t = 0.
             let factorial: f64 = (1..=deriv).map(|v| v as f64).product();
-            coef[deriv] * factorial / dt.powi(deriv as i32)
+            let offset = if deriv == 0 { x[i] } else { 0.0 };
+            offset + coef[deriv] * factorial / dt.powi(deriv as i32)
         })
         .collect()
 }

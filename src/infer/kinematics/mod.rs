@@ -13,7 +13,8 @@ mod filter;
 mod impulse;
 
 pub use derive::{
-    derive_accelerations, weight_derived_momentum, KinematicsReport, DERIVED_ACCEL_NOISE_FACTOR,
+    derive_accelerations, derive_accelerations_with_noise, weight_derived_momentum,
+    KinematicsReport, DERIVED_ACCEL_NOISE_FACTOR,
 };
 pub use filter::{acceleration_noise_gain, fir_zero_phase, savitzky_golay, Smoother};
 pub use impulse::{impulse_check, ImpulseCheck, ImpulseOptions, ImpulseRow};
