@@ -174,6 +174,10 @@ pub struct DemConfig {
     pub wall: Material,
     /// Target stress of the servo walls [Pa] (static presets).
     pub pressure: f64,
+    /// Box preset: the `top` and `bottom` walls load to `deviator` × `pressure`
+    /// (a triaxial state; 1 is isotropic). A deviatoric load near the
+    /// packing's strength mobilises friction: many contacts slide.
+    pub deviator: f64,
     /// Uniform body acceleration; None for none.
     pub gravity: Option<Vec3>,
     /// Time step as a fraction of √(m_min / k_max).
@@ -319,6 +323,12 @@ impl DemConfig {
         }
         if !(self.pressure > 0.0 && self.pressure.is_finite()) {
             return Err(bad("the pressure", self.pressure));
+        }
+        if !(self.deviator >= 1.0 && self.deviator <= 100.0) {
+            return Err(bad(
+                "the deviator ratio (must lie in [1, 100])",
+                self.deviator,
+            ));
         }
         if let Some(g) = self.gravity {
             if g.iter().any(|x| !x.is_finite()) || (self.dim == 2 && g[2] != 0.0) {
