@@ -471,7 +471,7 @@ fn local_cone(mu: f64, m: &[[f64; 3]; 3], h: &[f64; 3]) -> Option<(Piece, [f64; 
                 curvature += e[i] * m[i][j] * e[j];
             }
         }
-        if !(curvature > 0.0) || slope >= 0.0 {
+        if curvature.is_nan() || curvature <= 0.0 || slope >= 0.0 {
             return (0.0, 0.0, e);
         }
         let s = -slope / curvature;
