@@ -473,3 +473,22 @@ pub fn write_run(dir: &Path, run: &DemRun) -> Result<()> {
     scene::write_file_atomically(&path, (text + "\n").as_bytes())?;
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The deviatoric ratio defaults to an isotropic load and is checked.
+    #[test]
+    fn deviator_is_isotropic_by_default_and_validated() {
+        let c = DemConfig::preset(Preset::Box, 3);
+        assert_eq!(c.deviator, 1.0);
+        assert!(c.validate().is_ok());
+        for bad in [0.5, f64::NAN, 1e3] {
+            let mut c = c.clone();
+            c.deviator = bad;
+            let e = c.validate().unwrap_err().to_string();
+            assert!(e.contains("deviator"), "{e}");
+        }
+    }
+}
