@@ -95,6 +95,10 @@ pub struct Args {
     /// Target stress of the servo walls [Pa].
     #[arg(long, allow_hyphen_values = true)]
     pressure: Option<f64>,
+    /// Box preset: the top and bottom walls load to this multiple of the
+    /// pressure (triaxial; friction mobilised near the packing's strength).
+    #[arg(long, allow_hyphen_values = true)]
+    deviator: Option<f64>,
     /// Coefficient of restitution of grain–grain contacts.
     #[arg(long, allow_hyphen_values = true)]
     restitution: Option<f64>,
@@ -163,6 +167,9 @@ pub fn run(args: Args) -> grainforce::Result<()> {
     }
     if let Some(m) = args.wall_mu {
         c.wall.mu = m;
+    }
+    if let Some(d) = args.deviator {
+        c.deviator = d;
     }
     if let Some(p) = args.pressure {
         c.pressure = p;

@@ -174,6 +174,10 @@ pub struct DemConfig {
     pub wall: Material,
     /// Target stress of the servo walls [Pa] (static presets).
     pub pressure: f64,
+    /// Box preset: the `top` and `bottom` walls load to `deviator` × `pressure`
+    /// (a triaxial state; 1 is isotropic). A deviatoric load near the
+    /// packing's strength mobilises friction: many contacts slide.
+    pub deviator: f64,
     /// Uniform body acceleration; None for none.
     pub gravity: Option<Vec3>,
     /// Time step as a fraction of √(m_min / k_max).
@@ -320,6 +324,12 @@ impl DemConfig {
         }
         if !(self.pressure > 0.0 && self.pressure.is_finite()) {
             return Err(bad("the pressure", self.pressure));
+        }
+        if !(self.deviator >= 1.0 && self.deviator <= 100.0) {
+            return Err(bad(
+                "the deviator ratio (must lie in [1, 100])",
+                self.deviator,
+            ));
         }
         if let Some(g) = self.gravity {
             if g.iter().any(|x| !x.is_finite()) || (self.dim == 2 && g[2] != 0.0) {
@@ -537,4 +547,23 @@ pub fn write_run(dir: &Path, run: &DemRun) -> Result<()> {
     let path = dir.join("dem_report.json");
     scene::write_file_atomically(&path, (text + "\n").as_bytes())?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The deviatoric ratio defaults to an isotropic load and is checked.
+    #[test]
+    fn deviator_is_isotropic_by_default_and_validated() {
+        let c = DemConfig::preset(Preset::Box, 3);
+        assert_eq!(c.deviator, 1.0);
+        assert!(c.validate().is_ok());
+        for bad in [0.5, f64::NAN, 1e3] {
+            let mut c = c.clone();
+            c.deviator = bad;
+            let e = c.validate().unwrap_err().to_string();
+            assert!(e.contains("deviator"), "{e}");
+        }
+    }
 }

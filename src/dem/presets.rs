@@ -42,6 +42,7 @@ pub(super) fn defaults(preset: Preset, dim: usize) -> DemConfig {
         },
         wall: rigid(stiff, stiff, 0.5, 0.0),
         pressure: 30e3,
+        deviator: 1.0,
         gravity: None,
         safety: 0.1,
         overlap_ref: 0.01,
@@ -393,8 +394,16 @@ fn build(c: &DemConfig) -> Result<Built> {
         sys.servo_gain = 0.05;
     }
     for (name, k, at, sign, servo) in walls {
+        // The axial walls of the box carry the deviatoric load.
+        let axial = c.preset == Preset::Box && k == 1;
         let motion = if servo {
-            Motion::Servo { stress: c.pressure }
+            Motion::Servo {
+                stress: if axial {
+                    c.deviator * c.pressure
+                } else {
+                    c.pressure
+                },
+            }
         } else {
             Motion::Prescribed
         };

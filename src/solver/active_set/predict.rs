@@ -17,9 +17,10 @@
 //! (each grain's stress pins its own contacts), so some tens of sweeps, each
 //! O(nnz), settle which piece of its cone each contact lands on. Only that
 //! guess is used: the Newton iteration that follows still solves the exact
-//! problem, so a wrong guess costs solves, never accuracy. 2D and
-//! frictionless contacts only (the 3D cone has no closed-form local
-//! projection in a metric).
+//! problem, so a wrong guess costs solves, never accuracy. In 3D each
+//! contact's local problem is a 3×3 quadratic over its circular cone: the
+//! unconstrained minimum when inside, else the best ray of the boundary (a
+//! one-dimensional search over the sliding direction) or the apex.
 
 use super::{Contact, Piece};
 use crate::solver::{LeastSquares, Triplets};
@@ -44,23 +45,24 @@ const SETTLED_UPDATES: usize = 2;
 /// Contacts of one colour handed to a thread at a time.
 const CHUNK: usize = 1024;
 
-/// A 2D contact: its normal unknown, its tangential one if frictional, μ.
-struct Wedge {
-    normal: usize,
-    tangent: Option<usize>,
+/// A contact's unknowns (normal first, then its 0–2 tangential ones; `count`
+/// of them) and μ; K slots (2 in 2D, 3 in 3D).
+struct Local<const K: usize> {
+    unknowns: [usize; K],
+    count: usize,
     mu: f64,
 }
 
 /// Each contact's rows of [A; C], packed: row index (C rows after A's) and
 /// the entries of its normal and tangential unknowns.
-struct Stencils {
+struct Stencils<const K: usize> {
     offset: Vec<usize>,
     row: Vec<u32>,
-    val: Vec<[f64; 2]>,
+    val: Vec<[f64; K]>,
 }
 
-impl Stencils {
-    fn of(a: &Triplets, c: &Triplets, contacts: &[Contact]) -> Option<Stencils> {
+impl<const K: usize> Stencils<K> {
+    fn of(a: &Triplets, c: &Triplets, contacts: &[Contact]) -> Option<Stencils<K>> {
         if a.nrows + c.nrows > u32::MAX as usize {
             return None;
         }
@@ -68,11 +70,11 @@ impl Stencils {
         let mut owner = vec![None; a.ncols];
         for (k, ct) in contacts.iter().enumerate() {
             owner[ct.normal] = Some((k, 0));
-            if let Some(&t) = ct.tangents.first() {
-                owner[t] = Some((k, 1));
+            for (slot, &t) in ct.tangents.iter().enumerate().take(K - 1) {
+                owner[t] = Some((k, 1 + slot));
             }
         }
-        let mut entries: Vec<Vec<(u32, [f64; 2])>> = vec![Vec::new(); contacts.len()];
+        let mut entries: Vec<Vec<(u32, [f64; K])>> = vec![Vec::new(); contacts.len()];
         let a_entries = (0..a.nnz()).map(|q| (a.rows[q], a.cols[q], a.vals[q]));
         let c_entries = (0..c.nnz()).map(|q| (a.nrows + c.rows[q], c.cols[q], c.vals[q]));
         for (r, j, v) in a_entries.chain(c_entries) {
@@ -82,7 +84,7 @@ impl Stencils {
             match list.iter_mut().find(|(row, _)| *row == r) {
                 Some((_, vals)) => vals[slot] += v,
                 None => {
-                    let mut vals = [0.0; 2];
+                    let mut vals = [0.0; K];
                     vals[slot] = v;
                     list.push((r, vals));
                 }
@@ -104,7 +106,7 @@ impl Stencils {
     }
 
     /// The same stencils with the contacts in `order`.
-    fn permuted(&self, order: &[usize]) -> Stencils {
+    fn permuted(&self, order: &[usize]) -> Stencils<K> {
         let mut out = Stencils {
             offset: Vec::with_capacity(order.len() + 1),
             row: Vec::with_capacity(self.row.len()),
@@ -160,14 +162,13 @@ impl Stencils {
         (order, groups)
     }
 
-    fn of_contact(&self, k: usize) -> impl Iterator<Item = (usize, [f64; 2])> + '_ {
+    fn of_contact(&self, k: usize) -> impl Iterator<Item = (usize, [f64; K])> + '_ {
         (self.offset[k]..self.offset[k + 1]).map(move |p| (self.row[p] as usize, self.val[p]))
     }
 }
 
-/// The pieces the relaxed correction lands on, or `None` when some contact is
-/// 3D (no guess; the caller starts from the pieces of x₀). `diag` is
-/// diag(AᵀA + λ²I).
+/// The pieces the relaxed correction lands on. `diag` is diag(AᵀA + λ²I).
+/// `None` when the stencils do not fit (more than 2³² rows).
 pub(super) fn pieces(
     problem: &LeastSquares,
     contacts: &[Contact],
@@ -175,8 +176,18 @@ pub(super) fn pieces(
     diag: &[f64],
 ) -> Option<Vec<Piece>> {
     if contacts.iter().any(|ct| ct.tangents.len() > 1) {
-        return None;
+        pieces_in::<3>(problem, contacts, start, diag)
+    } else {
+        pieces_in::<2>(problem, contacts, start, diag)
     }
+}
+
+fn pieces_in<const K: usize>(
+    problem: &LeastSquares,
+    contacts: &[Contact],
+    start: &[f64],
+    diag: &[f64],
+) -> Option<Vec<Piece>> {
     let LeastSquares { a, c, lambda, .. } = *problem;
     let mut pieces: Vec<Piece> = contacts
         .iter()
@@ -189,7 +200,7 @@ pub(super) fn pieces(
     if scale == 0.0 || !scale.is_finite() {
         return Some(pieces);
     }
-    let stencils = Stencils::of(a, c, contacts)?;
+    let stencils = Stencils::<K>::of(a, c, contacts)?;
     // Sweeps run colour by colour, each colour's contacts in parallel; the
     // contacts are stored in that order.
     let (order, groups) = stencils.colours(a.nrows + c.nrows);
@@ -197,11 +208,18 @@ pub(super) fn pieces(
     // A flat copy: the sweeps visit every contact a hundred times, and
     // chasing each contact's own tangent list through the heap dominated
     // their cost (3.7 s against 1.1 s at 2D 10⁵ on a scene read from CSV).
-    let wedges: Vec<Wedge> = (order.iter())
-        .map(|&k| Wedge {
-            normal: contacts[k].normal,
-            tangent: contacts[k].tangents.first().copied(),
-            mu: contacts[k].mu,
+    let locals: Vec<Local<K>> = (order.iter())
+        .map(|&k| {
+            let ct = &contacts[k];
+            let mut unknowns = [ct.normal; K];
+            for (slot, &t) in ct.tangents.iter().enumerate().take(K - 1) {
+                unknowns[1 + slot] = t;
+            }
+            Local {
+                unknowns,
+                count: 1 + ct.tangents.len().min(K - 1),
+                mu: ct.mu,
+            }
         })
         .collect();
     let lambda2 = lambda * lambda;
@@ -223,16 +241,21 @@ pub(super) fn pieces(
     // row state per entry.
     for (r, v) in stencils.row.iter().zip(&mut stencils.val) {
         let root = weight[*r as usize].sqrt();
-        *v = [v[0] * root, v[1] * root];
+        v.iter_mut().for_each(|e| *e *= root);
     }
-    // Each contact's block [h_nn, h_nt, h_tt] of M = AᵀA + λ²I + ρCᵀT²C.
-    let blocks: Vec<[f64; 3]> = (0..wedges.len())
+    // Each contact's block of M = AᵀA + λ²I + ρCᵀT²C.
+    let blocks: Vec<[[f64; K]; K]> = (0..locals.len())
         .map(|k| {
-            let mut h = [lambda2, 0.0, lambda2];
-            for (_, [vn, vt]) in stencils.of_contact(k) {
-                h[0] += vn * vn;
-                h[1] += vn * vt;
-                h[2] += vt * vt;
+            let mut h = [[0.0; K]; K];
+            for (i, row) in h.iter_mut().enumerate() {
+                row[i] = lambda2;
+            }
+            for (_, v) in stencils.of_contact(k) {
+                for i in 0..K {
+                    for j in 0..K {
+                        h[i][j] += v[i] * v[j];
+                    }
+                }
             }
             h
         })
@@ -243,7 +266,7 @@ pub(super) fn pieces(
     // alone: [√w (r + s), √w r]. Contacts of one colour write disjoint rows;
     // atomics (plain loads and stores on x86) let them share the vector.
     let sweep = Sweep {
-        wedges: &wedges,
+        locals: &locals,
         blocks: &blocks,
         stencils: &stencils,
         start,
@@ -252,7 +275,7 @@ pub(super) fn pieces(
             .map(|_| [AtomicU64::new(0), AtomicU64::new(0)])
             .collect(),
     };
-    let mut delta = vec![[0.0; 2]; wedges.len()];
+    let mut delta = vec![[0.0; K]; locals.len()];
     let mut guess: Vec<Piece> = order.iter().map(|&k| pieces[k]).collect();
     let mut settled = 0;
     let mut flips_since_update = 0;
@@ -295,10 +318,10 @@ pub(super) fn pieces(
 
 /// What a sweep reads (contacts in colour order) and the row states it
 /// updates.
-struct Sweep<'a> {
-    wedges: &'a [Wedge],
-    blocks: &'a [[f64; 3]],
-    stencils: &'a Stencils,
+struct Sweep<'a, const K: usize> {
+    locals: &'a [Local<K>],
+    blocks: &'a [[[f64; K]; K]],
+    stencils: &'a Stencils<K>,
     start: &'a [f64],
     lambda2: f64,
     rows: Vec<[AtomicU64; 2]>,
@@ -311,31 +334,57 @@ fn load(row: &[AtomicU64; 2]) -> [f64; 2] {
     ]
 }
 
-impl Sweep<'_> {
+impl<const K: usize> Sweep<'_, K> {
     /// Moves contact k (its correction `delta`) to the minimum of its local
     /// problem and updates its rows; returns whether its piece changed.
-    fn relax(&self, k: usize, delta: &mut [f64; 2], piece: &mut Piece) -> bool {
-        let ct = &self.wedges[k];
-        let mut grad = [self.lambda2 * delta[0], self.lambda2 * delta[1]];
-        for (r, [vn, vt]) in self.stencils.of_contact(k) {
-            let with_shift = f64::from_bits(self.rows[r][0].load(Relaxed));
-            grad[0] += vn * with_shift;
-            grad[1] += vt * with_shift;
+    fn relax(&self, k: usize, delta: &mut [f64; K], piece: &mut Piece) -> bool {
+        let ct = &self.locals[k];
+        let mut grad = [0.0; K];
+        for i in 0..K {
+            grad[i] = self.lambda2 * delta[i];
         }
-        let current = [
-            self.start[ct.normal] + delta[0],
-            ct.tangent.map_or(0.0, |t| self.start[t] + delta[1]),
-        ];
-        let Some((next_piece, next)) = local_minimum(ct, &self.blocks[k], &current, &grad) else {
+        for (r, v) in self.stencils.of_contact(k) {
+            let with_shift = f64::from_bits(self.rows[r][0].load(Relaxed));
+            for i in 0..K {
+                grad[i] += v[i] * with_shift;
+            }
+        }
+        let mut current = [0.0; K];
+        for i in 0..ct.count {
+            current[i] = self.start[ct.unknowns[i]] + delta[i];
+        }
+        let block = &self.blocks[k];
+        // h = g − H x: the same quadratic with its origin at the apex.
+        let mut h = [0.0; 3];
+        let mut hm = [[0.0; 3]; 3];
+        for i in 0..ct.count {
+            h[i] = grad[i];
+            for j in 0..ct.count {
+                h[i] -= block[i][j] * current[j];
+                hm[i][j] = block[i][j];
+            }
+        }
+        let found = match ct.count {
+            1 => local_nonnegative(hm[0][0], h[0]).map(|(p, z)| (p, [z, 0.0, 0.0])),
+            2 => local_wedge(ct.mu, &[hm[0][0], hm[0][1], hm[1][1]], &[h[0], h[1]])
+                .map(|(p, z)| (p, [z[0], z[1], 0.0])),
+            _ => local_cone(ct.mu, &hm, &h),
+        };
+        let Some((next_piece, next)) = found else {
             return false;
         };
         let flipped = *piece != next_piece;
         *piece = next_piece;
-        let step = [next[0] - current[0], next[1] - current[1]];
-        if step != [0.0; 2] {
-            *delta = [delta[0] + step[0], delta[1] + step[1]];
-            for (r, [vn, vt]) in self.stencils.of_contact(k) {
-                let change = vn * step[0] + vt * step[1];
+        let mut step = [0.0; K];
+        for i in 0..ct.count {
+            step[i] = next[i] - current[i];
+        }
+        if step != [0.0; K] {
+            for i in 0..K {
+                delta[i] += step[i];
+            }
+            for (r, v) in self.stencils.of_contact(k) {
+                let change: f64 = (0..K).map(|i| v[i] * step[i]).sum();
                 let [with_shift, residual] = load(&self.rows[r]);
                 self.rows[r][0].store((with_shift + change).to_bits(), Relaxed);
                 self.rows[r][1].store((residual + change).to_bits(), Relaxed);
@@ -345,44 +394,38 @@ impl Sweep<'_> {
     }
 }
 
-/// Minimises the local quadratic with Hessian `block` ([h_nn, h_nt, h_tt]) and
-/// gradient `grad` at `current` over the contact's cone: the unconstrained
-/// minimum when admissible, else the best of the faces and the apex.
-fn local_minimum(
-    ct: &Wedge,
-    block: &[f64; 3],
-    current: &[f64; 2],
-    grad: &[f64; 2],
-) -> Option<(Piece, [f64; 2])> {
-    let [hnn, hnt, htt] = *block;
-    // q(z) = ½ zᵀHz + hᵀz with h = g − H x (the same quadratic, origin at 0).
-    if ct.tangent.is_none() {
-        if hnn <= 0.0 {
-            return None;
-        }
-        let h = grad[0] - hnn * current[0];
-        let z = -h / hnn;
-        return Some(if z > 0.0 {
-            (Piece::Interior, [z, 0.0])
-        } else {
-            (Piece::Apex, [0.0; 2])
-        });
+/// Minimises ½ h_nn z² + h z over z ≥ 0.
+fn local_nonnegative(hnn: f64, h: f64) -> Option<(Piece, f64)> {
+    if hnn <= 0.0 {
+        return None;
     }
+    let z = -h / hnn;
+    Some(if z > 0.0 {
+        (Piece::Interior, z)
+    } else {
+        (Piece::Apex, 0.0)
+    })
+}
+
+/// Minimises ½ zᵀHz + hᵀz (H = [h_nn, h_nt, h_tt]) over the wedge
+/// |z_t| ≤ μ z_n: the unconstrained minimum when admissible, else the best
+/// of the faces and the apex.
+fn local_wedge(mu: f64, block: &[f64; 3], h: &[f64; 2]) -> Option<(Piece, [f64; 2])> {
+    let [hnn, hnt, htt] = *block;
     let det = hnn * htt - hnt * hnt;
     if !(hnn > 0.0 && htt > 0.0 && det > 1e-12 * hnn * htt) {
         return None;
     }
-    let hn = grad[0] - (hnn * current[0] + hnt * current[1]);
-    let ht = grad[1] - (hnt * current[0] + htt * current[1]);
+    let [hn, ht] = *h;
     let zn = -(htt * hn - hnt * ht) / det;
     let zt = -(hnn * ht - hnt * hn) / det;
-    if zt.abs() <= ct.mu * zn {
+    if zt.abs() <= mu * zn {
         return Some((Piece::Interior, [zn, zt]));
     }
     // Faces z = s (1, ±μ), s ≥ 0; the apex is s = 0 on either.
     let mut best = (Piece::Apex, [0.0; 2], 0.0);
     for sign in [1.0, -1.0] {
-        let e = [1.0, sign * ct.mu];
+        let e = [1.0, sign * mu];
         let curvature = hnn * e[0] * e[0] + 2.0 * hnt * e[0] * e[1] + htt * e[1] * e[1];
         let slope = hn * e[0] + ht * e[1];
         let s = (-slope / curvature).max(0.0);
@@ -396,6 +439,115 @@ fn local_minimum(
         }
     }
     Some((best.0, best.1))
+}
+
+/// Angles of the first scan of the cone's boundary, and golden-section
+/// steps refining the best one (the ray's angle to ~2π/24 · 0.618¹⁶ ≈ 1e-4).
+const CONE_SCAN: usize = 24;
+const CONE_REFINE: usize = 16;
+
+/// Minimises ½ zᵀHz + hᵀz over the circular cone ‖z_t‖ ≤ μ z_n (3×3 H):
+/// the unconstrained minimum when inside, else the best point on a ray
+/// s (1, μ cos θ, μ sin θ), s ≥ 0, of the boundary (for a ray the best s and
+/// the value are closed-form; θ by a scan and golden-section search), or the
+/// apex when no ray goes downhill.
+fn local_cone(mu: f64, m: &[[f64; 3]; 3], h: &[f64; 3]) -> Option<(Piece, [f64; 3])> {
+    if let Some(z) = solve3(m, h) {
+        let z = [-z[0], -z[1], -z[2]];
+        if z[1].hypot(z[2]) <= mu * z[0] {
+            return Some((Piece::Interior, z));
+        }
+    } else {
+        return None;
+    }
+    // Value and s of the best point on the ray at angle θ.
+    let ray = |theta: f64| -> (f64, f64, [f64; 3]) {
+        let e = [1.0, mu * theta.cos(), mu * theta.sin()];
+        let mut curvature = 0.0;
+        let mut slope = 0.0;
+        for i in 0..3 {
+            slope += h[i] * e[i];
+            for j in 0..3 {
+                curvature += e[i] * m[i][j] * e[j];
+            }
+        }
+        if curvature.is_nan() || curvature <= 0.0 || slope >= 0.0 {
+            return (0.0, 0.0, e);
+        }
+        let s = -slope / curvature;
+        (0.5 * slope * s, s, e)
+    };
+    let step = std::f64::consts::TAU / CONE_SCAN as f64;
+    let (mut best_theta, mut best) = (0.0, f64::INFINITY);
+    for i in 0..CONE_SCAN {
+        let theta = i as f64 * step;
+        let (q, _, _) = ray(theta);
+        if q < best {
+            (best_theta, best) = (theta, q);
+        }
+    }
+    if best >= 0.0 {
+        return Some((Piece::Apex, [0.0; 3]));
+    }
+    // Golden-section search on [θ − step, θ + step] (unimodal near the best
+    // scanned angle for a smooth ray value).
+    let golden = 0.5 * (5f64.sqrt() - 1.0);
+    let (mut lo, mut hi) = (best_theta - step, best_theta + step);
+    let mut t1 = hi - golden * (hi - lo);
+    let mut t2 = lo + golden * (hi - lo);
+    let (mut q1, mut q2) = (ray(t1).0, ray(t2).0);
+    for _ in 0..CONE_REFINE {
+        if q1 < q2 {
+            hi = t2;
+            (t2, q2) = (t1, q1);
+            t1 = hi - golden * (hi - lo);
+            q1 = ray(t1).0;
+        } else {
+            lo = t1;
+            (t1, q1) = (t2, q2);
+            t2 = lo + golden * (hi - lo);
+            q2 = ray(t2).0;
+        }
+    }
+    let theta = if q1 < q2 { t1 } else { t2 };
+    let (q, s, e) = ray(theta);
+    let (theta, s, e) = if q <= best {
+        (theta, s, e)
+    } else {
+        let (_, s, e) = ray(best_theta);
+        (best_theta, s, e)
+    };
+    Some((
+        Piece::Boundary {
+            dir: [theta.cos(), theta.sin()],
+            kappa: 1.0,
+        },
+        [s * e[0], s * e[1], s * e[2]],
+    ))
+}
+
+/// x with M x = h for a symmetric positive definite 3×3 M (Cramer's rule),
+/// `None` when M is (nearly) singular.
+fn solve3(m: &[[f64; 3]; 3], h: &[f64; 3]) -> Option<[f64; 3]> {
+    let det3 = |a: &[[f64; 3]; 3]| {
+        a[0][0] * (a[1][1] * a[2][2] - a[1][2] * a[2][1])
+            - a[0][1] * (a[1][0] * a[2][2] - a[1][2] * a[2][0])
+            + a[0][2] * (a[1][0] * a[2][1] - a[1][1] * a[2][0])
+    };
+    let det = det3(m);
+    let scale = m[0][0] * m[1][1] * m[2][2];
+    if !(m[0][0] > 0.0 && m[1][1] > 0.0 && m[2][2] > 0.0 && det > 1e-12 * scale) {
+        return None;
+    }
+    let mut x = [0.0; 3];
+    for (k, xk) in x.iter_mut().enumerate() {
+        let mut a = *m;
+        for i in 0..3 {
+            a[i][k] = h[i];
+        }
+        *xk = det3(&a) / det;
+    }
+    Some(x)
 }
 
 #[cfg(test)]
@@ -448,6 +600,60 @@ mod tests {
             rows.sort_unstable();
             rows.dedup();
             assert_eq!(rows.len(), total, "a colour with a shared row");
+        }
+    }
+}
+
+#[cfg(test)]
+mod cone_tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    fn value(m: &[[f64; 3]; 3], h: &[f64; 3], z: &[f64; 3]) -> f64 {
+        let mut q = 0.0;
+        for i in 0..3 {
+            q += h[i] * z[i];
+            for j in 0..3 {
+                q += 0.5 * z[i] * m[i][j] * z[j];
+            }
+        }
+        q
+    }
+
+    /// The local cone minimum is no worse than any of many admissible points
+    /// and itself admissible; its piece matches where it lies.
+    #[test]
+    fn local_cone_minimum_beats_sampled_admissible_points() {
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        for _ in 0..300 {
+            let mu = rng.gen_range(0.1..1.0);
+            let l: [[f64; 3]; 3] =
+                std::array::from_fn(|_| std::array::from_fn(|_| rng.gen_range(-1.0..1.0)));
+            let mut m = [[0.0; 3]; 3];
+            for i in 0..3 {
+                for j in 0..3 {
+                    m[i][j] = (0..3).map(|k| l[i][k] * l[j][k]).sum::<f64>()
+                        + if i == j { 0.1 } else { 0.0 };
+                }
+            }
+            let h: [f64; 3] = std::array::from_fn(|_| rng.gen_range(-1.0..1.0));
+            let (piece, z) = local_cone(mu, &m, &h).unwrap();
+            let tau = z[1].hypot(z[2]);
+            assert!(tau <= mu * z[0] * (1.0 + 1e-9) + 1e-12, "{z:?}");
+            match piece {
+                Piece::Interior => assert!(tau < mu * z[0]),
+                Piece::Apex => assert_eq!(z, [0.0; 3]),
+                Piece::Boundary { .. } => assert!((tau - mu * z[0]).abs() < 1e-9),
+            }
+            let best = value(&m, &h, &z);
+            for _ in 0..2000 {
+                let s = rng.gen_range(0.0..3.0f64);
+                let r = rng.gen_range(0.0..=1.0f64) * mu * s;
+                let t = rng.gen_range(0.0..std::f64::consts::TAU);
+                let y = [s, r * t.cos(), r * t.sin()];
+                assert!(value(&m, &h, &y) >= best - 1e-7, "{y:?} beats {z:?}");
+            }
         }
     }
 }
