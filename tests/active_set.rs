@@ -754,7 +754,8 @@ fn sheared_dem_packing_is_solved_by_the_active_set_alone() {
     )
     .unwrap();
     assert_eq!(
-        fast.report.solver_status, "ActiveSet",
+        fast.report.solver_status,
+        SolveStatus::ActiveSet,
         "{:?}",
         fast.report.solver_attempts
     );
