@@ -273,7 +273,8 @@ pub(crate) fn constrained_on_factor(
             None,
             Some(format!(
                 "active set: {}; solved by the interior point instead",
-                sol.reason.unwrap_or_default()
+                sol.reason
+                    .map_or_else(|| "not converged".to_owned(), |r| r.to_string())
             )),
         ));
     }

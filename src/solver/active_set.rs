@@ -92,7 +92,7 @@ pub struct ActiveSetSolution {
     /// Largest fixed-point residual at the end, relative to the largest unknown.
     pub residual: f64,
     /// Why it stopped when not converged.
-    pub reason: Option<String>,
+    pub reason: Option<StopReason>,
     /// One entry per linear solve.
     pub history: Vec<ActiveSetStep>,
     /// The pieces (interior, sliding, open) of the last solve: a warm start
@@ -245,6 +245,53 @@ impl Contact {
     }
 }
 
+/// Why the active set stopped without converging (the interior point then
+/// takes over).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum StopReason {
+    /// Pyramidal cones have no pieces this method knows.
+    PyramidalCones,
+    /// The line search found no decrease of the natural residual.
+    NoDescent { residual: f64 },
+    /// Several solves in a row without a 10 % decrease.
+    Stalled { residual: f64, solves: usize },
+    /// A full step that changed no piece and did not converge.
+    NoProgress {
+        residual: f64,
+        linear_solve_converged: bool,
+    },
+    /// The solve budget ran out.
+    IterationLimit { solves: usize },
+}
+
+impl std::fmt::Display for StopReason {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match *self {
+            StopReason::PyramidalCones => {
+                write!(f, "pyramidal cones are left to the interior-point solver")
+            }
+            StopReason::NoDescent { residual } => write!(
+                f,
+                "no descent of the natural residual ({residual:.1e}) along the Newton step"
+            ),
+            StopReason::Stalled { residual, solves } => write!(
+                f,
+                "the natural residual stalled at {residual:.1e} ({solves} solves without a 10 % decrease)"
+            ),
+            StopReason::NoProgress {
+                residual,
+                linear_solve_converged,
+            } => write!(
+                f,
+                "no progress at fixed-point residual {residual:.1e} (linear solve converged: {linear_solve_converged})"
+            ),
+            StopReason::IterationLimit { solves } => {
+                write!(f, "the active set did not settle in {solves} solves")
+            }
+        }
+    }
+}
+
 /// Solves the friction-constrained least squares, starting from `start` (the
 /// unconstrained answer, or any guess). `ls` is reused: its symbolic analysis is
 /// kept across iterations. Returns `Ok` with `converged: false` (and the reason)
@@ -286,11 +333,7 @@ pub fn solve_from(
     }
     let n = a.ncols;
     let Some(contacts) = cones.iter().map(Contact::of).collect::<Option<Vec<_>>>() else {
-        return Ok(fail(
-            start.to_vec(),
-            Vec::new(),
-            "pyramidal cones are left to the interior-point solver".into(),
-        ));
+        return Ok(fail(start.to_vec(), Vec::new(), StopReason::PyramidalCones));
     };
     // ρ_c = RHO_FACTOR / (mean diagonal of AᵀA + λ² over the contact's
     // unknowns): the step that turns a multiplier (a gradient) into a force.
@@ -326,7 +369,7 @@ pub fn solve_from(
 }
 
 /// An unconverged outcome.
-fn fail(x: Vec<f64>, history: Vec<ActiveSetStep>, reason: String) -> ActiveSetSolution {
+fn fail(x: Vec<f64>, history: Vec<ActiveSetStep>, reason: StopReason) -> ActiveSetSolution {
     ActiveSetSolution {
         pieces: ActivePieces::default(),
         x,
@@ -471,10 +514,9 @@ fn iterate(
             return Ok(fail(
                 x,
                 history,
-                format!(
-                    "no descent of the natural residual ({:.1e}) along the Newton step",
-                    before.sqrt()
-                ),
+                StopReason::NoDescent {
+                    residual: before.sqrt(),
+                },
             ));
         }
         x = x_new;
@@ -488,10 +530,10 @@ fn iterate(
                 return Ok(fail(
                     x,
                     history,
-                    format!(
-                        "the natural residual stalled at {:.1e} ({MAX_STALLED} solves without a 10 % decrease)",
-                        after.sqrt()
-                    ),
+                    StopReason::Stalled {
+                        residual: after.sqrt(),
+                        solves: MAX_STALLED,
+                    },
                 ));
             }
         }
@@ -541,19 +583,18 @@ fn iterate(
             return Ok(fail(
                 x,
                 history,
-                format!(
-                    "no progress at fixed-point residual {residual:.1e} (linear solve converged: {})",
-                    sol.solution.converged
-                ),
+                StopReason::NoProgress {
+                    residual,
+                    linear_solve_converged: sol.solution.converged,
+                },
             ));
         }
     }
     Ok(fail(
         x,
         history,
-        format!(
-            "the active set did not settle in {} solves",
-            settings.max_iterations
-        ),
+        StopReason::IterationLimit {
+            solves: settings.max_iterations,
+        },
     ))
 }
