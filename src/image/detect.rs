@@ -169,41 +169,49 @@ pub fn detect_disks(image: &FloatImage, options: &DetectOptions) -> Result<Vec<D
             "the image is only {w}×{h} px; too small to find disks in"
         )));
     }
-    let smooth = gaussian_blur(image, sigma);
-    let edge_sigma = o
-        .edge_smoothing_px
-        .unwrap_or_else(|| edge_smoothing_for_noise(image, &smooth, sigma));
-    if !(sigma.is_finite() && sigma > 0.0 && edge_sigma.is_finite() && edge_sigma > 0.0) {
-        return Err(Error::Invalid(format!(
-            "smoothing must be positive, not {sigma} and {edge_sigma} px"
-        )));
-    }
-    let edge_image = gaussian_blur(image, edge_sigma);
-    let plane = Plane {
-        data: edge_image.as_raw(),
-        w: w as usize,
-        h: h as usize,
-    };
     let signs: &[f64] = match o.polarity {
         Polarity::Bright => &[1.0],
         Polarity::Dark => &[-1.0],
         Polarity::Either => &[1.0, -1.0],
     };
-    let accumulator = vote(&smooth, o, signs);
-    let mut candidates = peaks(&accumulator, o);
-    for &s in signs {
-        candidates.extend(distance_peaks(&smooth, s, o));
-    }
-    let mut found: Vec<Disk> = candidates
-        .par_iter()
-        .flat_map_iter(|&(cx, cy, hint)| {
-            let plane = &plane;
-            signs
-                .iter()
-                .filter_map(move |&s| refine(plane, [cx, cy], hint, s, edge_sigma, o))
-                .collect::<Vec<_>>()
-        })
-        .collect();
+    let factor = pyramid_factor(o);
+    let pyramid = factor > 1 && w as usize >= 8 * factor && h as usize >= 8 * factor;
+    // The noise is measured once (on big images it costs a pass and a buffer).
+    let mut noise = None;
+    let mut noise_of = |image: &FloatImage| *noise.get_or_insert_with(|| noise_level(image));
+    let (candidates, edge_sigma) = if pyramid {
+        coarse_candidates(image, o, signs, factor, noise_of(image))?
+    } else {
+        let smooth = gaussian_blur(image, sigma);
+        let edge_sigma = o
+            .edge_smoothing_px
+            .unwrap_or_else(|| edge_smoothing_for_noise(noise_of(image), &smooth, sigma));
+        check_smoothing(sigma, edge_sigma)?;
+        let accumulator = vote(&smooth, o, signs);
+        let mut candidates = peaks(&accumulator, o);
+        for &s in signs {
+            candidates.extend(distance_peaks(&smooth, s, o));
+        }
+        (candidates, edge_sigma)
+    };
+    let edge_image = gaussian_blur(image, edge_sigma);
+    let plane = Plane::whole(&edge_image);
+    let refine_candidate = |&(cx, cy, hint): &Candidate| {
+        let plane = &plane;
+        signs
+            .iter()
+            .filter_map(move |&s| refine(plane, [cx, cy], hint, s, edge_sigma, o))
+            .collect::<Vec<_>>()
+    };
+    let mut found: Vec<Disk> = if pyramid {
+        refine_strongest_first(&candidates, refine_candidate, o)
+    } else {
+        candidates
+            .par_iter()
+            .flat_map_iter(refine_candidate)
+            .collect()
+    };
+    drop(edge_image);
     // Merge duplicates: the best-supported copy of each disk wins.
     found.sort_by(|a, b| score(b).total_cmp(&score(a)));
     let mut kept: Vec<Disk> = Vec::new();
@@ -246,9 +254,258 @@ pub fn detect_disks(image: &FloatImage, options: &DetectOptions) -> Result<Vec<D
         .collect();
     let kept = without_overlaps(kept);
     if o.find_by_rims && o.polarity == Polarity::Bright {
+        if pyramid {
+            return Ok(add_rim_enclosed_coarse(
+                image,
+                o,
+                kept,
+                factor,
+                noise_of(image),
+            ));
+        }
         return Ok(add_rim_enclosed(image, o, kept));
     }
     Ok(kept)
+}
+
+/// Refines the candidates (strongest first) in batches, skipping those that
+/// lie inside a disk already found with confidence. Disks overlap by at most
+/// 0.15 R, so any other disk's centre is at least 0.85 of its radius away
+/// from such a candidate, beyond what refining recovers from (a quarter
+/// radius): the candidate can only give the same disk again or a circle the
+/// overlap rule removes. On big images most candidates are such echoes (of
+/// fringes inside loaded disks), and refining one at full resolution is the
+/// costliest step of the search.
+fn refine_strongest_first(
+    candidates: &[Candidate],
+    refine_candidate: impl Fn(&Candidate) -> Vec<Disk> + Sync,
+    o: &DetectOptions,
+) -> Vec<Disk> {
+    let mut found: Vec<Disk> = Vec::new();
+    let mut confident: Vec<Disk> = Vec::new();
+    for batch in candidates.chunks(32 * rayon::current_num_threads()) {
+        let open: Vec<&Candidate> = batch
+            .iter()
+            .filter(|c| !confident.iter().any(|d| (d.x - c.0).hypot(d.y - c.1) < d.r))
+            .collect();
+        let refined: Vec<Disk> = open
+            .par_iter()
+            .flat_map_iter(|c| refine_candidate(c))
+            .collect();
+        confident.extend(refined.iter().filter(|d| d.support >= o.min_support));
+        found.extend(refined);
+    }
+    found
+}
+
+/// A candidate centre (x, y) [px] and the radius its votes suggest.
+type Candidate = (f64, f64, f64);
+
+fn check_smoothing(sigma: f64, edge_sigma: f64) -> Result<()> {
+    if !(sigma.is_finite() && sigma > 0.0 && edge_sigma.is_finite() && edge_sigma > 0.0) {
+        return Err(Error::Invalid(format!(
+            "smoothing must be positive, not {sigma} and {edge_sigma} px"
+        )));
+    }
+    Ok(())
+}
+
+/// Radius [px] at which the candidate search runs: big disks are searched
+/// in an image shrunk to about this size, and only refined at full resolution.
+const COARSE_RADIUS: f64 = 50.0;
+
+/// By how much the image is shrunk for the candidate search: 1 (not at all)
+/// unless the smallest disks are at least twice [`COARSE_RADIUS`].
+fn pyramid_factor(o: &DetectOptions) -> usize {
+    (o.radius_min / COARSE_RADIUS).floor().max(1.0) as usize
+}
+
+/// Candidates for big disks (a 21-megapixel photograph): the voting and the
+/// background split run on the image shrunk by `factor` (block means), where
+/// their buffers and time fall by factor²; the refinement and judging that
+/// follow are the full-resolution ones. Returns the candidates in full
+/// resolution pixels and the edge smoothing.
+fn coarse_candidates(
+    image: &FloatImage,
+    o: &DetectOptions,
+    signs: &[f64],
+    factor: usize,
+    noise: f64,
+) -> Result<(Vec<Candidate>, f64)> {
+    let f = factor as f64;
+    let (w, h) = (image.width() as usize, image.height() as usize);
+    let pixels = image.as_raw();
+    let coarse = downsample(w, h, factor, |k| pixels[k]);
+    let sigma = o.smoothing();
+    // The same smoothing as at full resolution, in the shrunk image's pixels.
+    let smooth = gaussian_blur(&coarse, sigma / f);
+    drop(coarse);
+    let edge_sigma = o
+        .edge_smoothing_px
+        .unwrap_or_else(|| edge_smoothing_for_noise(noise, &smooth, sigma));
+    check_smoothing(sigma, edge_sigma)?;
+    let coarse_options = shrunk_options(o, f);
+    let accumulator = vote(&smooth, &coarse_options, signs);
+    let mut candidates = peaks(&accumulator, &coarse_options);
+    drop(accumulator);
+    for &s in signs {
+        candidates.extend(distance_peaks(&smooth, s, &coarse_options));
+    }
+    let full = |v: f64| f * v + 0.5 * (f - 1.0);
+    let candidates = candidates
+        .into_iter()
+        .map(|(x, y, r)| (full(x), full(y), f * r))
+        .collect();
+    Ok((candidates, edge_sigma))
+}
+
+/// The options for the image shrunk by `f`: radii and smoothing in its pixels.
+fn shrunk_options(o: &DetectOptions, f: f64) -> DetectOptions {
+    let mut shrunk = o.clone();
+    shrunk.radius_min = o.radius_min / f;
+    shrunk.radius_max = o.radius_max / f;
+    shrunk.smoothing_px = Some(o.smoothing() / f);
+    shrunk.edge_smoothing_px = o.edge_smoothing_px.map(|s| s / f);
+    shrunk.find_by_rims = false;
+    shrunk
+}
+
+/// [`add_rim_enclosed`] for big images: the rims are marked at full
+/// resolution (one byte a pixel: they are too thin to survive shrinking), the
+/// enclosed regions searched in the mask shrunk by `factor`, and each region
+/// found refined at full resolution in a window of the mask.
+fn add_rim_enclosed_coarse(
+    image: &FloatImage,
+    o: &DetectOptions,
+    found: Vec<Disk>,
+    factor: usize,
+    noise: f64,
+) -> Vec<Disk> {
+    let f = factor as f64;
+    let (w, h) = (image.width() as usize, image.height() as usize);
+    let enclosed = rim_enclosed(image, noise);
+    let filled = downsample(w, h, factor, |k| if enclosed[k] { 1.0 } else { 0.0 });
+    let Ok(coarse) = detect_disks(&filled, &shrunk_options(o, f)) else {
+        return found;
+    };
+    drop(filled);
+    // The filled regions have sharp edges: the least smoothing places them.
+    let value = |x: usize, y: usize| if enclosed[y * w + x] { 1.0 } else { 0.0 };
+    let rim_disks = refine_scaled(&coarse, f, o, 1.0, value, (w, h));
+    with_rim_disks(found, rim_disks, o)
+}
+
+/// Bright disks found in the image shrunk by `f`, refined at full resolution
+/// in a window of the full image (`pixel(x, y)`, `size` px) smoothed by σ; a
+/// disk whose refinement fails or wanders off keeps its scaled circle.
+fn refine_scaled(
+    found: &[Disk],
+    f: f64,
+    o: &DetectOptions,
+    sigma: f64,
+    pixel: impl Fn(usize, usize) -> f32 + Sync,
+    size: (usize, usize),
+) -> Vec<Disk> {
+    // The farthest refine samples from the candidate centre: the radius
+    // search's end plus the widest edge window, with room for the fit to move.
+    let reach = 1.3 * o.radius_max + 4.0 * sigma + 8.0 + f;
+    found
+        .par_iter()
+        .map(|d| {
+            let centre = [f * d.x + 0.5 * (f - 1.0), f * d.y + 0.5 * (f - 1.0)];
+            let scaled = Disk {
+                x: centre[0],
+                y: centre[1],
+                r: f * d.r,
+                rms: f * d.rms,
+                ..*d
+            };
+            let window = SmoothedWindow::new(&pixel, size, centre, reach, sigma);
+            let plane = window.plane();
+            refine(&plane, centre, scaled.r, 1.0, sigma, o)
+                .filter(|r| (r.x - centre[0]).hypot(r.y - centre[1]) < 0.25 * scaled.r)
+                .unwrap_or(scaled)
+        })
+        .collect()
+}
+
+/// An image of `w` × `h` pixels (`value(k)` for pixel k in row-major order)
+/// shrunk by `factor`: each pixel the mean of a factor × factor block (the
+/// blocks at the right and bottom edges may be partial), so pixel (J, I) is
+/// centred on the full image's (f J + (f − 1)/2, f I + (f − 1)/2).
+fn downsample(
+    w: usize,
+    h: usize,
+    factor: usize,
+    value: impl Fn(usize) -> f32 + Sync,
+) -> FloatImage {
+    let (cw, ch) = (w.div_ceil(factor), h.div_ceil(factor));
+    let mut out = vec![0f32; cw * ch];
+    out.par_chunks_mut(cw).enumerate().for_each(|(ci, line)| {
+        let rows = ci * factor..((ci + 1) * factor).min(h);
+        let count_rows = rows.len();
+        for i in rows {
+            for (cj, o) in line.iter_mut().enumerate() {
+                *o += (cj * factor..((cj + 1) * factor).min(w))
+                    .map(|j| value(i * w + j))
+                    .sum::<f32>();
+            }
+        }
+        for (cj, o) in line.iter_mut().enumerate() {
+            let count_cols = ((cj + 1) * factor).min(w) - cj * factor;
+            *o /= (count_rows * count_cols) as f32;
+        }
+    });
+    FloatImage::from_raw(cw as u32, ch as u32, out).expect("sized")
+}
+
+/// An image around a point (to `reach` px, clipped to the image) smoothed by
+/// σ, with a margin so that the smoothing inside `reach` matches the whole
+/// image's.
+struct SmoothedWindow {
+    data: Vec<f32>,
+    w: usize,
+    h: usize,
+    origin: [f64; 2],
+}
+
+impl SmoothedWindow {
+    fn new(
+        pixel: &impl Fn(usize, usize) -> f32,
+        (w, h): (usize, usize),
+        centre: [f64; 2],
+        reach: f64,
+        sigma: f64,
+    ) -> Self {
+        let margin = reach + (3.0 * sigma).ceil() + 2.0;
+        let clip = |v: f64, n: usize| (v.floor().max(0.0) as usize).min(n - 1);
+        let (x0, x1) = (
+            clip(centre[0] - margin, w),
+            clip(centre[0] + margin + 1.0, w),
+        );
+        let (y0, y1) = (
+            clip(centre[1] - margin, h),
+            clip(centre[1] + margin + 1.0, h),
+        );
+        let crop = FloatImage::from_fn((x1 - x0 + 1) as u32, (y1 - y0 + 1) as u32, |x, y| {
+            ::image::Luma([pixel(x0 + x as usize, y0 + y as usize)])
+        });
+        SmoothedWindow {
+            w: crop.width() as usize,
+            h: crop.height() as usize,
+            data: gaussian_blur(&crop, sigma).into_raw(),
+            origin: [x0 as f64, y0 as f64],
+        }
+    }
+
+    fn plane(&self) -> Plane<'_> {
+        Plane {
+            data: &self.data,
+            w: self.w,
+            h: self.h,
+            origin: self.origin,
+        }
+    }
 }
 
 /// Adds the disks outlined by a dark rim that the intensity search missed:
@@ -259,16 +516,44 @@ pub fn detect_disks(image: &FloatImage, options: &DetectOptions) -> Result<Vec<D
 /// edge); new disks are brought to the intensity search's radius by its
 /// median, and kept only where they cross no disk already found.
 fn add_rim_enclosed(image: &FloatImage, o: &DetectOptions, found: Vec<Disk>) -> Vec<Disk> {
-    use ::image::{GrayImage, Luma};
+    let (w, h) = image.dimensions();
+    let enclosed = rim_enclosed(image, noise_level(image));
+    let filled = FloatImage::from_raw(
+        w,
+        h,
+        enclosed
+            .iter()
+            .map(|&e| if e { 1.0 } else { 0.0 })
+            .collect(),
+    )
+    .expect("sized");
+    drop(enclosed);
+    let mut search = o.clone();
+    search.find_by_rims = false;
+    let Ok(enclosed) = detect_disks(&filled, &search) else {
+        return found;
+    };
+    with_rim_disks(found, enclosed, o)
+}
+
+/// Which pixels a dark rim encloses (or belong to one): the rims are the
+/// pixels of the image smoothed by 1 px whose black top-hat (a 4 px disk as
+/// structuring element) exceeds 0.03 and four times the noise (σ `noise` of
+/// the raw pixels); the background is flooded in from the image border, and
+/// whatever it cannot reach is enclosed. One byte a pixel.
+fn rim_enclosed(image: &FloatImage, noise: f64) -> Vec<bool> {
+    use ::image::GrayImage;
     use imageproc::morphology::{grayscale_close, Mask};
     let (w, h) = (image.width() as usize, image.height() as usize);
-    let smooth = gaussian_blur(image, 1.0);
-    let gray = GrayImage::from_fn(w as u32, h as u32, |x, y| {
-        Luma([(smooth.get_pixel(x, y)[0].clamp(0.0, 1.0) * 255.0).round() as u8])
-    });
+    let gray = GrayImage::from_raw(
+        w as u32,
+        h as u32,
+        gaussian_blur_map(image, 1.0, |v| (v.clamp(0.0, 1.0) * 255.0).round() as u8),
+    )
+    .expect("sized");
     let closed = grayscale_close(&gray, &Mask::disk(4));
     // Gaussian smoothing σ = 1 px divides white noise by 2√π.
-    let noise = noise_level(image) / (2.0 * std::f64::consts::PI.sqrt());
+    let noise = noise / (2.0 * std::f64::consts::PI.sqrt());
     let threshold = (0.03f64).max(4.0 * noise) * 255.0;
     let rim: Vec<bool> = closed
         .as_raw()
@@ -276,53 +561,54 @@ fn add_rim_enclosed(image: &FloatImage, o: &DetectOptions, found: Vec<Disk>) -> 
         .zip(gray.as_raw())
         .map(|(&c, &g)| (c as f64 - g as f64) > threshold)
         .collect();
-    // Flood the background in from the border; whatever it cannot reach is
-    // a rim or lies inside one.
+    drop((gray, closed));
+    // Scanline flood fill of the background from the border: the stack holds
+    // runs of a row, not pixels, so it stays small on big images.
     let mut reached = vec![false; w * h];
-    // Each pixel is pushed at most once (marked when pushed): u32 indices
-    // keep the stack to 4 bytes a pixel at worst.
-    let mut stack: Vec<u32> = Vec::new();
-    let visit = |k: usize, stack: &mut Vec<u32>, reached: &mut [bool]| {
-        if !reached[k] && !rim[k] {
-            reached[k] = true;
-            stack.push(k as u32);
-        }
-    };
+    let open = |k: usize, reached: &[bool]| !reached[k] && !rim[k];
+    let mut seeds: Vec<(usize, usize)> = Vec::new();
     for x in 0..w {
-        visit(x, &mut stack, &mut reached);
-        visit((h - 1) * w + x, &mut stack, &mut reached);
+        seeds.push((x, 0));
+        seeds.push((x, h - 1));
     }
     for y in 0..h {
-        visit(y * w, &mut stack, &mut reached);
-        visit(y * w + w - 1, &mut stack, &mut reached);
+        seeds.push((0, y));
+        seeds.push((w - 1, y));
     }
-    while let Some(k) = stack.pop() {
-        let k = k as usize;
-        let (x, y) = (k % w, k / w);
-        if x > 0 {
-            visit(k - 1, &mut stack, &mut reached);
+    while let Some((x, y)) = seeds.pop() {
+        let row = y * w;
+        if !open(row + x, &reached) {
+            continue;
         }
-        if x + 1 < w {
-            visit(k + 1, &mut stack, &mut reached);
+        let (mut left, mut right) = (x, x);
+        while left > 0 && open(row + left - 1, &reached) {
+            left -= 1;
         }
-        if y > 0 {
-            visit(k - w, &mut stack, &mut reached);
+        while right + 1 < w && open(row + right + 1, &reached) {
+            right += 1;
         }
-        if y + 1 < h {
-            visit(k + w, &mut stack, &mut reached);
+        reached[row + left..=row + right].fill(true);
+        for ny in [y.wrapping_sub(1), y + 1] {
+            if ny >= h {
+                continue;
+            }
+            // One seed per run of open pixels next to this one.
+            let mut previous_open = false;
+            for nx in left..=right {
+                let now_open = open(ny * w + nx, &reached);
+                if now_open && !previous_open {
+                    seeds.push((nx, ny));
+                }
+                previous_open = now_open;
+            }
         }
     }
-    let filled = FloatImage::from_raw(
-        w as u32,
-        h as u32,
-        reached.iter().map(|&r| if r { 0.0 } else { 1.0 }).collect(),
-    )
-    .expect("sized");
-    let mut search = o.clone();
-    search.find_by_rims = false;
-    let Ok(enclosed) = detect_disks(&filled, &search) else {
-        return found;
-    };
+    reached.iter().map(|&r| !r).collect()
+}
+
+/// Adds to `found` the rim-enclosed disks `enclosed` that it lacks, brought
+/// to the intensity search's radius (see [`add_rim_enclosed`]).
+fn with_rim_disks(found: Vec<Disk>, enclosed: Vec<Disk>, o: &DetectOptions) -> Vec<Disk> {
     let mut offsets: Vec<f64> = Vec::new();
     let mut extra = Vec::new();
     for e in enclosed {
@@ -527,11 +813,11 @@ pub fn noise_level(image: &FloatImage) -> f64 {
     1.4826 * median(&mut responses) / 6.0
 }
 
-/// Edge smoothing that brings the noise in the edge image down to a few
-/// percent of the image's contrast (the spread between its 10th and 90th
-/// percentiles once smoothed), between 1 px and the voting smoothing.
-fn edge_smoothing_for_noise(image: &FloatImage, smooth: &FloatImage, vote_sigma: f64) -> f64 {
-    let noise = noise_level(image);
+/// Edge smoothing that brings the noise (σ of the raw pixels) in the edge
+/// image down to a few percent of the image's contrast (the spread between
+/// its 10th and 90th percentiles once smoothed), between 1 px and the voting
+/// smoothing.
+fn edge_smoothing_for_noise(noise: f64, smooth: &FloatImage, vote_sigma: f64) -> f64 {
     let mut values: Vec<f64> = smooth
         .as_raw()
         .iter()
@@ -557,6 +843,18 @@ fn edge_smoothing_for_noise(image: &FloatImage, smooth: &FloatImage, vote_sigma:
 /// Separable Gaussian blur (kernel to ±3σ, edges extended), rows and columns
 /// in parallel: the large σ used for voting makes this the costliest filter.
 pub fn gaussian_blur(image: &FloatImage, sigma: f64) -> FloatImage {
+    let data = gaussian_blur_map(image, sigma, |v| v);
+    FloatImage::from_raw(image.width(), image.height(), data).expect("sized")
+}
+
+/// [`gaussian_blur`], each output value passed through `map` (e.g. to bytes).
+/// Bands of rows are blurred one at a time, so the only whole-image buffer is
+/// the output.
+fn gaussian_blur_map<T: Copy + Default + Send>(
+    image: &FloatImage,
+    sigma: f64,
+    map: impl Fn(f32) -> T + Sync,
+) -> Vec<T> {
     let (w, h) = (image.width() as usize, image.height() as usize);
     let radius = (3.0 * sigma).ceil().max(1.0) as isize;
     let mut kernel: Vec<f32> = (-radius..=radius)
@@ -565,29 +863,45 @@ pub fn gaussian_blur(image: &FloatImage, sigma: f64) -> FloatImage {
     let total: f32 = kernel.iter().sum();
     kernel.iter_mut().for_each(|v| *v /= total);
     let src = image.as_raw();
-    let mut rows = vec![0f32; w * h];
-    rows.par_chunks_mut(w).enumerate().for_each(|(i, out)| {
-        let line = &src[i * w..(i + 1) * w];
-        for (j, o) in out.iter_mut().enumerate() {
-            let mut acc = 0.0;
-            for (t, k) in kernel.iter().enumerate() {
-                let x = (j as isize + t as isize - radius).clamp(0, w as isize - 1) as usize;
-                acc += k * line[x];
+    let band = 64usize;
+    let mut out = vec![T::default(); w * h];
+    out.par_chunks_mut(band * w)
+        .enumerate()
+        .for_each(|(b, out_band)| {
+            let first = b * band;
+            let last = (first + out_band.len() / w).min(h);
+            // The rows this band's column pass reads, blurred along the row.
+            let top = (first as isize - radius).max(0) as usize;
+            let bottom = (last as isize - 1 + radius).min(h as isize - 1) as usize;
+            let mut rows = vec![0f32; (bottom - top + 1) * w];
+            for (i, row_out) in (top..=bottom).zip(rows.chunks_mut(w)) {
+                let line = &src[i * w..(i + 1) * w];
+                for (j, o) in row_out.iter_mut().enumerate() {
+                    let mut acc = 0.0;
+                    for (t, k) in kernel.iter().enumerate() {
+                        let x =
+                            (j as isize + t as isize - radius).clamp(0, w as isize - 1) as usize;
+                        acc += k * line[x];
+                    }
+                    *o = acc;
+                }
             }
-            *o = acc;
-        }
-    });
-    let mut out = vec![0f32; w * h];
-    out.par_chunks_mut(w).enumerate().for_each(|(i, line)| {
-        for (t, k) in kernel.iter().enumerate() {
-            let y = (i as isize + t as isize - radius).clamp(0, h as isize - 1) as usize;
-            let src_row = &rows[y * w..(y + 1) * w];
-            for (o, v) in line.iter_mut().zip(src_row) {
-                *o += k * v;
+            let mut line = vec![0f32; w];
+            for (i, out_line) in (first..last).zip(out_band.chunks_mut(w)) {
+                line.fill(0.0);
+                for (t, k) in kernel.iter().enumerate() {
+                    let y = (i as isize + t as isize - radius).clamp(0, h as isize - 1) as usize;
+                    let src_row = &rows[(y - top) * w..(y - top + 1) * w];
+                    for (o, v) in line.iter_mut().zip(src_row) {
+                        *o += k * v;
+                    }
+                }
+                for (o, &v) in out_line.iter_mut().zip(&line) {
+                    *o = map(v);
+                }
             }
-        }
-    });
-    FloatImage::from_raw(w as u32, h as u32, out).expect("sized")
+        });
+    out
 }
 
 fn score(d: &Disk) -> f64 {
@@ -628,39 +942,45 @@ fn sobel(image: &FloatImage) -> (FloatImage, FloatImage) {
 fn vote(smooth: &FloatImage, o: &DetectOptions, signs: &[f64]) -> Accumulator {
     let (gx, gy) = sobel(smooth);
     let (w, h) = (smooth.width() as usize, smooth.height() as usize);
-    let magnitude: Vec<f32> = gx
-        .as_raw()
-        .iter()
-        .zip(gy.as_raw())
-        .map(|(a, b)| (a * a + b * b).sqrt())
-        .collect();
+    let (gx, gy) = (gx.into_raw(), gy.into_raw());
+    let magnitude = |p: usize| (gx[p] * gx[p] + gy[p] * gy[p]).sqrt();
     // Ignore the weakest gradients: they carry noise, not edges, and cost time.
-    let mut sorted = magnitude.clone();
+    let mut sorted: Vec<f32> = (0..w * h).map(magnitude).collect();
     let k = ((sorted.len() as f64 * 0.995) as usize).min(sorted.len() - 1);
     let high = *sorted.select_nth_unstable_by(k, |a, b| a.total_cmp(b)).1;
+    drop(sorted);
     let floor = 0.1 * high;
     // Thin the edges (non-maximum suppression across them, as Canny does), so
     // each boundary point votes once and the votes' phases stay coherent.
-    let ridge: Vec<bool> = (0..w * h)
+    // Each row's voters: column, gradient magnitude and direction.
+    let voters: Vec<Vec<(u32, f32, f32, f32)>> = (0..h)
         .into_par_iter()
-        .map(|p| {
-            let m = magnitude[p];
-            if m <= floor {
-                return false;
-            }
-            let (i, j) = ((p / w) as isize, (p % w) as isize);
-            let (dx, dy) = (gx.as_raw()[p] / m, gy.as_raw()[p] / m);
-            let (sx, sy) = (dx.round() as isize, dy.round() as isize);
-            let at = |y: isize, x: isize| {
-                if x < 0 || y < 0 || x >= w as isize || y >= h as isize {
-                    0.0
-                } else {
-                    magnitude[y as usize * w + x as usize]
+        .map(|i| {
+            let mut row = Vec::new();
+            for j in 0..w {
+                let p = i * w + j;
+                let m = magnitude(p);
+                if m <= floor {
+                    continue;
                 }
-            };
-            m >= at(i + sy, j + sx) && m >= at(i - sy, j - sx)
+                let (dx, dy) = (gx[p] / m, gy[p] / m);
+                let (sx, sy) = (dx.round() as isize, dy.round() as isize);
+                let at = |y: isize, x: isize| {
+                    if x < 0 || y < 0 || x >= w as isize || y >= h as isize {
+                        0.0
+                    } else {
+                        magnitude(y as usize * w + x as usize)
+                    }
+                };
+                let (i, j) = (i as isize, j as isize);
+                if m >= at(i + sy, j + sx) && m >= at(i - sy, j - sx) {
+                    row.push((j as u32, m, dx, dy));
+                }
+            }
+            row
         })
         .collect();
+    drop((gx, gy));
     let pad = o.radius_max.ceil() as usize + 2;
     let (aw, ah) = (w + 2 * pad, h + 2 * pad);
     let (r0, r1) = (o.radius_min, o.radius_max);
@@ -673,45 +993,41 @@ fn vote(smooth: &FloatImage, o: &DetectOptions, signs: &[f64]) -> Accumulator {
             (t, phase.cos() as f32, phase.sin() as f32)
         })
         .collect();
-    let rows_per_chunk = (h / (4 * rayon::current_num_threads()).max(1)).max(8);
-    let (re, im) = (0..h)
-        .collect::<Vec<_>>()
-        .par_chunks(rows_per_chunk)
-        .fold(
-            || (vec![0f32; aw * ah], vec![0f32; aw * ah]),
-            |(mut re, mut im), rows| {
-                for &i in rows {
-                    for j in 0..w {
-                        let m = magnitude[i * w + j];
-                        if !ridge[i * w + j] {
-                            continue;
-                        }
-                        let (dx, dy) = (
-                            (gx.as_raw()[i * w + j] / m) as f64,
-                            (gy.as_raw()[i * w + j] / m) as f64,
-                        );
-                        for &s in signs {
-                            for &(t, c, sn) in &phases {
-                                let x = (j as f64 + s * t * dx + pad as f64).round();
-                                let y = (i as f64 + s * t * dy + pad as f64).round();
-                                if x >= 0.0 && y >= 0.0 && (x as usize) < aw && (y as usize) < ah {
-                                    let cell = y as usize * aw + x as usize;
-                                    re[cell] += m * c;
-                                    im[cell] += m * sn;
-                                }
+    // The accumulator is cut into bands of rows, each filled by one task from
+    // the rows of voters that can reach it: one accumulator in memory (not
+    // one per thread), and each cell's sum in the same order on any machine.
+    let band_rows = ah.div_ceil(4 * rayon::current_num_threads()).max(8);
+    let mut re = vec![0f32; aw * ah];
+    let mut im = vec![0f32; aw * ah];
+    re.par_chunks_mut(band_rows * aw)
+        .zip(im.par_chunks_mut(band_rows * aw))
+        .enumerate()
+        .for_each(|(b, (re, im))| {
+            let (top, bottom) = (b * band_rows, b * band_rows + re.len() / aw);
+            let reach = r1 + 1.0;
+            let first = (top as f64 - pad as f64 - reach).floor().max(0.0) as usize;
+            let last = ((bottom as f64 - pad as f64 + reach).ceil().max(0.0) as usize).min(h);
+            for (i, row) in voters.iter().enumerate().take(last).skip(first) {
+                for &(j, m, dx, dy) in row {
+                    let (j, dx, dy) = (j as usize, dx as f64, dy as f64);
+                    for &s in signs {
+                        for &(t, c, sn) in &phases {
+                            let y = (i as f64 + s * t * dy + pad as f64).round();
+                            if y < top as f64 || y >= bottom as f64 {
+                                continue;
+                            }
+                            let x = (j as f64 + s * t * dx + pad as f64).round();
+                            if x >= 0.0 && (x as usize) < aw {
+                                let cell = (y as usize - top) * aw + x as usize;
+                                re[cell] += m * c;
+                                im[cell] += m * sn;
                             }
                         }
                     }
                 }
-                (re, im)
-            },
-        )
-        .reduce_with(|(mut a, mut b), (c, d)| {
-            a.iter_mut().zip(&c).for_each(|(x, y)| *x += y);
-            b.iter_mut().zip(&d).for_each(|(x, y)| *x += y);
-            (a, b)
-        })
-        .unwrap_or_else(|| (vec![0f32; aw * ah], vec![0f32; aw * ah]));
+            }
+        });
+    drop(voters);
     let blur = |v: Vec<f32>| {
         let image = FloatImage::from_raw(aw as u32, ah as u32, v).expect("sized");
         imageproc::filter::gaussian_blur_f32(&image, 1.0).into_raw()
@@ -742,7 +1058,7 @@ fn vote(smooth: &FloatImage, o: &DetectOptions, signs: &[f64]) -> Accumulator {
 
 /// Local maxima of the accumulator above the threshold, strongest first, as
 /// centres in pixel coordinates with the radius their phase suggests.
-fn peaks(acc: &Accumulator, o: &DetectOptions) -> Vec<(f64, f64, f64)> {
+fn peaks(acc: &Accumulator, o: &DetectOptions) -> Vec<Candidate> {
     let max = acc.data.iter().fold(0f32, |m, &v| m.max(v));
     if max <= 0.0 {
         return Vec::new();
@@ -799,7 +1115,7 @@ fn peaks(acc: &Accumulator, o: &DetectOptions) -> Vec<(f64, f64, f64)> {
 /// into disks and background, then the local maxima of the distance to the
 /// background, which sit at the centres of disks however many neighbours
 /// touch them (their voting peaks can be weak).
-fn distance_peaks(smooth: &FloatImage, sign: f64, o: &DetectOptions) -> Vec<(f64, f64, f64)> {
+fn distance_peaks(smooth: &FloatImage, sign: f64, o: &DetectOptions) -> Vec<Candidate> {
     let (lo, hi) = smooth
         .iter()
         .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &v| {
@@ -852,16 +1168,29 @@ fn distance_peaks(smooth: &FloatImage, sign: f64, o: &DetectOptions) -> Vec<(f64
     found
 }
 
-/// A borrowed image plane with bilinear sampling.
+/// A borrowed image plane with bilinear sampling: the whole image, or a
+/// window of it whose first pixel is the image's pixel `origin`.
 pub(crate) struct Plane<'a> {
     pub data: &'a [f32],
     pub w: usize,
     pub h: usize,
+    pub origin: [f64; 2],
 }
 
 impl Plane<'_> {
-    /// Bilinear interpolation; `None` outside the pixel centres' hull.
+    pub fn whole(image: &FloatImage) -> Plane<'_> {
+        Plane {
+            data: image.as_raw(),
+            w: image.width() as usize,
+            h: image.height() as usize,
+            origin: [0.0, 0.0],
+        }
+    }
+
+    /// Bilinear interpolation at image coordinates; `None` outside the pixel
+    /// centres' hull.
     pub fn sample(&self, x: f64, y: f64) -> Option<f64> {
+        let (x, y) = (x - self.origin[0], y - self.origin[1]);
         if !(x >= 0.0 && y >= 0.0 && x <= (self.w - 1) as f64 && y <= (self.h - 1) as f64) {
             return None;
         }
