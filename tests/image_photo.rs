@@ -716,3 +716,63 @@ fn near_misses_under_load_are_not_contacts() {
     println!("written {written:?}, flagged {flagged:?}");
     assert_eq!(written, vec![0, 1, 2, 3]);
 }
+
+/// Disks of radius 105–120 px (a DSLR photograph's size, in a smaller
+/// picture), dark rims of 5 px and unloaded disks darker than the background,
+/// as in the hopper photograph; only `--radius` given. With the smallest
+/// radius at 100 px or more the candidate search runs in the image shrunk by
+/// 2 and the disks are refined at full resolution; it must find what the
+/// search at full resolution (radius from 99 px) finds, about as precisely.
+#[test]
+fn big_disks_searched_in_a_shrunk_image() {
+    let scene = grainforce::image::synthetic::touching_disks(&PackingSpec {
+        width: 1.3,
+        height: 0.95,
+        radius_min: 0.105,
+        radius_max: 0.12,
+        count: 24,
+        min_gap: 0.01,
+        seed: 5,
+    })
+    .unwrap();
+    // Forces four times the small boxes': as many fringes at four times the size.
+    let forces: Vec<[f64; 2]> = forces(&scene, 5)
+        .iter()
+        .map(|f| [4.0 * f[0], 4.0 * f[1]])
+        .collect();
+    let mut options = PhotoelasticOptions::new(PX_PER_M, 600.0);
+    options.rim_px = 5.0;
+    options.unloaded = 0.08;
+    options.uneven_lighting = 0.4;
+    options.blur_px = 1.0;
+    options.noise = 0.02;
+    options.supersample = 2;
+    options.seed = 5;
+    let (image, frame) = render_photoelastic(&scene, &forces, &options).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("big-disks.jpg");
+    save_jpeg(&path, &image, 90).unwrap();
+    let photo = Photo { scene, path, frame };
+    let shrunk = detect(&photo, &DetectSettings::new(100.0, 130.0, PX_PER_M));
+    let full = detect(&photo, &DetectSettings::new(99.0, 130.0, PX_PER_M));
+    let s = score(&photo, &shrunk);
+    println!(
+        "{}×{} px: disks {}/{} found {} (full resolution: {}; centre {:.4} R, radius {:.2} px median); contacts {}/{} found {}",
+        frame.width, frame.height, s.matched, s.grains, s.found, full.disks.len(), s.median_centre_over_r,
+        s.median_radius_px, s.contacts_matched, s.contacts, s.contacts_found
+    );
+    let f = score(&photo, &full);
+    assert!(s.matched >= f.matched && s.found - s.matched <= f.found - f.matched);
+    assert!(s.median_centre_over_r <= f.median_centre_over_r + 0.002);
+    assert!(s.contacts_matched >= f.contacts_matched);
+    assert!(s.grains >= 15, "the packing holds {} disks", s.grains);
+    // One dim disk (of 20) is missed by both searches, and its 4 contacts.
+    assert!(s.disk_recall() >= 0.95 && s.disk_precision() >= 0.98);
+    assert!(s.median_centre_over_r <= 0.035);
+    assert!(
+        s.median_radius_px <= 1.5,
+        "radius error {}",
+        s.median_radius_px
+    );
+    assert!(s.contact_recall() >= 0.85 && s.contact_precision() >= 0.9);
+}

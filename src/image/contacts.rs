@@ -291,13 +291,7 @@ pub struct ImageContact {
 }
 
 fn sample(image: &FloatImage, x: f64, y: f64) -> Option<f64> {
-    let (w, h) = (image.width() as usize, image.height() as usize);
-    super::detect::Plane {
-        data: image.as_raw(),
-        w,
-        h,
-    }
-    .sample(x, y)
+    super::detect::Plane::whole(image).sample(x, y)
 }
 
 /// Measures each disk's rim from its mean radial profile over the rays that do

@@ -1,0 +1,243 @@
+//! Finding disks in an image.
+//!
+//! 1. Smooth (Gaussian) and take Sobel gradients (imageproc).
+//! 2. Gradient-direction Hough voting: each edge pixel votes, weighted by its
+//!    gradient magnitude, for centres along its gradient over the radius range
+//!    (an accumulator padded so that centres of disks cut by the border count).
+//! 3. Local maxima of the smoothed accumulator are candidate centres.
+//! 4. Each candidate is refined: its radius from the mean radial intensity
+//!    derivative, then the edge located to sub-pixel precision along rays from
+//!    the centre and a circle fitted to those edge points by robust geometric
+//!    least squares (twice, the second time around the first fit).
+//! 5. A candidate is kept when enough of its visible rays agree with the fitted
+//!    circle (which rejects texture and noise) and the disk is brighter (or
+//!    darker) than its surroundings; duplicates are merged.
+//! 6. A model fit to the raw pixels of each disk's edge ring places it to a
+//!    fraction of a pixel; disks outlined by a dark rim whatever their
+//!    interior (dim photoelastic disks) are added.
+//!
+//! Big disks (radius ≥ 100 px) are searched (steps 1–3) in the image shrunk
+//! by an integer factor and refined at full resolution.
+//!
+//! Files: `options` what to look for and what is found; `voting` steps 1–3;
+//! `pyramid` the search in the shrunk image; `refine` step 4–5 along rays,
+//! `circle_fit` the circle through the edge points; `polish` the model fit;
+//! `rims` the dim disks; `filters` smoothing and the noise estimate; this
+//! file runs them in order and merges what they find.
+
+mod circle_fit;
+mod filters;
+mod options;
+mod polish;
+mod pyramid;
+mod refine;
+mod rims;
+mod voting;
+
+pub(crate) use circle_fit::solve3;
+pub use filters::{gaussian_blur, noise_level};
+pub use options::{DetectOptions, Disk, Polarity};
+pub(crate) use refine::Plane;
+
+use super::FloatImage;
+use crate::error::{Error, Result};
+use filters::{edge_smoothing_for_noise, median};
+use polish::{polish, ModelFit};
+use pyramid::{coarse_candidates, pyramid_factor};
+use rayon::prelude::*;
+use refine::refine;
+use rims::{add_rim_enclosed, add_rim_enclosed_coarse};
+use voting::{distance_peaks, peaks, vote};
+
+/// Finds every disk whose radius lies in the given range. Returns them sorted
+/// by row, then column. An image without disks gives an empty list (the caller
+/// decides whether that is an error).
+pub fn detect_disks(image: &FloatImage, options: &DetectOptions) -> Result<Vec<Disk>> {
+    if options.classes.len() > 1 {
+        let mut found = Vec::new();
+        for c in &options.classes {
+            let mut one = options.clone();
+            (one.radius_min, one.radius_max, one.classes) = (c[0], c[1], Vec::new());
+            found.extend(detect_disks(image, &one)?);
+        }
+        return Ok(without_overlaps(found));
+    }
+    let o = options;
+    if !(o.radius_min.is_finite() && o.radius_max.is_finite())
+        || o.radius_min < 2.0
+        || o.radius_max < o.radius_min
+    {
+        return Err(Error::Invalid(format!(
+            "the radius range must satisfy 2 ≤ MIN ≤ MAX pixels, not {}..{}",
+            o.radius_min, o.radius_max
+        )));
+    }
+    let sigma = o.smoothing();
+    let (w, h) = image.dimensions();
+    if w < 8 || h < 8 {
+        return Err(Error::Invalid(format!(
+            "the image is only {w}×{h} px; too small to find disks in"
+        )));
+    }
+    let signs: &[f64] = match o.polarity {
+        Polarity::Bright => &[1.0],
+        Polarity::Dark => &[-1.0],
+        Polarity::Either => &[1.0, -1.0],
+    };
+    let factor = pyramid_factor(o);
+    let pyramid = factor > 1 && w as usize >= 8 * factor && h as usize >= 8 * factor;
+    // The noise is measured once (on big images it costs a pass and a buffer).
+    let mut noise = None;
+    let mut noise_of = |image: &FloatImage| *noise.get_or_insert_with(|| noise_level(image));
+    let (candidates, edge_sigma) = if pyramid {
+        coarse_candidates(image, o, signs, factor, noise_of(image))?
+    } else {
+        let smooth = gaussian_blur(image, sigma);
+        let edge_sigma = o
+            .edge_smoothing_px
+            .unwrap_or_else(|| edge_smoothing_for_noise(noise_of(image), &smooth, sigma));
+        check_smoothing(sigma, edge_sigma)?;
+        let accumulator = vote(&smooth, o, signs);
+        let mut candidates = peaks(&accumulator, o);
+        for &s in signs {
+            candidates.extend(distance_peaks(&smooth, s, o));
+        }
+        (candidates, edge_sigma)
+    };
+    let edge_image = gaussian_blur(image, edge_sigma);
+    let plane = Plane::whole(&edge_image);
+    let refine_candidate = |&(cx, cy, hint): &Candidate| {
+        let plane = &plane;
+        signs
+            .iter()
+            .filter_map(move |&s| refine(plane, [cx, cy], hint, s, edge_sigma, o))
+            .collect::<Vec<_>>()
+    };
+    let mut found: Vec<Disk> = if pyramid {
+        refine_strongest_first(&candidates, refine_candidate, o)
+    } else {
+        candidates
+            .par_iter()
+            .flat_map_iter(refine_candidate)
+            .collect()
+    };
+    drop(edge_image);
+    // Merge duplicates: the best-supported copy of each disk wins.
+    found.sort_by(|a, b| score(b).total_cmp(&score(a)));
+    let mut kept: Vec<Disk> = Vec::new();
+    for d in found {
+        let duplicate = kept.iter().any(|k| {
+            let dist = ((k.x - d.x).powi(2) + (k.y - d.y).powi(2)).sqrt();
+            dist < 0.7 * k.r.max(d.r)
+        });
+        if !duplicate {
+            kept.push(d);
+        }
+    }
+    let fits: Vec<Option<ModelFit>> = (0..kept.len())
+        .into_par_iter()
+        .map(|k| polish(image, &kept, k))
+        .collect();
+    // What a confirmed edge looks like: the confident disks' median fit.
+    let confident = |d: &Disk| d.support >= o.min_support;
+    let mut steps: Vec<f64> = Vec::new();
+    let mut widths: Vec<f64> = Vec::new();
+    for (d, f) in kept.iter().zip(&fits) {
+        if let (true, Some(f)) = (confident(d), f) {
+            steps.push(f.step.abs());
+            widths.push(f.width);
+        }
+    }
+    let (typical_step, typical_width) = (median(&mut steps), median(&mut widths));
+    let kept: Vec<Disk> = kept
+        .iter()
+        .zip(fits)
+        .filter_map(|(d, f)| match f {
+            Some(f) if confident(d) => Some(f.disk),
+            None if confident(d) => Some(*d),
+            Some(f) => (!steps.is_empty()
+                && f.step.abs() >= 0.5 * typical_step
+                && f.width <= 1.5 * typical_width + 0.3)
+                .then_some(f.disk),
+            None => None,
+        })
+        .collect();
+    let kept = without_overlaps(kept);
+    if o.find_by_rims && o.polarity == Polarity::Bright {
+        if pyramid {
+            return Ok(add_rim_enclosed_coarse(
+                image,
+                o,
+                kept,
+                factor,
+                noise_of(image),
+            ));
+        }
+        return Ok(add_rim_enclosed(image, o, kept));
+    }
+    Ok(kept)
+}
+
+/// Refines the candidates (strongest first) in batches, skipping those that
+/// lie inside a disk already found with confidence. Disks overlap by at most
+/// 0.15 R, so any other disk's centre is at least 0.85 of its radius away
+/// from such a candidate, beyond what refining recovers from (a quarter
+/// radius): the candidate can only give the same disk again or a circle the
+/// overlap rule removes. On big images most candidates are such echoes (of
+/// fringes inside loaded disks), and refining one at full resolution is the
+/// costliest step of the search.
+pub(crate) fn refine_strongest_first(
+    candidates: &[Candidate],
+    refine_candidate: impl Fn(&Candidate) -> Vec<Disk> + Sync,
+    o: &DetectOptions,
+) -> Vec<Disk> {
+    let mut found: Vec<Disk> = Vec::new();
+    let mut confident: Vec<Disk> = Vec::new();
+    for batch in candidates.chunks(32 * rayon::current_num_threads()) {
+        let open: Vec<&Candidate> = batch
+            .iter()
+            .filter(|c| !confident.iter().any(|d| (d.x - c.0).hypot(d.y - c.1) < d.r))
+            .collect();
+        let refined: Vec<Disk> = open
+            .par_iter()
+            .flat_map_iter(|c| refine_candidate(c))
+            .collect();
+        confident.extend(refined.iter().filter(|d| d.support >= o.min_support));
+        found.extend(refined);
+    }
+    found
+}
+
+/// A candidate centre (x, y) [px] and the radius its votes suggest.
+pub(crate) type Candidate = (f64, f64, f64);
+
+pub(crate) fn check_smoothing(sigma: f64, edge_sigma: f64) -> Result<()> {
+    if !(sigma.is_finite() && sigma > 0.0 && edge_sigma.is_finite() && edge_sigma > 0.0) {
+        return Err(Error::Invalid(format!(
+            "smoothing must be positive, not {sigma} and {edge_sigma} px"
+        )));
+    }
+    Ok(())
+}
+
+/// Disks do not overlap: of two circles that cross by more than a few pixels,
+/// the better supported stays (the other is fitted to fringes or to the space
+/// between disks, or is a size class's echo of a disk of another). Sorted by
+/// row, then column.
+pub(crate) fn without_overlaps(mut kept: Vec<Disk>) -> Vec<Disk> {
+    kept.sort_by(|a, b| score(b).total_cmp(&score(a)));
+    let mut solid: Vec<Disk> = Vec::with_capacity(kept.len());
+    for d in kept {
+        let crosses =
+            |k: &Disk| (k.x - d.x).hypot(k.y - d.y) < k.r + d.r - (3.0f64).max(0.15 * k.r.min(d.r));
+        if !solid.iter().any(crosses) {
+            solid.push(d);
+        }
+    }
+    solid.sort_by(|a, b| a.y.total_cmp(&b.y).then(a.x.total_cmp(&b.x)));
+    solid
+}
+
+pub(crate) fn score(d: &Disk) -> f64 {
+    d.support * d.visible
+}

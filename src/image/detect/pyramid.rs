@@ -1,0 +1,184 @@
+//! Big disks: the candidate search in the image shrunk by an integer factor,
+//! and refinement at full resolution in windows around each disk.
+
+use super::filters::{edge_smoothing_for_noise, gaussian_blur};
+use super::options::{DetectOptions, Disk};
+use super::refine::{refine, Plane};
+use super::voting::{distance_peaks, peaks, vote};
+use super::{check_smoothing, Candidate};
+use crate::error::Result;
+use crate::image::FloatImage;
+use rayon::prelude::*;
+
+/// Radius [px] at which the candidate search runs: big disks are searched
+/// in an image shrunk to about this size, and only refined at full resolution.
+pub(crate) const COARSE_RADIUS: f64 = 50.0;
+
+/// By how much the image is shrunk for the candidate search: 1 (not at all)
+/// unless the smallest disks are at least twice [`COARSE_RADIUS`].
+pub(crate) fn pyramid_factor(o: &DetectOptions) -> usize {
+    (o.radius_min / COARSE_RADIUS).floor().max(1.0) as usize
+}
+
+/// Candidates for big disks (a 21-megapixel photograph): the voting and the
+/// background split run on the image shrunk by `factor` (block means), where
+/// their buffers and time fall by factor²; the refinement and judging that
+/// follow are the full-resolution ones. Returns the candidates in full
+/// resolution pixels and the edge smoothing.
+pub(crate) fn coarse_candidates(
+    image: &FloatImage,
+    o: &DetectOptions,
+    signs: &[f64],
+    factor: usize,
+    noise: f64,
+) -> Result<(Vec<Candidate>, f64)> {
+    let f = factor as f64;
+    let (w, h) = (image.width() as usize, image.height() as usize);
+    let pixels = image.as_raw();
+    let coarse = downsample(w, h, factor, |k| pixels[k]);
+    let sigma = o.smoothing();
+    // The same smoothing as at full resolution, in the shrunk image's pixels.
+    let smooth = gaussian_blur(&coarse, sigma / f);
+    drop(coarse);
+    let edge_sigma = o
+        .edge_smoothing_px
+        .unwrap_or_else(|| edge_smoothing_for_noise(noise, &smooth, sigma));
+    check_smoothing(sigma, edge_sigma)?;
+    let coarse_options = shrunk_options(o, f);
+    let accumulator = vote(&smooth, &coarse_options, signs);
+    let mut candidates = peaks(&accumulator, &coarse_options);
+    drop(accumulator);
+    for &s in signs {
+        candidates.extend(distance_peaks(&smooth, s, &coarse_options));
+    }
+    let full = |v: f64| f * v + 0.5 * (f - 1.0);
+    let candidates = candidates
+        .into_iter()
+        .map(|(x, y, r)| (full(x), full(y), f * r))
+        .collect();
+    Ok((candidates, edge_sigma))
+}
+
+/// The options for the image shrunk by `f`: radii and smoothing in its pixels.
+pub(crate) fn shrunk_options(o: &DetectOptions, f: f64) -> DetectOptions {
+    let mut shrunk = o.clone();
+    shrunk.radius_min = o.radius_min / f;
+    shrunk.radius_max = o.radius_max / f;
+    shrunk.smoothing_px = Some(o.smoothing() / f);
+    shrunk.edge_smoothing_px = o.edge_smoothing_px.map(|s| s / f);
+    shrunk.find_by_rims = false;
+    shrunk
+}
+
+/// Bright disks found in the image shrunk by `f`, refined at full resolution
+/// in a window of the full image (`pixel(x, y)`, `size` px) smoothed by σ; a
+/// disk whose refinement fails or wanders off keeps its scaled circle.
+pub(crate) fn refine_scaled(
+    found: &[Disk],
+    f: f64,
+    o: &DetectOptions,
+    sigma: f64,
+    pixel: impl Fn(usize, usize) -> f32 + Sync,
+    size: (usize, usize),
+) -> Vec<Disk> {
+    // The farthest refine samples from the candidate centre: the radius
+    // search's end plus the widest edge window, with room for the fit to move.
+    let reach = 1.3 * o.radius_max + 4.0 * sigma + 8.0 + f;
+    found
+        .par_iter()
+        .map(|d| {
+            let centre = [f * d.x + 0.5 * (f - 1.0), f * d.y + 0.5 * (f - 1.0)];
+            let scaled = Disk {
+                x: centre[0],
+                y: centre[1],
+                r: f * d.r,
+                rms: f * d.rms,
+                ..*d
+            };
+            let window = SmoothedWindow::new(&pixel, size, centre, reach, sigma);
+            let plane = window.plane();
+            refine(&plane, centre, scaled.r, 1.0, sigma, o)
+                .filter(|r| (r.x - centre[0]).hypot(r.y - centre[1]) < 0.25 * scaled.r)
+                .unwrap_or(scaled)
+        })
+        .collect()
+}
+
+/// An image of `w` × `h` pixels (`value(k)` for pixel k in row-major order)
+/// shrunk by `factor`: each pixel the mean of a factor × factor block (the
+/// blocks at the right and bottom edges may be partial), so pixel (J, I) is
+/// centred on the full image's (f J + (f − 1)/2, f I + (f − 1)/2).
+pub(crate) fn downsample(
+    w: usize,
+    h: usize,
+    factor: usize,
+    value: impl Fn(usize) -> f32 + Sync,
+) -> FloatImage {
+    let (cw, ch) = (w.div_ceil(factor), h.div_ceil(factor));
+    let mut out = vec![0f32; cw * ch];
+    out.par_chunks_mut(cw).enumerate().for_each(|(ci, line)| {
+        let rows = ci * factor..((ci + 1) * factor).min(h);
+        let count_rows = rows.len();
+        for i in rows {
+            for (cj, o) in line.iter_mut().enumerate() {
+                *o += (cj * factor..((cj + 1) * factor).min(w))
+                    .map(|j| value(i * w + j))
+                    .sum::<f32>();
+            }
+        }
+        for (cj, o) in line.iter_mut().enumerate() {
+            let count_cols = ((cj + 1) * factor).min(w) - cj * factor;
+            *o /= (count_rows * count_cols) as f32;
+        }
+    });
+    FloatImage::from_raw(cw as u32, ch as u32, out).expect("sized")
+}
+
+/// An image around a point (to `reach` px, clipped to the image) smoothed by
+/// σ, with a margin so that the smoothing inside `reach` matches the whole
+/// image's.
+pub(crate) struct SmoothedWindow {
+    data: Vec<f32>,
+    w: usize,
+    h: usize,
+    origin: [f64; 2],
+}
+
+impl SmoothedWindow {
+    fn new(
+        pixel: &impl Fn(usize, usize) -> f32,
+        (w, h): (usize, usize),
+        centre: [f64; 2],
+        reach: f64,
+        sigma: f64,
+    ) -> Self {
+        let margin = reach + (3.0 * sigma).ceil() + 2.0;
+        let clip = |v: f64, n: usize| (v.floor().max(0.0) as usize).min(n - 1);
+        let (x0, x1) = (
+            clip(centre[0] - margin, w),
+            clip(centre[0] + margin + 1.0, w),
+        );
+        let (y0, y1) = (
+            clip(centre[1] - margin, h),
+            clip(centre[1] + margin + 1.0, h),
+        );
+        let crop = FloatImage::from_fn((x1 - x0 + 1) as u32, (y1 - y0 + 1) as u32, |x, y| {
+            ::image::Luma([pixel(x0 + x as usize, y0 + y as usize)])
+        });
+        SmoothedWindow {
+            w: crop.width() as usize,
+            h: crop.height() as usize,
+            data: gaussian_blur(&crop, sigma).into_raw(),
+            origin: [x0 as f64, y0 as f64],
+        }
+    }
+
+    fn plane(&self) -> Plane<'_> {
+        Plane {
+            data: &self.data,
+            w: self.w,
+            h: self.h,
+            origin: self.origin,
+        }
+    }
+}

@@ -1,0 +1,318 @@
+//! Refining a candidate into a disk: its radius, the sub-pixel edge along
+//! rays, the circle through it, and the judgement of support and contrast.
+
+use super::circle_fit::{robust_circle_fit, solve3};
+use super::options::{DetectOptions, Disk};
+use crate::image::FloatImage;
+
+/// A borrowed image plane with bilinear sampling: the whole image, or a
+/// window of it whose first pixel is the image's pixel `origin`.
+pub(crate) struct Plane<'a> {
+    pub data: &'a [f32],
+    pub w: usize,
+    pub h: usize,
+    pub origin: [f64; 2],
+}
+
+impl Plane<'_> {
+    pub fn whole(image: &FloatImage) -> Plane<'_> {
+        Plane {
+            data: image.as_raw(),
+            w: image.width() as usize,
+            h: image.height() as usize,
+            origin: [0.0, 0.0],
+        }
+    }
+
+    /// Bilinear interpolation at image coordinates; `None` outside the pixel
+    /// centres' hull.
+    pub fn sample(&self, x: f64, y: f64) -> Option<f64> {
+        let (x, y) = (x - self.origin[0], y - self.origin[1]);
+        if !(x >= 0.0 && y >= 0.0 && x <= (self.w - 1) as f64 && y <= (self.h - 1) as f64) {
+            return None;
+        }
+        let (x0, y0) = (
+            (x.floor() as usize).min(self.w - 2),
+            (y.floor() as usize).min(self.h - 2),
+        );
+        let (fx, fy) = (x - x0 as f64, y - y0 as f64);
+        let at = |i: usize, j: usize| self.data[i * self.w + j] as f64;
+        let top = at(y0, x0) * (1.0 - fx) + at(y0, x0 + 1) * fx;
+        let bottom = at(y0 + 1, x0) * (1.0 - fx) + at(y0 + 1, x0 + 1) * fx;
+        Some(top * (1.0 - fy) + bottom * fy)
+    }
+}
+
+/// One ray's edge: its point and whether the image gradient there points
+/// along the ray (as it does on a disk's boundary, and rarely on texture).
+pub(crate) struct Edge {
+    pub(crate) x: f64,
+    pub(crate) y: f64,
+    pub(crate) strength: f64,
+    pub(crate) aligned: bool,
+}
+
+pub(crate) const STEP: f64 = 0.25;
+/// Largest angle between the gradient and the ray at a boundary point: tan 25°.
+pub(crate) const ALIGNMENT: f64 = 0.466;
+
+/// Refines a candidate centre into a disk, or rejects it.
+pub(crate) fn refine(
+    img: &Plane,
+    centre: [f64; 2],
+    hint: f64,
+    sign: f64,
+    sigma: f64,
+    o: &DetectOptions,
+) -> Option<Disk> {
+    let r0 = radial_peak(img, centre, hint, sign, o)?;
+    let (mut c, mut r) = (centre, r0);
+    // Wide search windows first (the candidate may be a few pixels off), then
+    // narrower ones: the medium window judges support (wide enough that
+    // texture and noise cannot look like a circle), the narrow ones place the
+    // edge (close enough that texture inside the disk is not mistaken for it).
+    let narrow = (1.5 * sigma).max(1.25);
+    let windows = [0.25 * r0 + 2.0 * sigma, 2.0 * sigma + 2.0, narrow, narrow];
+    let mut judged = None;
+    for (pass, &half_window) in windows.iter().enumerate() {
+        let (edges, rays, visible_rays) = ray_edges(img, c, r, sign, half_window, sigma);
+        if visible_rays == 0 || (visible_rays as f64) < o.min_visible * rays as f64 {
+            return None;
+        }
+        let fit = robust_circle_fit(&edges, c, r)?;
+        if pass == 1 {
+            judged = Some((edges, fit, rays, visible_rays));
+        }
+        c = [fit[0], fit[1]];
+        r = fit[2];
+    }
+    let (edges, fit, rays, visible_rays) = judged?;
+    // Support is judged with a fixed tolerance so noise cannot widen it.
+    let tolerance = 1.0 + 0.02 * fit[2];
+    let residuals: Vec<f64> = edges
+        .iter()
+        .filter(|e| e.aligned)
+        .map(|e| ((e.x - fit[0]).powi(2) + (e.y - fit[1]).powi(2)).sqrt() - fit[2])
+        .filter(|res| res.abs() <= tolerance)
+        .collect();
+    let support = residuals.len() as f64 / visible_rays as f64;
+    let visible = visible_rays as f64 / rays as f64;
+    if support < o.min_support_confirmed.min(o.min_support)
+        || r < o.radius_min - 1.0
+        || r > o.radius_max + 1.0
+    {
+        return None;
+    }
+    // The step across the edge, measured outside the smoothing's reach.
+    let contrast = edge_contrast(img, c, r, sign, sigma);
+    if contrast <= o.min_contrast.max(0.0) {
+        return None;
+    }
+    let rms = (residuals.iter().map(|v| v * v).sum::<f64>() / residuals.len() as f64).sqrt();
+    // The smoothed edge of a disk peaks σ²/(2r) inside the true one.
+    let r = r + sigma * sigma / (2.0 * r);
+    Some(Disk {
+        x: c[0],
+        y: c[1],
+        r,
+        support,
+        visible,
+        contrast,
+        rms,
+    })
+}
+
+/// The radius at which the mean outward intensity drop (signed by polarity)
+/// peaks, near the radius the votes suggest (over the whole range when the
+/// suggestion sits near either end, where its phase is ambiguous).
+pub(crate) fn radial_peak(
+    img: &Plane,
+    c: [f64; 2],
+    hint: f64,
+    sign: f64,
+    o: &DetectOptions,
+) -> Option<f64> {
+    let band = (0.25 * (o.radius_max - o.radius_min)).max(3.0);
+    let (mut lo, mut hi) = (o.radius_min - 2.0, o.radius_max + 2.0);
+    if hint - band > o.radius_min && hint + band < o.radius_max {
+        (lo, hi) = (hint - band, hint + band);
+    }
+    let lo = lo.max(1.0);
+    let n = ((hi - lo) / 0.5).ceil() as usize + 1;
+    let rays = ((std::f64::consts::TAU * hi / 3.0).ceil() as usize).clamp(24, 720);
+    let mut sum = vec![0.0; n];
+    let mut count = vec![0usize; n];
+    for k in 0..rays {
+        let a = std::f64::consts::TAU * k as f64 / rays as f64;
+        let (ca, sa) = (a.cos(), a.sin());
+        for (b, (s, m)) in sum.iter_mut().zip(count.iter_mut()).enumerate() {
+            let rho = lo + 0.5 * b as f64;
+            let inner = img.sample(c[0] + (rho - 0.5) * ca, c[1] + (rho - 0.5) * sa);
+            let outer = img.sample(c[0] + (rho + 0.5) * ca, c[1] + (rho + 0.5) * sa);
+            if let (Some(i), Some(u)) = (inner, outer) {
+                *s += sign * (i - u);
+                *m += 1;
+            }
+        }
+    }
+    let need = (rays / 5).max(4);
+    let profile: Vec<f64> = sum
+        .iter()
+        .zip(&count)
+        .map(|(&s, &m)| {
+            if m >= need {
+                s / m as f64
+            } else {
+                f64::NEG_INFINITY
+            }
+        })
+        .collect();
+    let (best, &value) = profile
+        .iter()
+        .enumerate()
+        .max_by(|a, b| a.1.total_cmp(b.1))?;
+    if value.is_nan() || value <= 0.0 {
+        return None;
+    }
+    let offset = if best > 0 && best + 1 < n {
+        parabola_vertex(profile[best - 1], value, profile[best + 1])
+    } else {
+        0.0
+    };
+    Some(lo + 0.5 * (best as f64 + offset))
+}
+
+/// Vertex offset (in steps) of the least-squares parabola through the samples
+/// within `reach` of `best` (three samples at least), kept within the span.
+pub(crate) fn parabola_fit(v: &[f64], best: usize, reach: usize) -> f64 {
+    let lo = best.saturating_sub(reach);
+    let hi = (best + reach).min(v.len() - 1);
+    if hi - lo < 2 {
+        return 0.0;
+    }
+    // Normal equations for v ≈ a + b t + c t², t relative to best.
+    let mut m = [[0.0; 3]; 3];
+    let mut rhs = [0.0; 3];
+    for (k, &y) in v.iter().enumerate().take(hi + 1).skip(lo) {
+        let t = k as f64 - best as f64;
+        let basis = [1.0, t, t * t];
+        for a in 0..3 {
+            rhs[a] += basis[a] * y;
+            for b in 0..3 {
+                m[a][b] += basis[a] * basis[b];
+            }
+        }
+    }
+    match solve3(m, rhs) {
+        Some([_, b, c]) if c < 0.0 => {
+            (-b / (2.0 * c)).clamp(lo as f64 - best as f64, hi as f64 - best as f64)
+        }
+        _ => 0.0,
+    }
+}
+
+/// Vertex offset (in steps, within ±½) of the parabola through three samples.
+pub(crate) fn parabola_vertex(a: f64, b: f64, c: f64) -> f64 {
+    let denominator = a - 2.0 * b + c;
+    if !(a.is_finite() && c.is_finite()) || denominator >= 0.0 {
+        return 0.0;
+    }
+    (0.5 * (a - c) / denominator).clamp(-0.5, 0.5)
+}
+
+/// Sub-pixel edge along each ray from the centre, searched within ±half_window
+/// of the radius. Returns the edges, the number of rays and the number of rays
+/// whose search window lies inside the image.
+pub(crate) fn ray_edges(
+    img: &Plane,
+    c: [f64; 2],
+    r: f64,
+    sign: f64,
+    half_window: f64,
+    sigma: f64,
+) -> (Vec<Edge>, usize, usize) {
+    let rays = ((std::f64::consts::TAU * r / 1.5).ceil() as usize).clamp(32, 1440);
+    // Samples every STEP px; the derivative spans ±0.5 px (two samples each side).
+    let lead = (0.5 / STEP) as usize;
+    let n = (2.0 * half_window / STEP).ceil() as usize + 1 + 2 * lead;
+    let start = r - half_window - 0.5;
+    let mut edges = Vec::with_capacity(rays);
+    let mut visible = 0;
+    let mut samples = vec![0.0; n];
+    for k in 0..rays {
+        let a = std::f64::consts::TAU * k as f64 / rays as f64;
+        let (ca, sa) = (a.cos(), a.sin());
+        let mut inside = start > 0.0;
+        for (m, s) in samples.iter_mut().enumerate() {
+            let rho = start + STEP * m as f64;
+            match img.sample(c[0] + rho * ca, c[1] + rho * sa) {
+                Some(v) => *s = v,
+                None => {
+                    inside = false;
+                    break;
+                }
+            }
+        }
+        if !inside {
+            continue;
+        }
+        visible += 1;
+        let derivative: Vec<f64> = (lead..n - lead)
+            .map(|m| sign * (samples[m - lead] - samples[m + lead]))
+            .collect();
+        let (best, &value) = derivative
+            .iter()
+            .enumerate()
+            .max_by(|a, b| a.1.total_cmp(b.1))
+            .expect("non-empty window");
+        if best == 0 || best + 1 == derivative.len() || value <= 0.0 {
+            continue;
+        }
+        // The peak of a smoothed edge is about σ wide: fit the parabola over it.
+        let reach = ((sigma / STEP).round() as usize).max(1);
+        let offset = parabola_fit(&derivative, best, reach);
+        let rho = start + STEP * (best as f64 + lead as f64 + offset);
+        let (x, y) = (c[0] + rho * ca, c[1] + rho * sa);
+        // Tangential derivative over the same 1 px span as the radial one.
+        let aligned = match (
+            img.sample(x - 0.5 * sa, y + 0.5 * ca),
+            img.sample(x + 0.5 * sa, y - 0.5 * ca),
+        ) {
+            (Some(p), Some(q)) => (p - q).abs() <= ALIGNMENT * value,
+            _ => false,
+        };
+        edges.push(Edge {
+            x,
+            y,
+            strength: value,
+            aligned,
+        });
+    }
+    (edges, rays, visible)
+}
+
+/// The intensity inside minus outside the circle, sampled beyond the
+/// smoothing's reach and signed by the polarity: its 80th percentile over the
+/// visible rays, since in a dense packing many rays end on a neighbour.
+pub(crate) fn edge_contrast(img: &Plane, c: [f64; 2], r: f64, sign: f64, sigma: f64) -> f64 {
+    let gap = 2.0 * sigma + 1.0;
+    let rays = 64;
+    let mut steps = Vec::with_capacity(rays);
+    for k in 0..rays {
+        let a = std::f64::consts::TAU * k as f64 / rays as f64;
+        let (ca, sa) = (a.cos(), a.sin());
+        let inner = img.sample(
+            c[0] + (r - gap).max(0.0) * ca,
+            c[1] + (r - gap).max(0.0) * sa,
+        );
+        let outer = img.sample(c[0] + (r + gap) * ca, c[1] + (r + gap) * sa);
+        if let (Some(i), Some(u)) = (inner, outer) {
+            steps.push(sign * (i - u));
+        }
+    }
+    if steps.is_empty() {
+        return 0.0;
+    }
+    let k = (steps.len() * 4 / 5).min(steps.len() - 1);
+    *steps.select_nth_unstable_by(k, |a, b| a.total_cmp(b)).1
+}
