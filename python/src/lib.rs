@@ -267,7 +267,12 @@ fn solve(
         return Ok(vec![FrameOutcome::Inferred(Box::new(result?))]);
     }
     let report = |p: infer::Progress| report_progress(progress, p.done, p.total, callback_error);
-    infer::sequence::solve_frames(frames, per_frame, on_failure, progress.map(|_| &report as _))
+    infer::sequence::solve_frames(
+        frames,
+        per_frame,
+        on_failure,
+        progress.map(|_| &report as _),
+    )
 }
 
 fn report_progress(
@@ -360,14 +365,19 @@ fn infer_forces<'py>(
             progress.as_ref(),
             &callback_error,
         )?;
-        let solved = cli_infer::split_outcomes(&args, frames, per_frame, outcomes)?;
+        let solved = grainforce::infer::sequence::split_outcomes(
+            args.stop_on_failure,
+            frames,
+            per_frame,
+            outcomes,
+        )?;
         Ok::<_, Error>((single_frame, solved))
     });
     if let Some(e) = callback_error.into_inner().ok().flatten() {
         return Err(e);
     }
     let (single_frame, solved) = outcome.map_err(to_py)?;
-    let cli_infer::Solved {
+    let grainforce::infer::sequence::Solved {
         frames,
         results,
         failures,
@@ -395,7 +405,9 @@ fn infer_forces<'py>(
     let report = if single_frame {
         to_json(reports[0])?
     } else {
-        to_json(&cli_infer::sequence_report(&entries, &reports))?
+        to_json(&grainforce::infer::sequence::sequence_report(
+            &entries, &reports,
+        ))?
     };
     Ok((forces_table(py, &forces)?, report, failures))
 }

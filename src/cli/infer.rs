@@ -5,7 +5,7 @@ use grainforce::infer::kinematics::{self, Smoother};
 use grainforce::infer::sequence::{self, FrameOutcome, OnFrameFailure};
 use grainforce::infer::time_fit;
 use grainforce::infer::uncertainty::{
-    force_uncertainty, NoiseEstimate, Uncertainty, UncertaintyOptions,
+    frames_uncertainty, NoiseEstimate, Uncertainty, UncertaintyOptions,
 };
 use grainforce::infer::{
     self, ConeModel, ConstrainedSolver, InferOptions, LambdaRule, Method, OnCollapse, StressNoise,
@@ -471,7 +471,6 @@ fn uncertainty(
     per_frame: &[InferOptions],
     results: &[infer::Inference],
 ) -> Result<Vec<Uncertainty>> {
-    use rayon::prelude::*;
     if draws < 2 {
         return Err(Error::Invalid(format!(
             "--uncertainty needs at least 2 draws, got {draws}"
@@ -491,17 +490,7 @@ fn uncertainty(
         seed: args.uncertainty_seed as u64,
         noise,
     };
-    frames
-        .par_iter()
-        .zip(per_frame.par_iter())
-        .zip(results.par_iter())
-        .map(|((frame, opts), result)| {
-            force_uncertainty(frame, opts, result, &options).map_err(|e| match frame.frame {
-                Some(k) => Error::Solver(format!("frame {k}: {e}")),
-                None => e,
-            })
-        })
-        .collect()
+    frames_uncertainty(frames, per_frame, results, &options)
 }
 
 /// What `--time-fit joint` needs, checked before any frame is inferred.
@@ -624,13 +613,13 @@ pub fn run(args: Args) -> Result<Finished> {
         outcomes?
     };
     let single_frame = frames.len() == 1;
-    let Solved {
+    let sequence::Solved {
         frames,
         per_frame,
         mut results,
         failures,
         entries,
-    } = split_outcomes(&args, frames, per_frame, outcomes)?;
+    } = sequence::split_outcomes(args.stop_on_failure, frames, per_frame, outcomes)?;
     for (_, error) in &failures {
         eprintln!("not written: {error}");
     }
@@ -695,7 +684,7 @@ pub fn run(args: Args) -> Result<Finished> {
         } else if single_frame {
             serde_json::to_string_pretty(reports[0])
         } else {
-            serde_json::to_string_pretty(&sequence_report(&entries, &reports))
+            serde_json::to_string_pretty(&sequence::sequence_report(&entries, &reports))
         }
         .map_err(|e| Error::Invalid(e.to_string()))?;
         pending.push((path.clone(), json.into_bytes()));
@@ -856,81 +845,3 @@ pub enum Finished {
 
 /// Exit status when some frames of a sequence failed and the others were written.
 pub const FRAMES_FAILED_EXIT: u8 = 3;
-
-/// The frames that were inferred, with their options and results, and the
-/// failed ones.
-pub struct Solved {
-    pub frames: Vec<scene::Scene>,
-    pub per_frame: Vec<InferOptions>,
-    pub results: Vec<infer::Inference>,
-    /// Frame number and error of each failed frame.
-    pub failures: Vec<(i64, String)>,
-    /// Every frame in order: `None` when inferred, else its failure.
-    pub entries: Vec<Option<(i64, String)>>,
-}
-
-/// An entry of a sequence's JSON report.
-#[derive(serde::Serialize)]
-#[serde(untagged)]
-pub enum ReportEntry<'a> {
-    Inferred(&'a infer::InferenceReport),
-    Failed { frame: i64, error: &'a str },
-}
-
-/// A sequence's JSON report: one entry per frame in frame order, a failed
-/// frame's `{"frame": k, "error": "…"}`.
-pub fn sequence_report<'a>(
-    entries: &'a [Option<(i64, String)>],
-    reports: &[&'a infer::InferenceReport],
-) -> Vec<ReportEntry<'a>> {
-    let mut reports = reports.iter();
-    entries
-        .iter()
-        .filter_map(|entry| match entry {
-            Some((frame, error)) => Some(ReportEntry::Failed {
-                frame: *frame,
-                error,
-            }),
-            None => reports.next().map(|r| ReportEntry::Inferred(r)),
-        })
-        .collect()
-}
-
-/// Sorts the frames' outcomes; an error when the run must stop (a failure
-/// under `--stop-on-failure`, or no frame inferred).
-pub fn split_outcomes(
-    args: &Args,
-    frames: Vec<scene::Scene>,
-    per_frame: Vec<InferOptions>,
-    outcomes: Vec<FrameOutcome>,
-) -> Result<Solved> {
-    let mut solved = Solved {
-        frames: Vec::new(),
-        per_frame: Vec::new(),
-        results: Vec::new(),
-        failures: Vec::new(),
-        entries: Vec::new(),
-    };
-    let mut first_error = None;
-    for ((frame, opts), outcome) in frames.into_iter().zip(per_frame).zip(outcomes) {
-        match outcome {
-            FrameOutcome::Inferred(r) => {
-                solved.frames.push(frame);
-                solved.per_frame.push(opts);
-                solved.results.push(*r);
-                solved.entries.push(None);
-            }
-            FrameOutcome::Failed(e) => {
-                let failure = (frame.frame.unwrap_or_default(), e.to_string());
-                solved.failures.push(failure.clone());
-                solved.entries.push(Some(failure));
-                first_error.get_or_insert(e);
-            }
-            FrameOutcome::NotRun => {}
-        }
-    }
-    match first_error {
-        Some(e) if args.stop_on_failure || solved.results.is_empty() => Err(e),
-        _ => Ok(solved),
-    }
-}

@@ -351,3 +351,81 @@ fn in_frame(error: Error, frame: i64) -> Error {
         other => Error::Solver(format!("frame {frame}: {other}")),
     }
 }
+
+/// The frames that were inferred, with their options and results, and the
+/// failed ones.
+pub struct Solved {
+    pub frames: Vec<Scene>,
+    pub per_frame: Vec<InferOptions>,
+    pub results: Vec<super::Inference>,
+    /// Frame number and error of each failed frame.
+    pub failures: Vec<(i64, String)>,
+    /// Every frame in order: `None` when inferred, else its failure.
+    pub entries: Vec<Option<(i64, String)>>,
+}
+
+/// An entry of a sequence's JSON report.
+#[derive(serde::Serialize)]
+#[serde(untagged)]
+pub enum ReportEntry<'a> {
+    Inferred(&'a super::InferenceReport),
+    Failed { frame: i64, error: &'a str },
+}
+
+/// A sequence's JSON report: one entry per frame in frame order, a failed
+/// frame's `{"frame": k, "error": "…"}`.
+pub fn sequence_report<'a>(
+    entries: &'a [Option<(i64, String)>],
+    reports: &[&'a super::InferenceReport],
+) -> Vec<ReportEntry<'a>> {
+    let mut reports = reports.iter();
+    entries
+        .iter()
+        .filter_map(|entry| match entry {
+            Some((frame, error)) => Some(ReportEntry::Failed {
+                frame: *frame,
+                error,
+            }),
+            None => reports.next().map(|r| ReportEntry::Inferred(r)),
+        })
+        .collect()
+}
+
+/// Sorts the frames' outcomes; an error when the run must stop (a failure
+/// under `--stop-on-failure`, or no frame inferred).
+pub fn split_outcomes(
+    stop_on_failure: bool,
+    frames: Vec<Scene>,
+    per_frame: Vec<InferOptions>,
+    outcomes: Vec<FrameOutcome>,
+) -> Result<Solved> {
+    let mut solved = Solved {
+        frames: Vec::new(),
+        per_frame: Vec::new(),
+        results: Vec::new(),
+        failures: Vec::new(),
+        entries: Vec::new(),
+    };
+    let mut first_error = None;
+    for ((frame, opts), outcome) in frames.into_iter().zip(per_frame).zip(outcomes) {
+        match outcome {
+            FrameOutcome::Inferred(r) => {
+                solved.frames.push(frame);
+                solved.per_frame.push(opts);
+                solved.results.push(*r);
+                solved.entries.push(None);
+            }
+            FrameOutcome::Failed(e) => {
+                let failure = (frame.frame.unwrap_or_default(), e.to_string());
+                solved.failures.push(failure.clone());
+                solved.entries.push(Some(failure));
+                first_error.get_or_insert(e);
+            }
+            FrameOutcome::NotRun => {}
+        }
+    }
+    match first_error {
+        Some(e) if stop_on_failure || solved.results.is_empty() => Err(e),
+        _ => Ok(solved),
+    }
+}

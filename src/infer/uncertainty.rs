@@ -264,3 +264,25 @@ fn standard_deviation(samples: &[Vec3]) -> Vec3 {
     }
     var.map(f64::sqrt)
 }
+
+/// [`force_uncertainty`] of every frame of a sequence, frames in parallel;
+/// an error names its frame.
+pub fn frames_uncertainty(
+    frames: &[Scene],
+    per_frame: &[InferOptions],
+    results: &[Inference],
+    uncertainty: &UncertaintyOptions,
+) -> Result<Vec<Uncertainty>> {
+    use rayon::prelude::*;
+    frames
+        .par_iter()
+        .zip(per_frame.par_iter())
+        .zip(results.par_iter())
+        .map(|((frame, opts), result)| {
+            force_uncertainty(frame, opts, result, uncertainty).map_err(|e| match frame.frame {
+                Some(k) => Error::Solver(format!("frame {k}: {e}")),
+                None => e,
+            })
+        })
+        .collect()
+}
