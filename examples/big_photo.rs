@@ -15,7 +15,6 @@ use grainforce::image::photoelastic::{render_photoelastic, save_jpeg, Photoelast
 use grainforce::image::synthetic::{touching_disks, PackingSpec};
 use grainforce::image::{detect_images, ContactBody, DetectSettings, PixelFrame};
 use grainforce::scene::{Body, Scene};
-use rand::{Rng, SeedableRng};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -50,22 +49,10 @@ fn packing() -> Scene {
     scene
 }
 
-/// Compressive contact forces [N/m]: exponentially distributed, one in five
-/// nearly unloaded (those disks stay almost dark).
+/// Compressive contact forces [N/m], one in five nearly unloaded (those
+/// disks stay almost dark).
 fn forces(scene: &Scene) -> Vec<[f64; 2]> {
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(21);
-    scene
-        .contacts
-        .iter()
-        .map(|c| {
-            let magnitude = if rng.gen_bool(0.2) {
-                rng.gen_range(0.0..0.05)
-            } else {
-                -rng.gen_range(0.0f64..1.0).ln().max(0.05)
-            } * 240.0;
-            [-magnitude * c.normal[0], -magnitude * c.normal[1]]
-        })
-        .collect()
+    grainforce::image::photoelastic::sample_contact_forces(scene, 240.0, 21)
 }
 
 fn frame() -> PixelFrame {
@@ -96,29 +83,13 @@ fn render(path: &Path) -> grainforce::Result<()> {
     Ok(())
 }
 
-/// CPU seconds used so far by this process (all threads), from /proc.
 fn cpu_seconds() -> f64 {
-    std::fs::read_to_string("/proc/self/stat")
-        .ok()
-        .and_then(|s| {
-            let after = s.rsplit_once(')')?.1.split_whitespace().collect::<Vec<_>>();
-            let ticks: f64 =
-                after.get(11)?.parse::<f64>().ok()? + after.get(12)?.parse::<f64>().ok()?;
-            Some(ticks / 100.0)
-        })
-        .unwrap_or(f64::NAN)
+    grainforce::bench::cpu_seconds().unwrap_or(f64::NAN)
 }
 
-/// Peak resident memory of this process [MB], from /proc.
+/// Peak resident memory of this process [MB].
 fn peak_rss_mb() -> f64 {
-    std::fs::read_to_string("/proc/self/status")
-        .ok()
-        .and_then(|s| {
-            let line = s.lines().find(|l| l.starts_with("VmHWM:"))?;
-            let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
-            Some(kb / 1024.0)
-        })
-        .unwrap_or(f64::NAN)
+    grainforce::bench::peak_memory().map_or(f64::NAN, |b| b as f64 / (1024.0 * 1024.0))
 }
 
 /// Runs the detection as the CLI does and scores it (in the child process, so

@@ -15,19 +15,10 @@ use grainforce::image::{
 };
 use std::time::Instant;
 
-/// CPU seconds used so far by this process (all threads), from /proc on
-/// Linux: on a shared machine, wall time alone says little.
+/// CPU seconds used so far by this process (all threads): on a shared
+/// machine, wall time alone says little.
 fn cpu_seconds() -> f64 {
-    std::fs::read_to_string("/proc/self/stat")
-        .ok()
-        .and_then(|s| {
-            let after = s.rsplit_once(')')?.1.split_whitespace().collect::<Vec<_>>();
-            // Fields 14 and 15 (utime, stime) are the 12th and 13th after ")".
-            let ticks: f64 =
-                after.get(11)?.parse::<f64>().ok()? + after.get(12)?.parse::<f64>().ok()?;
-            Some(ticks / 100.0)
-        })
-        .unwrap_or(f64::NAN)
+    grainforce::bench::cpu_seconds().unwrap_or(f64::NAN)
 }
 
 fn main() -> grainforce::Result<()> {

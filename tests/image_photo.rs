@@ -9,7 +9,6 @@ use grainforce::image::photoelastic::{render_photoelastic, save_jpeg, Photoelast
 use grainforce::image::synthetic::{touching_disks_of_sizes, PackingSpec};
 use grainforce::image::{detect_images, ContactBody, DetectSettings, DetectedFrame, PixelFrame};
 use grainforce::scene::{Body, Scene};
-use rand::{Rng, SeedableRng};
 use std::path::{Path, PathBuf};
 
 const PX_PER_M: f64 = 1000.0;
@@ -33,23 +32,9 @@ fn bidisperse(seed: u64) -> Scene {
     .unwrap()
 }
 
-/// Contact forces [N/m]: most exponentially distributed around a mean that
-/// puts a few fringes in a disk, one in five nearly unloaded.
+/// Contact forces [N/m] whose mean puts a few fringes in a disk.
 fn forces(scene: &Scene, seed: u64) -> Vec<[f64; 2]> {
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-    scene
-        .contacts
-        .iter()
-        .map(|c| {
-            let magnitude = if rng.gen_bool(0.2) {
-                rng.gen_range(0.0..0.05)
-            } else {
-                -rng.gen_range(0.0f64..1.0).ln().max(0.05)
-            } * 60.0;
-            // Compressive: on `a`, against its outward normal.
-            [-magnitude * c.normal[0], -magnitude * c.normal[1]]
-        })
-        .collect()
+    grainforce::image::photoelastic::sample_contact_forces(scene, 60.0, seed)
 }
 
 struct Photo {

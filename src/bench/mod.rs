@@ -226,6 +226,18 @@ pub fn peak_memory() -> Option<u64> {
     Some(kb * 1024)
 }
 
+/// CPU seconds this process has used so far, all threads (utime + stime
+/// from /proc/self/stat); Linux only. On a shared machine wall time alone
+/// says little.
+pub fn cpu_seconds() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // Fields 14 and 15 (utime, stime) are the 12th and 13th after the ")"
+    // that ends the command name.
+    let after: Vec<&str> = stat.rsplit_once(')')?.1.split_whitespace().collect();
+    let ticks: f64 = after.get(11)?.parse::<f64>().ok()? + after.get(12)?.parse::<f64>().ok()?;
+    Some(ticks / 100.0)
+}
+
 /// Median of the repeats of each (dim, grains, noise, method), keeping the
 /// first failure if any repeat failed.
 pub fn aggregate(results: &[CaseResult]) -> Vec<CaseResult> {

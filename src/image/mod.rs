@@ -52,7 +52,33 @@ pub struct PixelFrame {
     pub height: u32,
 }
 
+/// Largest image side the renderers agree to draw.
+pub const MAX_IMAGE_SIDE: f64 = 30_000.0;
+
 impl PixelFrame {
+    /// The frame that shows the box `lo`..`hi` [m] with a free border of
+    /// `margin_px` pixels; an error (not an out-of-memory crash) when the
+    /// image would be over [`MAX_IMAGE_SIDE`] pixels on a side.
+    pub fn around(lo: [f64; 2], hi: [f64; 2], px_per_m: f64, margin_px: f64) -> Result<Self> {
+        let s = px_per_m;
+        let width = ((hi[0] - lo[0]) * s + 2.0 * margin_px).ceil();
+        let height = ((hi[1] - lo[1]) * s + 2.0 * margin_px).ceil();
+        if !(width.is_finite() && height.is_finite())
+            || width > MAX_IMAGE_SIDE
+            || height > MAX_IMAGE_SIDE
+        {
+            return Err(Error::Invalid(format!(
+                "the image would be {width}×{height} px; lower the scale ({s} px/m)"
+            )));
+        }
+        Ok(PixelFrame {
+            px_per_m: s,
+            origin: [lo[0] - margin_px / s, lo[1] - margin_px / s],
+            width: width.max(1.0) as u32,
+            height: height.max(1.0) as u32,
+        })
+    }
+
     /// The frame `detect` uses when nothing else is known: origin at the
     /// bottom-left corner of the image.
     pub fn at_origin(px_per_m: f64, width: u32, height: u32) -> Self {

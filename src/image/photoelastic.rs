@@ -81,6 +81,28 @@ struct LoadedDisk {
     loads: Vec<([f64; 2], [f64; 2])>,
 }
 
+/// Compressive contact forces for a rendered photograph [N/m]: magnitudes
+/// exponentially distributed with mean `mean` (at least 0.05 `mean`), except
+/// that one contact in five is nearly unloaded (< 0.05 `mean`: its disks stay
+/// almost dark), as in a real packing. Each force acts on grain `a`, against
+/// its outward normal. Reproducible from `seed`.
+pub fn sample_contact_forces(scene: &Scene, mean: f64, seed: u64) -> Vec<[f64; 2]> {
+    use rand::Rng;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    scene
+        .contacts
+        .iter()
+        .map(|c| {
+            let magnitude = if rng.gen_bool(0.2) {
+                rng.gen_range(0.0..0.05)
+            } else {
+                -rng.gen_range(0.0f64..1.0).ln().max(0.05)
+            } * mean;
+            [-magnitude * c.normal[0], -magnitude * c.normal[1]]
+        })
+        .collect()
+}
+
 /// Renders `scene` with the given force per contact (the force on grain `a`
 /// by `b`, scene axes, as in forces.csv). Returns the colour image and its frame.
 pub fn render_photoelastic(
@@ -140,20 +162,7 @@ pub fn render_photoelastic(
                     hi[k] = hi[k].max(d.centre[k] + d.radius);
                 }
             }
-            let s = o.px_per_m;
-            let width = ((hi[0] - lo[0]) * s + 2.0 * o.margin_px).ceil();
-            let height = ((hi[1] - lo[1]) * s + 2.0 * o.margin_px).ceil();
-            if !(width.is_finite() && height.is_finite()) || width > 30_000.0 || height > 30_000.0 {
-                return Err(Error::Invalid(format!(
-                    "the image would be {width}×{height} px; lower the scale"
-                )));
-            }
-            PixelFrame {
-                px_per_m: s,
-                origin: [lo[0] - o.margin_px / s, lo[1] - o.margin_px / s],
-                width: width as u32,
-                height: height as u32,
-            }
+            PixelFrame::around(lo, hi, o.px_per_m, o.margin_px)?
         }
     };
     let (w, h) = (frame.width as usize, frame.height as usize);

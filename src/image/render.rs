@@ -157,10 +157,6 @@ fn validate(o: &RenderOptions) -> Result<()> {
     Ok(())
 }
 
-/// Largest image side we agree to draw, to turn a wrong scale into an error
-/// instead of an out-of-memory crash.
-const MAX_SIDE: f64 = 30_000.0;
-
 fn auto_frame(frames: &[Scene], o: &RenderOptions) -> Result<PixelFrame> {
     let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
     for scene in frames {
@@ -172,20 +168,7 @@ fn auto_frame(frames: &[Scene], o: &RenderOptions) -> Result<PixelFrame> {
             }
         }
     }
-    let s = o.px_per_m;
-    let width = ((hi[0] - lo[0]) * s + 2.0 * o.margin_px).ceil();
-    let height = ((hi[1] - lo[1]) * s + 2.0 * o.margin_px).ceil();
-    if !(width.is_finite() && height.is_finite()) || width > MAX_SIDE || height > MAX_SIDE {
-        return Err(Error::Invalid(format!(
-            "the image would be {width}×{height} px; lower the scale ({s} px/m)"
-        )));
-    }
-    Ok(PixelFrame {
-        px_per_m: s,
-        origin: [lo[0] - o.margin_px / s, lo[1] - o.margin_px / s],
-        width: width.max(1.0) as u32,
-        height: height.max(1.0) as u32,
-    })
+    PixelFrame::around(lo, hi, o.px_per_m, o.margin_px)
 }
 
 /// A disk as drawn: centre and radius in pixels, the inverse deformation

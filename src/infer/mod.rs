@@ -543,7 +543,7 @@ fn solve_system(
         rhs: &system.momentum_rhs,
         weight: COLLAPSE_WEIGHT,
     });
-    let mut soft = conic::solve(&soft_problem, &opts.conic)?;
+    let mut soft = cascade::interior_point(&soft_problem, &opts.conic, None)?;
     let residual = system
         .momentum
         .mul(&soft.x)
@@ -721,7 +721,7 @@ fn solve_scaled(
         regularized: 0,
         cones: cone_list,
     };
-    let sol = conic::solve(&problem, &opts.conic)?;
+    let sol = cascade::interior_point(&problem, &opts.conic, None)?;
     report.absorb(&sol);
     let s = sol.x[n];
     if s <= 0.0 {
