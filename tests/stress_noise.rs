@@ -183,12 +183,24 @@ fn coverage(scene: &Scene, truth: &[Vec3], opts: &InferOptions) -> f64 {
         },
     )
     .unwrap();
+    let scale = truth
+        .iter()
+        .map(|f| f.iter().map(|v| v * v).sum::<f64>().sqrt())
+        .sum::<f64>()
+        / truth.len() as f64;
     let (mut inside, mut total) = (0usize, 0usize);
     for c in 0..truth.len() {
         let (Some(f), Some(sd)) = (inf.forces[c], u.sd[c]) else {
             continue;
         };
         for k in 0..scene.dim {
+            // Components the model fixes (the tangential ones at frictionless
+            // walls: 22 % here) are certain and right; counting them as
+            // covered would inflate the coverage of the uncertain ones.
+            let error = (f[k] - truth[c][k]).abs();
+            if sd[k] <= 1e-12 * scale && error <= 1e-9 * scale {
+                continue;
+            }
             total += 1;
             inside += usize::from((f[k] - truth[c][k]).abs() <= sd[k]);
         }
@@ -196,11 +208,22 @@ fn coverage(scene: &Scene, truth: &[Vec3], opts: &InferOptions) -> f64 {
     inside as f64 / total as f64
 }
 
+/// Noise draws of the coverage test. The coverage of one draw scatters by
+/// ~0.06 (a few modes carry most of a packing's error, so one draw's errors
+/// are all large or all small together): 3 draws are not enough to tell 0.68
+/// from 0.76. With 20 the mean is within ~0.015 (30 draws: relative 0.636,
+/// absolute 0.657, columns 0.667).
+const COVERAGE_DRAWS: u64 = 20;
+
+fn mean(v: &[f64]) -> f64 {
+    v.iter().sum::<f64>() / v.len() as f64
+}
+
 #[test]
-fn coverage_at_one_sd_under_the_relative_and_columns_models() {
+fn coverage_at_one_sd_under_each_model() {
     let (scene, truth) = fixture("regression/oedometer3d_seed1");
-    let (mut rel, mut col) = (vec![], vec![]);
-    for seed in 1..=3 {
+    let (mut rel, mut abs, mut col) = (vec![], vec![], vec![]);
+    for seed in 1..=COVERAGE_DRAWS {
         let noisy = perturb(
             std::slice::from_ref(&scene),
             &PerturbConfig {
@@ -211,19 +234,92 @@ fn coverage_at_one_sd_under_the_relative_and_columns_models() {
         )
         .unwrap()
         .remove(0);
-        let o = InferOptions {
-            stress_noise: StressNoise::Relative,
-            ..InferOptions::default()
-        };
-        rel.push(coverage(&noisy, &truth, &o));
+        for (model, out) in [
+            (StressNoise::Relative, &mut rel),
+            (StressNoise::Absolute, &mut abs),
+        ] {
+            let o = InferOptions {
+                stress_noise: model,
+                ..InferOptions::default()
+            };
+            out.push(coverage(&noisy, &truth, &o));
+        }
         let o = InferOptions {
             stress_noise: StressNoise::Columns,
             ..InferOptions::default()
         };
         col.push(coverage(&heteroscedastic(&scene, seed), &truth, &o));
     }
-    let (rel, col) = (median(rel), median(col));
-    eprintln!("coverage at ±1 sd: relative {rel:.3}, columns {col:.3}");
-    assert!((0.58..0.78).contains(&rel), "relative {rel}");
-    assert!((0.58..0.78).contains(&col), "columns {col}");
+    let (rel, abs, col) = (mean(&rel), mean(&abs), mean(&col));
+    eprintln!("coverage at ±1 sd, mean of {COVERAGE_DRAWS} draws: relative {rel:.3}, absolute {abs:.3}, columns {col:.3}");
+    // Target 0.63–0.73, widened by two standard errors of the mean (0.015).
+    for (name, c) in [("relative", rel), ("absolute", abs), ("columns", col)] {
+        assert!((0.60..0.76).contains(&c), "{name} {c}");
+    }
+}
+
+#[test]
+fn relative_model_on_eq_2_16_noise_sheared_dem_1000_spheres() {
+    // A 10³ DEM packing with friction at the limit (fixtures/regression).
+    let (abs, rel) = eq_2_16("regression/box3d_sheared");
+    eprintln!("3D sheared box 1000, scaled: absolute {abs:.4}, relative {rel:.4}");
+    assert!(rel <= 0.02, "relative {rel}");
+    assert!(rel < 0.5 * abs, "relative {rel} vs absolute {abs}");
+}
+
+/// The best a row weighting can do on eq. 2.16 data: the 15 % scale removed
+/// and every component weighted by its true sd (0.1·|exact|, as `columns`).
+fn oracle(exact: &Scene, noisy: &Scene) -> Scene {
+    let mut s = noisy.clone();
+    let comps = sym::components(s.dim);
+    let rms = (exact
+        .grains
+        .iter()
+        .flat_map(|g| comps.iter().map(move |&k| g.stress[k].powi(2)))
+        .sum::<f64>()
+        / (exact.grains.len() * comps.len()) as f64)
+        .sqrt();
+    for (g, e) in s.grains.iter_mut().zip(&exact.grains) {
+        let mut sd = [0.0; 6];
+        for &k in comps {
+            g.stress[k] /= 1.15;
+            sd[k] = 0.1 * e.stress[k].abs() + 1e-3 * rms;
+        }
+        g.stress_sd = Some(sd);
+    }
+    s
+}
+
+#[test]
+fn on_lattice_packings_the_relative_model_reaches_the_oracle() {
+    // The bench's lattices miss the 0.02 target (README): their near-square
+    // systems carry the noise into the forces. Weighting every row by its
+    // true sd with the scale known does no better, so the limit is the data's.
+    use grainforce::bench::{generate, perturb, Noise, PackingSpec};
+    for dim in [2, 3] {
+        let packing = generate(&PackingSpec::new(dim, 1000)).unwrap();
+        let (mut ours, mut best) = (vec![], vec![]);
+        for seed in 1..=3 {
+            let noisy = perturb(&packing.scene, Noise::Stress, seed);
+            ours.push(relerr(
+                &noisy,
+                &packing.truth,
+                Method::Scaled,
+                StressNoise::Relative,
+            ));
+            best.push(relerr(
+                &oracle(&packing.scene, &noisy),
+                &packing.truth,
+                Method::Qs,
+                StressNoise::Columns,
+            ));
+        }
+        let (ours, best) = (median(ours), median(best));
+        eprintln!("{dim}D lattice 10³: scaled relative {ours:.4}, oracle {best:.4}");
+        assert!(ours <= 1.1 * best, "{dim}D: {ours} vs oracle {best}");
+        assert!(
+            best > 0.02,
+            "{dim}D: the oracle {best} meets the target after all"
+        );
+    }
 }
