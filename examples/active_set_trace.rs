@@ -131,7 +131,11 @@ fn main() -> grainforce::Result<()> {
         println!(
             "infer {solver:?}: {:.2} s, relerr {e:.4e} (to {}), {} {:?}",
             t.elapsed().as_secs_f64(),
-            if truth.is_some() { "the truth" } else { "the active set" },
+            if truth.is_some() {
+                "the truth"
+            } else {
+                "the active set"
+            },
             r.report.solver_status,
             r.report.solver_attempts
         );
