@@ -3,12 +3,18 @@
 //!
 //! Run: `cargo run --release --example active_set_trace [grains] [dim] [stress|geometry] [mu] [seed]`
 //! (defaults: 1000 2 stress 0.5 18 — noise seed 18 is `grainforce bench`'s; the
-//! interior point is skipped above 20 000 grains).
+//! interior point is skipped above 20 000 grains), or with a scene folder
+//! instead of the grain count (e.g. `fixtures/regression/box3d_sheared`): that
+//! scene with the same noise, forces compared with the interior point's, and
+//! a probe of that optimum: its tight constraints (at several thresholds)
+//! imposed as equalities on the sparse factorisation — do they solve
+//! consistently and give the optimum back?
 
 use grainforce::assemble::{assemble, AssembleOptions};
 use grainforce::bench::{generate, perturb, Noise, PackingSpec};
 use grainforce::infer::{infer, ConstrainedSolver, InferOptions};
 use grainforce::report::metrics::relative_error;
+use grainforce::scene::read_scene;
 use grainforce::solver::sparse_ls::{EqualityLeastSquares, Ordering};
 use grainforce::solver::{active_set, LeastSquares};
 use std::time::Instant;
@@ -16,22 +22,34 @@ use std::time::Instant;
 fn main() -> grainforce::Result<()> {
     let args: Vec<String> = std::env::args().collect();
     let arg = |i: usize, default: &str| args.get(i).cloned().unwrap_or_else(|| default.into());
-    let grains: usize = arg(1, "1000").parse().expect("grains");
-    let dim: usize = arg(2, "2").parse().expect("dim");
     let noise = match arg(3, "stress").as_str() {
         "geometry" => Noise::Geometry,
         _ => Noise::Stress,
     };
-    let mut spec = PackingSpec::new(dim, grains);
-    spec.mu = arg(4, "0.5").parse().expect("mu");
-    spec.shear = 0.5 * spec.mu;
-    let packing = generate(&spec)?;
-    let scene = perturb(&packing.scene, noise, arg(5, "18").parse().expect("seed"));
+    let seed = arg(5, "18").parse().expect("seed");
+    let folder = std::path::PathBuf::from(arg(1, "1000"));
+    // A scene folder: no truth; the interior point's answer stands in for it.
+    let (scene, truth) = if folder.is_dir() {
+        (perturb(&read_scene(&folder)?, noise, seed), None)
+    } else {
+        let mut spec = PackingSpec::new(
+            arg(2, "2").parse().expect("dim"),
+            arg(1, "1000").parse().expect("grains"),
+        );
+        spec.mu = arg(4, "0.5").parse().expect("mu");
+        spec.shear = 0.5 * spec.mu;
+        let packing = generate(&spec)?;
+        (perturb(&packing.scene, noise, seed), Some(packing.truth))
+    };
+    let (grains, dim) = (scene.grains.len(), scene.dim);
 
     // The bare solver on the largest cluster, to print its iterations.
     let assembly = assemble(&scene, &AssembleOptions::default())?;
     if let Some(system) = assembly.systems.iter().max_by_key(|s| s.n) {
         let cones = grainforce::infer::cones(system, grainforce::infer::ConeModel::Exact);
+        if truth.is_none() {
+            probe_optimum(system, &cones)?;
+        }
         // Cold (pieces of the unconstrained answer) against predicted (Gauss–Seidel guess).
         for predict in [false, true] {
             let t = Instant::now();
@@ -87,6 +105,7 @@ fn main() -> grainforce::Result<()> {
             }
         }
     }
+    let mut first: Option<Vec<grainforce::scene::Vec3>> = None;
     for solver in [
         ConstrainedSolver::ActiveSet,
         ConstrainedSolver::InteriorPoint,
@@ -102,12 +121,113 @@ fn main() -> grainforce::Result<()> {
                 ..InferOptions::default()
             },
         )?;
-        let e = relative_error(&packing.truth, &r.forces_or_zero());
+        let forces = r.forces_or_zero();
+        let e = match (&truth, &first) {
+            (Some(truth), _) => relative_error(truth, &forces),
+            (None, Some(active)) => relative_error(&forces, active),
+            (None, None) => f64::NAN,
+        };
+        first.get_or_insert(forces);
         println!(
-            "infer {solver:?}: {:.2} s, relerr {e:.4e}, {} {:?}",
+            "infer {solver:?}: {:.2} s, relerr {e:.4e} (to {}), {} {:?}",
             t.elapsed().as_secs_f64(),
+            if truth.is_some() {
+                "the truth"
+            } else {
+                "the active set"
+            },
             r.report.solver_status,
             r.report.solver_attempts
+        );
+    }
+    Ok(())
+}
+
+/// Clarabel's optimum of the qs problem, its constraints tight to a relative
+/// threshold imposed as equalities (face rows for sliding contacts, the apex
+/// for open ones), and the equality-constrained least squares with them: a
+/// consistent solve there gives the optimum back; an inconsistent one shows
+/// that near-tight contacts cannot be pinned (issue 20, docs/bench.md).
+fn probe_optimum(
+    system: &grainforce::assemble::System,
+    cones: &[grainforce::solver::conic::Cone],
+) -> grainforce::Result<()> {
+    use grainforce::solver::conic::{self, Cone, ConicProblem, ConicSettings, Term};
+    use grainforce::solver::Triplets;
+    let problem = ConicProblem {
+        n: system.n,
+        terms: vec![Term {
+            matrix: &system.stress,
+            rhs: &system.stress_rhs,
+            weight: 1.0,
+        }],
+        equalities: vec![(&system.momentum, system.momentum_rhs.as_slice())],
+        lambda: 0.0,
+        regularized: system.n,
+        cones: cones.to_vec(),
+    };
+    let settings = ConicSettings {
+        tolerance: 1e-10,
+        ..ConicSettings::default()
+    };
+    let x = conic::solve(&problem, &settings)?.x;
+    let scale = x.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    let norm = x.iter().map(|v| v * v).sum::<f64>().sqrt();
+    let mut ls = EqualityLeastSquares::with_ordering(
+        &system.stress,
+        &system.momentum,
+        &system.contact_blocks(),
+        Ordering::for_dim(system.dim),
+    )?;
+    for threshold in [1e-4, 1e-6, 1e-8] {
+        let tight = threshold * scale;
+        let mut g = Triplets::new(0, system.n);
+        let mut pin = |entries: &[(usize, f64)]| {
+            g.nrows += 1;
+            for &(j, v) in entries {
+                g.push(g.nrows - 1, j, v);
+            }
+        };
+        let (mut sliding, mut open) = (0, 0);
+        for cone in cones {
+            match *cone {
+                Cone::Circular { normal, t1, t2, mu } if x[normal] > tight => {
+                    let t = x[t1].hypot(x[t2]);
+                    if mu * x[normal] - t <= tight {
+                        pin(&[(normal, mu), (t1, -x[t1] / t), (t2, -x[t2] / t)]);
+                        sliding += 1;
+                    }
+                }
+                Cone::Circular { normal, t1, t2, .. } => {
+                    for j in [normal, t1, t2] {
+                        pin(&[(j, 1.0)]);
+                    }
+                    open += 1;
+                }
+                Cone::NonNegative { normal } if x[normal] <= tight => {
+                    pin(&[(normal, 1.0)]);
+                    open += 1;
+                }
+                _ => {}
+            }
+        }
+        let sol = ls.solve_with_active(
+            &system.stress,
+            &system.momentum,
+            &system.stress_rhs,
+            &system.momentum_rhs,
+            0.0,
+            &g,
+            &Triplets::new(0, system.n),
+        )?;
+        let gap = (sol.solution.x.iter().zip(&x))
+            .map(|(a, b)| (a - b).powi(2))
+            .sum::<f64>()
+            .sqrt()
+            / norm;
+        println!(
+            "optimum's constraints tight to {threshold:.0e}: {sliding} sliding, {open} open; pinned solve converged: {} (KKT residual {:.1e}), gap to the optimum {gap:.1e}",
+            sol.solution.converged, sol.solution.kkt_residual
         );
     }
     Ok(())
