@@ -304,7 +304,9 @@ fn report(args: &Args, imported: &ImportedScene) -> Result<()> {
         grains,
         contacts,
         imported.frames[0].dim,
-        if imported.forces.is_some() {
+        if imported.forces.is_some() && matches!(args.format, Format::Pegs) {
+            ", PeGS's forces in forces.csv (the reference for `score`)"
+        } else if imported.forces.is_some() {
             ", true forces in forces.csv"
         } else {
             ""
