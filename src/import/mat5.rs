@@ -568,3 +568,166 @@ impl<'a> Reader<'a> {
         })
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::io::Write;
+
+    fn word(big: bool, x: u32) -> [u8; 4] {
+        if big {
+            x.to_be_bytes()
+        } else {
+            x.to_le_bytes()
+        }
+    }
+
+    /// A normal data element, padded to 8 bytes.
+    fn element(big: bool, kind: u32, data: &[u8]) -> Vec<u8> {
+        let mut out = word(big, kind).to_vec();
+        out.extend(word(big, data.len() as u32));
+        out.extend(data);
+        out.resize(out.len().div_ceil(8) * 8, 0);
+        out
+    }
+
+    /// A small data element (≤ 4 bytes of data in the tag's second word).
+    fn small(big: bool, kind: u32, data: &[u8]) -> Vec<u8> {
+        let mut out = word(big, (data.len() as u32) << 16 | kind).to_vec();
+        out.extend(data);
+        out.resize(8, 0);
+        out
+    }
+
+    fn ints(big: bool, values: &[i32]) -> Vec<u8> {
+        values.iter().flat_map(|v| word(big, *v as u32)).collect()
+    }
+
+    fn matrix(big: bool, class: u32, dims: &[i32], name: &str, body: &[u8]) -> Vec<u8> {
+        let mut b = element(big, MI_UINT32, &[word(big, class), word(big, 0)].concat());
+        b.extend(element(big, MI_INT32, &ints(big, dims)));
+        b.extend(if name.len() <= 4 {
+            small(big, MI_INT8, name.as_bytes())
+        } else {
+            element(big, MI_INT8, name.as_bytes())
+        });
+        b.extend(body);
+        element(big, MI_MATRIX, &b)
+    }
+
+    fn header(big: bool) -> Vec<u8> {
+        let mut h = b"MATLAB 5.0 MAT-file, hand-built for the reader's tests".to_vec();
+        h.resize(116, b' ');
+        h.extend([0u8; 8]);
+        h.extend(if big { [1u8, 0] } else { [0u8, 1] });
+        h.extend(if big { b"MI" } else { b"IM" });
+        h
+    }
+
+    /// A 1×2 struct s with fields x (double stored as int16, or as double),
+    /// name (char as UTF-16 or UTF-8) and c (a cell holding a double and an
+    /// empty array), then a compressed complex int32 array z.
+    fn file(big: bool) -> Vec<u8> {
+        let f64s = |v: f64| {
+            if big {
+                v.to_be_bytes()
+            } else {
+                v.to_le_bytes()
+            }
+        };
+        let i16s = |v: i16| {
+            if big {
+                v.to_be_bytes()
+            } else {
+                v.to_le_bytes()
+            }
+        };
+        let mut fields = Vec::new();
+        // Element 1.
+        fields.extend(matrix(big, 6, &[1, 1], "", &small(big, MI_INT16, &i16s(-7))));
+        let ab: Vec<u8> = "ab"
+            .encode_utf16()
+            .flat_map(|u| if big { u.to_be_bytes() } else { u.to_le_bytes() })
+            .collect();
+        fields.extend(matrix(big, 4, &[1, 2], "", &small(big, MI_UINT16, &ab)));
+        let mut cell = matrix(big, 6, &[1, 1], "", &element(big, MI_DOUBLE, &f64s(1.5)));
+        cell.extend(element(big, MI_MATRIX, &[]));
+        fields.extend(matrix(big, 1, &[1, 2], "", &cell));
+        // Element 2.
+        fields.extend(matrix(big, 6, &[1, 1], "", &element(big, MI_DOUBLE, &f64s(2.5))));
+        fields.extend(matrix(big, 4, &[1, 1], "", &small(big, MI_UTF8, "é".as_bytes())));
+        fields.extend(matrix(big, 1, &[1, 0], "", &[]));
+        let mut body = small(big, MI_INT32, &word(big, 8));
+        let mut names = Vec::new();
+        for n in ["x", "name", "c"] {
+            let mut b = n.as_bytes().to_vec();
+            b.resize(8, 0);
+            names.extend(b);
+        }
+        body.extend(element(big, MI_INT8, &names));
+        body.extend(fields);
+        let mut out = header(big);
+        out.extend(matrix(big, 2, &[1, 2], "s", &body));
+        // z = [1, -2, 3] + [0, 0, 1]i as int32, compressed.
+        let mut z = element(big, MI_INT32, &ints(big, &[1, -2, 3]));
+        z.extend(element(big, MI_INT32, &ints(big, &[0, 0, 1])));
+        let z = matrix(big, 12 | 0x0800, &[1, 3], "z", &z);
+        let mut enc = flate2::write::ZlibEncoder::new(Vec::new(), flate2::Compression::default());
+        enc.write_all(&z).unwrap();
+        let packed = enc.finish().unwrap();
+        out.extend(word(big, MI_COMPRESSED));
+        out.extend(word(big, packed.len() as u32));
+        out.extend(packed);
+        out
+    }
+
+    #[test]
+    fn both_byte_orders_read_the_same() {
+        let little = parse(&file(false), MAX_INFLATED).unwrap();
+        let big = parse(&file(true), MAX_INFLATED).unwrap();
+        assert_eq!(little, big);
+        assert_eq!(little.len(), 2);
+        let s = &little[0];
+        assert_eq!(s.name, "s");
+        assert_eq!(s.value.len(), 2);
+        assert_eq!(s.value.field(0, "x").unwrap().numbers(), Some(&[-7.0][..]));
+        assert_eq!(s.value.field(1, "x").unwrap().numbers(), Some(&[2.5][..]));
+        let text = |k| match s.value.field(k, "name").unwrap() {
+            Value::Char { text, .. } => text.clone(),
+            other => panic!("{other:?}"),
+        };
+        assert_eq!((text(0), text(1)), ("ab".to_owned(), "é".to_owned()));
+        match s.value.field(0, "c").unwrap() {
+            Value::Cell { dims, items } => {
+                assert_eq!(dims, &[1, 2]);
+                assert_eq!(items[0].numbers(), Some(&[1.5][..]));
+                assert!(items[1].is_empty());
+            }
+            other => panic!("{other:?}"),
+        }
+        assert!(s.value.field(1, "c").unwrap().is_empty());
+        match &little[1].value {
+            Value::Numeric { real, imag, class, .. } => {
+                assert_eq!(real, &[1.0, -2.0, 3.0]);
+                assert_eq!(imag.as_deref(), Some(&[0.0, 0.0, 1.0][..]));
+                assert_eq!(*class, "int32");
+            }
+            other => panic!("{other:?}"),
+        }
+    }
+
+    #[test]
+    fn lengths_that_lie_are_errors() {
+        let good = file(true);
+        // The struct's element claims more bytes than the file has.
+        let mut long = good.clone();
+        long[128 + 4..128 + 8].copy_from_slice(&u32::MAX.to_be_bytes());
+        let e = parse(&long, MAX_INFLATED).unwrap_err();
+        assert!(e.contains("at byte 128") && e.contains("runs past the end"), "{e}");
+        // Dimensions that need more data than is stored.
+        let mut dims = file(false);
+        let at = dims.windows(8).position(|w| w == [1, 0, 0, 0, 2, 0, 0, 0]).unwrap();
+        dims[at + 4] = 0xff;
+        assert!(parse(&dims, MAX_INFLATED).is_err());
+    }
+}
