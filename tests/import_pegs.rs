@@ -93,7 +93,10 @@ fn solved_files_give_the_scene_they_were_made_from() {
             Body::Wall(w) => s.walls[w].name.clone(),
         };
         // The truth may list the pair the other way round.
-        let (k, tfk, sign) = match (want.get(&(a.clone(), b.clone())), want.get(&(b.clone(), a.clone()))) {
+        let (k, tfk, sign) = match (
+            want.get(&(a.clone(), b.clone())),
+            want.get(&(b.clone(), a.clone())),
+        ) {
             (Some(&(k, f)), _) => (k, f, 1.0),
             (None, Some(&(k, f))) => (k, f, -1.0),
             _ => panic!("contact {a}-{b} is not in the truth"),
@@ -104,7 +107,10 @@ fn solved_files_give_the_scene_they_were_made_from() {
             close(*f, tfk.map(|x| sign * x), 1e-9 * size),
             "force of {a}-{b}: {f:?} vs {tfk:?}"
         );
-        assert!(close(c.normal, tc.normal.map(|x| sign * x), 1e-9), "normal of {a}-{b}");
+        assert!(
+            close(c.normal, tc.normal.map(|x| sign * x), 1e-9),
+            "normal of {a}-{b}"
+        );
         let r = s.grains[c.a].radius.unwrap();
         match c.b {
             Body::Grain(_) => assert!(close(c.point, tc.point, 1e-9 * r), "point of {a}-{b}"),
@@ -126,7 +132,11 @@ fn solved_files_give_the_scene_they_were_made_from() {
     // Stresses follow from the forces: away from the walls they are the
     // truth's (whose wall contact points differ by δ/2).
     let touches_wall: Vec<bool> = (0..s.grains.len())
-        .map(|g| s.contacts.iter().any(|c| c.a == g && matches!(c.b, Body::Wall(_))))
+        .map(|g| {
+            s.contacts
+                .iter()
+                .any(|c| c.a == g && matches!(c.b, Body::Wall(_)))
+        })
         .collect();
     for (g, (sg, tg)) in s.grains.iter().zip(&t.grains).enumerate() {
         if touches_wall[g] {
@@ -134,7 +144,11 @@ fn solved_files_give_the_scene_they_were_made_from() {
         }
         let size = tg.stress.iter().map(|x| x.abs()).fold(0.0, f64::max);
         for k in 0..6 {
-            assert!((sg.stress[k] - tg.stress[k]).abs() <= 1e-9 * size, "stress of {}", sg.id);
+            assert!(
+                (sg.stress[k] - tg.stress[k]).abs() <= 1e-9 * size,
+                "stress of {}",
+                sg.id
+            );
         }
     }
 }
@@ -180,7 +194,7 @@ fn explicit_scale_and_missing_height() {
         .iter()
         .map(|g| g.position[1] - g.radius.unwrap())
         .fold(f64::INFINITY, f64::min);
-    assert!(lowest >= 0.0 && lowest < 1.5 / (2.0 * PX_PER_M), "{lowest}");
+    assert!((0.0..1.5 / (2.0 * PX_PER_M)).contains(&lowest), "{lowest}");
 }
 
 /// Each contact is fitted on both disks; the reference is the mean of disk
@@ -194,11 +208,18 @@ fn the_two_fits_of_a_contact_are_averaged() {
     let f = &imported.forces.as_ref().unwrap()[0];
     let (c, s) = (0.1f64.cos(), 0.1f64.sin());
     // On disk 2 by 1, scene frame (y up): (c, s); on 1 by 2: (−c, −s).
-    let want = [[-(2.0 + c) / 2.0, -s / 2.0, 0.0], [-(c + 3.0) / 2.0, s / 2.0, 0.0]];
+    let want = [
+        [-(2.0 + c) / 2.0, -s / 2.0, 0.0],
+        [-(c + 3.0) / 2.0, s / 2.0, 0.0],
+    ];
     for (k, w) in want.iter().enumerate() {
         assert!(close(f[k], *w, 1e-12), "contact {k}: {:?} vs {w:?}", f[k]);
     }
-    let ids: Vec<&str> = imported.frames[0].contacts.iter().map(|c| c.id.as_str()).collect();
+    let ids: Vec<&str> = imported.frames[0]
+        .contacts
+        .iter()
+        .map(|c| c.id.as_str())
+        .collect();
     assert_eq!(ids, ["1-2", "2-3"]);
     assert!(
         imported.warnings.iter().any(|w| w.contains("100.4 %")),
@@ -210,7 +231,11 @@ fn the_two_fits_of_a_contact_are_averaged() {
 #[test]
 fn pegs1_neighbours_by_index_are_recognised() {
     let (imported, _) = import(&fixture("pegs1_indices.mat"), &Options::default()).unwrap();
-    let ids: Vec<&str> = imported.frames[0].contacts.iter().map(|c| c.id.as_str()).collect();
+    let ids: Vec<&str> = imported.frames[0]
+        .contacts
+        .iter()
+        .map(|c| c.id.as_str())
+        .collect();
     assert_eq!(ids, ["10-20", "20-30"]);
     assert!(imported.warnings.iter().any(|w| w.contains("indices")));
 }
@@ -240,10 +265,10 @@ fn corrupt_bytes_give_errors_not_panics() {
             }
         }
         let mut flipped = bytes.clone();
-        for k in 0..bytes.len().min(3000) {
+        for (k, &original) in bytes.iter().enumerate().take(3000) {
             flipped[k] ^= 0xa5;
             let _ = mat5::parse(&flipped, 1 << 20);
-            flipped[k] = bytes[k];
+            flipped[k] = original;
         }
     }
 }
@@ -295,7 +320,10 @@ fn import_infer_score() {
     assert!(ok, "{err}");
     assert!(err.contains("58 grains, 93 contacts"), "{err}");
     let frame = grainforce::image::PixelFrame::read(&out.join("image-frame.json")).unwrap();
-    assert_eq!((frame.px_per_m, frame.width, frame.height), (PX_PER_M, 800, HEIGHT));
+    assert_eq!(
+        (frame.px_per_m, frame.width, frame.height),
+        (PX_PER_M, 800, HEIGHT)
+    );
     // The written scene is the truth's, placed as detect would place it.
     let (t, _) = truth();
     let written = read_scene(&out).unwrap();

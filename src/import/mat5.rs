@@ -43,7 +43,9 @@ pub enum Value {
         values: Vec<Value>,
     },
     /// An array class this reader skips (sparse, function handle, opaque).
-    Unsupported { class: &'static str },
+    Unsupported {
+        class: &'static str,
+    },
 }
 
 /// A named variable of the file.
@@ -152,17 +154,16 @@ pub fn parse(bytes: &[u8], max_inflated: usize) -> std::result::Result<Vec<Varia
                 .into(),
         );
     }
-    let big = match &bytes[126..128] {
-        b"IM" => false,
-        b"MI" => true,
-        _ => {
-            return Err(
+    let big =
+        match &bytes[126..128] {
+            b"IM" => false,
+            b"MI" => true,
+            _ => return Err(
                 "not a MAT v5 file: the header has no `IM`/`MI` byte-order mark at bytes 126–127 \
                  (a MAT v4 file, or not a MAT-file at all)"
                     .into(),
-            )
-        }
-    };
+            ),
+        };
     if !text.starts_with("MATLAB") {
         return Err("not a MAT v5 file: the header does not start with `MATLAB`".into());
     }
@@ -231,7 +232,10 @@ impl<'a> Reader<'a> {
             // Small element: type and size share the first word, data in the second.
             let (kind, n) = (word & 0xffff, (word >> 16) as usize);
             if n > 4 {
-                return Err(self.err(at, format!("a small data element claims {n} bytes (at most 4)")));
+                return Err(self.err(
+                    at,
+                    format!("a small data element claims {n} bytes (at most 4)"),
+                ));
             }
             let data = self
                 .buf
@@ -257,7 +261,7 @@ impl<'a> Reader<'a> {
         let padded = if word == MI_COMPRESSED {
             end
         } else {
-            (end + 7) / 8 * 8
+            end.div_ceil(8) * 8
         };
         self.pos = padded.min(self.buf.len());
         Ok(Element {
@@ -415,9 +419,9 @@ impl<'a> Reader<'a> {
                         })
                         .collect()
                 };
-                let total = count.checked_mul(fields.len()).ok_or_else(|| {
-                    self.err(names_e.at, "struct array too large")
-                })?;
+                let total = count
+                    .checked_mul(fields.len())
+                    .ok_or_else(|| self.err(names_e.at, "struct array too large"))?;
                 let mut values = Vec::with_capacity(total.min(self.buf.len() / 8));
                 for _ in 0..total {
                     values.push(self.child(depth)?);
@@ -644,18 +648,42 @@ mod tests {
         };
         let mut fields = Vec::new();
         // Element 1.
-        fields.extend(matrix(big, 6, &[1, 1], "", &small(big, MI_INT16, &i16s(-7))));
+        fields.extend(matrix(
+            big,
+            6,
+            &[1, 1],
+            "",
+            &small(big, MI_INT16, &i16s(-7)),
+        ));
         let ab: Vec<u8> = "ab"
             .encode_utf16()
-            .flat_map(|u| if big { u.to_be_bytes() } else { u.to_le_bytes() })
+            .flat_map(|u| {
+                if big {
+                    u.to_be_bytes()
+                } else {
+                    u.to_le_bytes()
+                }
+            })
             .collect();
         fields.extend(matrix(big, 4, &[1, 2], "", &small(big, MI_UINT16, &ab)));
         let mut cell = matrix(big, 6, &[1, 1], "", &element(big, MI_DOUBLE, &f64s(1.5)));
         cell.extend(element(big, MI_MATRIX, &[]));
         fields.extend(matrix(big, 1, &[1, 2], "", &cell));
         // Element 2.
-        fields.extend(matrix(big, 6, &[1, 1], "", &element(big, MI_DOUBLE, &f64s(2.5))));
-        fields.extend(matrix(big, 4, &[1, 1], "", &small(big, MI_UTF8, "é".as_bytes())));
+        fields.extend(matrix(
+            big,
+            6,
+            &[1, 1],
+            "",
+            &element(big, MI_DOUBLE, &f64s(2.5)),
+        ));
+        fields.extend(matrix(
+            big,
+            4,
+            &[1, 1],
+            "",
+            &small(big, MI_UTF8, "é".as_bytes()),
+        ));
         fields.extend(matrix(big, 1, &[1, 0], "", &[]));
         let mut body = small(big, MI_INT32, &word(big, 8));
         let mut names = Vec::new();
@@ -707,7 +735,9 @@ mod tests {
         }
         assert!(s.value.field(1, "c").unwrap().is_empty());
         match &little[1].value {
-            Value::Numeric { real, imag, class, .. } => {
+            Value::Numeric {
+                real, imag, class, ..
+            } => {
                 assert_eq!(real, &[1.0, -2.0, 3.0]);
                 assert_eq!(imag.as_deref(), Some(&[0.0, 0.0, 1.0][..]));
                 assert_eq!(*class, "int32");
@@ -723,10 +753,16 @@ mod tests {
         let mut long = good.clone();
         long[128 + 4..128 + 8].copy_from_slice(&u32::MAX.to_be_bytes());
         let e = parse(&long, MAX_INFLATED).unwrap_err();
-        assert!(e.contains("at byte 128") && e.contains("runs past the end"), "{e}");
+        assert!(
+            e.contains("at byte 128") && e.contains("runs past the end"),
+            "{e}"
+        );
         // Dimensions that need more data than is stored.
         let mut dims = file(false);
-        let at = dims.windows(8).position(|w| w == [1, 0, 0, 0, 2, 0, 0, 0]).unwrap();
+        let at = dims
+            .windows(8)
+            .position(|w| w == [1, 0, 0, 0, 2, 0, 0, 0])
+            .unwrap();
         dims[at + 4] = 0xff;
         assert!(parse(&dims, MAX_INFLATED).is_err());
     }

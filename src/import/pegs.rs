@@ -191,10 +191,7 @@ fn read_particles(path: &Path) -> Result<Vec<Disk>> {
             path,
             None,
             None,
-            format!(
-                "`particle` is {}, not a struct array",
-                particle.describe()
-            ),
+            format!("`particle` is {}, not a struct array", particle.describe()),
         ));
     };
     let bad = |message: String| Error::data(path, None, None, message);
@@ -211,8 +208,16 @@ fn read_particles(path: &Path) -> Result<Vec<Disk>> {
     if has("neighbours") != has("betas") {
         return Err(bad(format!(
             "`particle` has `{}` but not `{}`: each contact needs both",
-            if has("neighbours") { "neighbours" } else { "betas" },
-            if has("neighbours") { "betas" } else { "neighbours" }
+            if has("neighbours") {
+                "neighbours"
+            } else {
+                "betas"
+            },
+            if has("neighbours") {
+                "betas"
+            } else {
+                "neighbours"
+            }
         )));
     }
     let n = particle.len();
@@ -447,11 +452,7 @@ pub fn import(mat: &Path, options: &Options) -> Result<(ImportedScene, Conversio
     let (height, height_given) = match options.image_height {
         Some(h) => (h as f64, true),
         None => (
-            disks
-                .iter()
-                .map(|d| d.y + d.r)
-                .fold(0.0, f64::max)
-                .ceil(),
+            disks.iter().map(|d| d.y + d.r).fold(0.0, f64::max).ceil(),
             false,
         ),
     };
@@ -490,7 +491,9 @@ pub fn import(mat: &Path, options: &Options) -> Result<(ImportedScene, Conversio
     let mut bent = 0usize;
     for (i, d) in disks.iter().enumerate() {
         for (k, t) in d.contacts.iter().enumerate() {
-            let force = t.force.map(|(f, alpha)| force_on_disk(f, alpha, t.beta, thickness));
+            let force = t
+                .force
+                .map(|(f, alpha)| force_on_disk(f, alpha, t.beta, thickness));
             solved_any |= force.is_some();
             let at = format!("particle({}).neighbours({})", i + 1, k + 1);
             if t.neighbour < 0.0 {
@@ -554,7 +557,10 @@ pub fn import(mat: &Path, options: &Options) -> Result<(ImportedScene, Conversio
                             mat,
                             None,
                             None,
-                            format!("{at}: disks {} and {} have the same centre", d.id, disks[j].id),
+                            format!(
+                                "{at}: disks {} and {} have the same centre",
+                                d.id, disks[j].id
+                            ),
                         )
                     })?;
                     scene.contacts.push(Contact {
