@@ -409,3 +409,18 @@ fn bad_files_are_refused_by_name() {
     let bad_row = write("centres.txt", b"1,2,3,4\n5,6,x,8\n");
     refused(&[&fixture("two_fits.mat"), &bad_row], "line 2");
 }
+
+#[test]
+fn other_formats_still_need_two_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("scene");
+    let (ok, _, err) = grainforce(&[
+        "import",
+        "yade",
+        &s(&fixture("box_centers.txt")),
+        "-o",
+        &s(&out),
+    ]);
+    assert!(!ok && err.contains("needs two input files, got 1"), "{err}");
+    assert!(!out.exists());
+}

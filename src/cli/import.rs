@@ -237,6 +237,7 @@ pub fn run(args: Args) -> Result<()> {
         )?,
         Format::Pegs => unreachable!("handled by run_pegs"),
     };
+    imported.write(&args.output)?;
     report(&args, &imported)
 }
 
