@@ -20,12 +20,11 @@ use std::path::Path;
 /// One MATLAB array.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Value {
-    /// Numeric or logical array, column-major, widened to f64; `imag` for
-    /// complex arrays.
+    /// Numeric or logical array, column-major; `imag` for complex arrays.
     Numeric {
         dims: Vec<usize>,
-        real: Vec<f64>,
-        imag: Option<Vec<f64>>,
+        real: Numbers,
+        imag: Option<Numbers>,
         class: &'static str,
     },
     Char {
@@ -48,6 +47,86 @@ pub enum Value {
     },
 }
 
+/// Numeric data as stored (MATLAB narrows the storage type when the values
+/// fit), widened to f64 only when asked: a big uint8 image costs its bytes,
+/// not eight times as many.
+#[derive(Debug, Clone)]
+pub struct Numbers {
+    kind: u32,
+    big: bool,
+    bytes: Vec<u8>,
+}
+
+impl Numbers {
+    fn size(kind: u32) -> Option<usize> {
+        match kind {
+            MI_INT8 | MI_UINT8 => Some(1),
+            MI_INT16 | MI_UINT16 => Some(2),
+            MI_INT32 | MI_UINT32 | MI_SINGLE => Some(4),
+            MI_DOUBLE | MI_INT64 | MI_UINT64 => Some(8),
+            _ => None,
+        }
+    }
+
+    pub fn len(&self) -> usize {
+        Self::size(self.kind).map_or(0, |s| self.bytes.len() / s)
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// The values widened to f64 (int64 beyond 2⁵³ rounds).
+    pub fn to_f64(&self) -> Vec<f64> {
+        let Some(size) = Self::size(self.kind) else {
+            return Vec::new();
+        };
+        let big = self.big;
+        self.bytes
+            .chunks_exact(size)
+            .map(|c| {
+                let mut b = [0u8; 8];
+                if big {
+                    // Right-aligned so that from_be_bytes reads the value.
+                    b[8 - size..].copy_from_slice(c);
+                } else {
+                    b[..size].copy_from_slice(c);
+                }
+                let word = if big {
+                    u64::from_be_bytes(b)
+                } else {
+                    u64::from_le_bytes(b)
+                };
+                match self.kind {
+                    MI_INT8 => word as u8 as i8 as f64,
+                    MI_UINT8 => word as u8 as f64,
+                    MI_INT16 => word as u16 as i16 as f64,
+                    MI_UINT16 => word as u16 as f64,
+                    MI_INT32 => word as u32 as i32 as f64,
+                    MI_UINT32 => word as u32 as f64,
+                    MI_SINGLE => f32::from_bits(word as u32) as f64,
+                    MI_DOUBLE => f64::from_bits(word),
+                    MI_INT64 => word as i64 as f64,
+                    _ => word as f64,
+                }
+            })
+            .collect()
+    }
+}
+
+/// Equal when the same values are stored in the same type, whatever the byte
+/// order of the file.
+impl PartialEq for Numbers {
+    fn eq(&self, other: &Self) -> bool {
+        self.kind == other.kind
+            && self
+                .to_f64()
+                .iter()
+                .map(|x| x.to_bits())
+                .eq(other.to_f64().iter().map(|x| x.to_bits()))
+    }
+}
+
 /// A named variable of the file.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Variable {
@@ -56,10 +135,10 @@ pub struct Variable {
 }
 
 impl Value {
-    /// The real values of a numeric or logical array.
-    pub fn numbers(&self) -> Option<&[f64]> {
+    /// The real values of a numeric or logical array, as f64.
+    pub fn numbers(&self) -> Option<Vec<f64>> {
         match self {
-            Value::Numeric { real, .. } => Some(real),
+            Value::Numeric { real, .. } => Some(real.to_f64()),
             _ => None,
         }
     }
@@ -354,7 +433,11 @@ impl<'a> Reader<'a> {
                 String::new(),
                 Value::Numeric {
                     dims: vec![0, 0],
-                    real: Vec::new(),
+                    real: Numbers {
+                        kind: MI_DOUBLE,
+                        big: self.big,
+                        bytes: Vec::new(),
+                    },
                     imag: None,
                     class: "double",
                 },
@@ -491,16 +574,10 @@ impl<'a> Reader<'a> {
             .collect())
     }
 
-    /// Numeric data of any stored type, widened to f64; `count` values expected.
-    fn numbers(&self, e: &Element, count: usize) -> std::result::Result<Vec<f64>, String> {
-        let size = match e.kind {
-            MI_INT8 | MI_UINT8 => 1,
-            MI_INT16 | MI_UINT16 => 2,
-            MI_INT32 | MI_UINT32 | MI_SINGLE => 4,
-            MI_DOUBLE | MI_INT64 | MI_UINT64 => 8,
-            other => {
-                return Err(self.err(e.at, format!("data type {other} cannot hold numbers")));
-            }
+    /// Numeric data of any stored type; `count` values expected.
+    fn numbers(&self, e: &Element, count: usize) -> std::result::Result<Numbers, String> {
+        let Some(size) = Numbers::size(e.kind) else {
+            return Err(self.err(e.at, format!("data type {} cannot hold numbers", e.kind)));
         };
         if e.data.len() != count.saturating_mul(size) {
             return Err(self.err(
@@ -511,34 +588,11 @@ impl<'a> Reader<'a> {
                 ),
             ));
         }
-        let big = self.big;
-        let values = e.data.chunks_exact(size).map(|c| {
-            let mut b = [0u8; 8];
-            if big {
-                // Right-align so that from_be_bytes reads the value.
-                b[8 - size..].copy_from_slice(c);
-            } else {
-                b[..size].copy_from_slice(c);
-            }
-            let word = if big {
-                u64::from_be_bytes(b)
-            } else {
-                u64::from_le_bytes(b)
-            };
-            match e.kind {
-                MI_INT8 => word as u8 as i8 as f64,
-                MI_UINT8 => word as u8 as f64,
-                MI_INT16 => word as u16 as i16 as f64,
-                MI_UINT16 => word as u16 as f64,
-                MI_INT32 => word as u32 as i32 as f64,
-                MI_UINT32 => word as u32 as f64,
-                MI_SINGLE => f32::from_bits(word as u32) as f64,
-                MI_DOUBLE => f64::from_bits(word),
-                MI_INT64 => word as i64 as f64,
-                _ => word as f64,
-            }
-        });
-        Ok(values.collect())
+        Ok(Numbers {
+            kind: e.kind,
+            big: self.big,
+            bytes: e.data.to_vec(),
+        })
     }
 
     fn text(&self, e: &Element) -> std::result::Result<String, String> {
@@ -718,8 +772,8 @@ mod tests {
         let s = &little[0];
         assert_eq!(s.name, "s");
         assert_eq!(s.value.len(), 2);
-        assert_eq!(s.value.field(0, "x").unwrap().numbers(), Some(&[-7.0][..]));
-        assert_eq!(s.value.field(1, "x").unwrap().numbers(), Some(&[2.5][..]));
+        assert_eq!(s.value.field(0, "x").unwrap().numbers(), Some(vec![-7.0]));
+        assert_eq!(s.value.field(1, "x").unwrap().numbers(), Some(vec![2.5]));
         let text = |k| match s.value.field(k, "name").unwrap() {
             Value::Char { text, .. } => text.clone(),
             other => panic!("{other:?}"),
@@ -728,7 +782,7 @@ mod tests {
         match s.value.field(0, "c").unwrap() {
             Value::Cell { dims, items } => {
                 assert_eq!(dims, &[1, 2]);
-                assert_eq!(items[0].numbers(), Some(&[1.5][..]));
+                assert_eq!(items[0].numbers(), Some(vec![1.5]));
                 assert!(items[1].is_empty());
             }
             other => panic!("{other:?}"),
@@ -738,8 +792,11 @@ mod tests {
             Value::Numeric {
                 real, imag, class, ..
             } => {
-                assert_eq!(real, &[1.0, -2.0, 3.0]);
-                assert_eq!(imag.as_deref(), Some(&[0.0, 0.0, 1.0][..]));
+                assert_eq!(real.to_f64(), [1.0, -2.0, 3.0]);
+                assert_eq!(
+                    imag.as_ref().map(Numbers::to_f64),
+                    Some(vec![0.0, 0.0, 1.0])
+                );
                 assert_eq!(*class, "int32");
             }
             other => panic!("{other:?}"),

@@ -227,9 +227,9 @@ fn read_particles(path: &Path) -> Result<Vec<Disk>> {
         let get = |f: &str| particle.field(i, f);
         let scalar = |f: &str| -> Result<f64> {
             let v = get(f).ok_or_else(|| bad(format!("{} is missing", at(f))))?;
-            match v.numbers() {
-                Some([x]) if x.is_finite() => Ok(*x),
-                Some([x]) => Err(bad(format!("{} is {x}, not a finite number", at(f)))),
+            match v.numbers().as_deref() {
+                Some(&[x]) if x.is_finite() => Ok(x),
+                Some(&[x]) => Err(bad(format!("{} is {x}, not a finite number", at(f)))),
                 _ => Err(bad(format!(
                     "{} should be one number, found {}",
                     at(f),
@@ -256,7 +256,7 @@ fn read_particles(path: &Path) -> Result<Vec<Disk>> {
                     x[k]
                 )));
             }
-            Ok(x.to_vec())
+            Ok(x)
         };
         let (x, y, r) = (scalar("x")?, scalar("y")?, scalar("r")?);
         if r <= 0.0 {
