@@ -302,8 +302,12 @@ fn s(p: &Path) -> String {
 #[test]
 fn import_infer_score() {
     let dir = tempfile::tempdir().unwrap();
-    let photo = dir.path().join("photo.png");
-    image::GrayImage::new(800, HEIGHT).save(&photo).unwrap();
+    // A PNG named .jpg: the size is read from the bytes, not the name (the
+    // PeGS2 test image Step09-0001.jpg is a TIFF).
+    let png = dir.path().join("photo.png");
+    image::GrayImage::new(800, HEIGHT).save(&png).unwrap();
+    let photo = dir.path().join("photo.jpg");
+    std::fs::rename(&png, &photo).unwrap();
     let out = dir.path().join("scene");
     let (ok, _, err) = grainforce(&[
         "import",

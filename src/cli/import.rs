@@ -244,13 +244,20 @@ pub fn run(args: Args) -> Result<()> {
 /// `import pegs`: the scene, PeGS's forces as forces.csv, and image-frame.json
 /// when the photograph is given.
 fn run_pegs(args: &Args, gravity: Option<[f64; 3]>) -> Result<()> {
-    let image_size =
-        match &args.image {
-            Some(p) => Some(image::image_dimensions(p).map_err(|e| {
+    // The format from the bytes, not the name: some "photo.jpg" are TIFFs.
+    let image_size = match &args.image {
+        Some(p) => {
+            let cannot = |e: &dyn std::fmt::Display| {
                 Error::data(p, None, None, format!("cannot read the image size: {e}"))
-            })?),
-            None => None,
-        };
+            };
+            let reader = image::ImageReader::open(p)
+                .map_err(|e| Error::io(p, e))?
+                .with_guessed_format()
+                .map_err(|e| cannot(&e))?;
+            Some(reader.into_dimensions().map_err(|e| cannot(&e))?)
+        }
+        None => None,
+    };
     let options = pegs::Options {
         centres: args.inputs.get(1).cloned(),
         px_per_m: args.scale,
