@@ -36,7 +36,7 @@ use super::mat5::{self, Value};
 use super::{ball_volume, sphere_contact, stress_from_forces, ImportedScene};
 use crate::error::{Error, Result};
 use crate::scene::{self, Body, Contact, Grain, Scene, Vec3};
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 use std::path::{Path, PathBuf};
 
 #[derive(Debug, Clone, Default)]
@@ -482,11 +482,11 @@ pub fn import(mat: &Path, options: &Options) -> Result<(ImportedScene, Conversio
                 .to_owned(),
         );
     }
-    // Grain pairs: contact index and whether each side's force was seen.
+    // Each pair of disks is one contact, whichever disk lists it first.
     let mut pairs: HashMap<(usize, usize), usize> = HashMap::new();
     // Per contact: force on a from a's fit, force on a from b's fit (−F_b).
     let mut sides: Vec<[Option<Vec3>; 2]> = Vec::new();
-    let mut walls_seen: HashMap<(usize, String), usize> = HashMap::new();
+    let mut walls_seen: HashSet<(usize, String)> = HashSet::new();
     let mut solved_any = false;
     let mut bent = 0usize;
     for (i, d) in disks.iter().enumerate() {
@@ -498,7 +498,7 @@ pub fn import(mat: &Path, options: &Options) -> Result<(ImportedScene, Conversio
             let at = format!("particle({}).neighbours({})", i + 1, k + 1);
             if t.neighbour < 0.0 {
                 let name = wall_name(t.beta, t.neighbour);
-                if walls_seen.insert((i, name.clone()), k).is_some() {
+                if !walls_seen.insert((i, name.clone())) {
                     return Err(Error::data(
                         mat,
                         None,
