@@ -4,7 +4,7 @@
 //! separated by [`SEPARATOR`]; they are written into a folder so the readers run
 //! on real paths, exactly as the CLI calls them.
 
-use grainforce::import::{gff, lammps, liggghts, yade};
+use grainforce::import::{gff, lammps, liggghts, pegs, yade};
 use grainforce::{image, scene, Result};
 use std::path::Path;
 
@@ -104,6 +104,18 @@ pub fn gff(dir: &Path, data: &[u8]) -> Result<()> {
         ..gff::Options::default()
     };
     gff::import(&dir.join("grains.gff"), &dir.join("contacts.csv"), &options).map(drop)
+}
+
+/// The PeGS importer: a particle .mat, with the centres file when a second
+/// part exists.
+pub fn pegs(dir: &Path, data: &[u8]) -> Result<()> {
+    write_parts(dir, &["particle.mat", "centers.txt"], data);
+    let centres = dir.join("centers.txt");
+    let options = pegs::Options {
+        centres: centres.exists().then_some(centres),
+        ..pegs::Options::default()
+    };
+    pegs::import(&dir.join("particle.mat"), &options).map(drop)
 }
 
 /// The image loader; the format is guessed from the bytes, as for any file.

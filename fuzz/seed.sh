@@ -18,7 +18,7 @@ join() { # join OUT FILE... : FILEs joined by the separator into OUT
     done > "$out"
 }
 
-for t in scene lammps liggghts yade gff image; do
+for t in scene lammps liggghts yade gff pegs image; do
     mkdir -p "$corpus/$t"
     cp "$here/seeds/$t/"* "$corpus/$t/" 2>/dev/null || true
 done
@@ -37,4 +37,6 @@ join "$corpus/liggghts/fixture" "$i/liggghts/atoms.dump" "$i/liggghts/pairs.dump
 join "$corpus/yade/fixture" "$i/yade/bodies.csv" "$i/yade/interactions.csv"
 join "$corpus/gff/fixture" "$i/gff/grains.gff" "$i/gff/contacts.csv"
 join "$corpus/gff/fixture-tomography" "$i/gff/grains.gff" "$i/gff/contacts.csv" "$i/gff/tomo_grains.csv"
+join "$corpus/pegs/fixture" "$i/pegs/box_solved_compressed.mat" "$i/pegs/box_centers.txt"
+cp "$i/pegs/box_contacts.mat" "$corpus/pegs/fixture-contacts"
 echo "seeded $corpus"

@@ -89,6 +89,11 @@ fn gff_inputs() {
 }
 
 #[test]
+fn pegs_inputs() {
+    check("pegs", readers::pegs);
+}
+
+#[test]
 fn image_inputs() {
     check("image", readers::image);
 }

@@ -1,6 +1,6 @@
 //! `grainforce import FORMAT INPUT… -o SCENE_DIR`: other tools' output as a scene.
 
-use grainforce::import::{gff, lammps, liggghts, yade, ImportedScene};
+use grainforce::import::{gff, lammps, liggghts, pegs, yade, ImportedScene};
 use grainforce::{Error, Result};
 use std::path::{Path, PathBuf};
 
@@ -14,6 +14,9 @@ pub enum Format {
     Yade,
     /// 3D X-ray diffraction: GRAINS.gff (FitAllB/ImageD11) CONTACTS.csv (tomography).
     Gff,
+    /// PeGS/PeGS2 (photoelastic): PARTICLE.mat (`*_contacts.mat` or `*_solved.mat`)
+    /// [CENTERS.txt] (particleDetect's x,y,r,edge, for the unrounded radii).
+    Pegs,
 }
 
 #[derive(clap::Args)]
@@ -22,13 +25,14 @@ pub enum Format {
   grainforce import liggghts atoms.dump pairs.dump -o scene --keywords pos,id,force
   grainforce import yade bodies.csv interactions.csv -o scene --gravity 0,0,-9.81
   grainforce import gff grains.gff contacts.csv -o scene --stress-unit MPa --length-unit mm
-  grainforce import gff strains.gff contacts.csv -o scene --stiffness quartz --errors strains_errors.gff")]
+  grainforce import gff strains.gff contacts.csv -o scene --stiffness quartz --errors strains_errors.gff
+  grainforce import pegs Step09-0001_solved.mat Step09-0001_centers.txt -o scene --image Step09-0001.jpg --thickness 0.00635")]
 pub struct Args {
     /// Source format.
     #[arg(value_enum)]
     format: Format,
-    /// Input files, as the format needs them (two for every format).
-    #[arg(required = true, num_args = 2)]
+    /// Input files, as the format needs them (two for every format; pegs: one or two).
+    #[arg(required = true, num_args = 1..=2)]
     inputs: Vec<PathBuf>,
     /// Scene folder to write (forces.csv too when the source has forces).
     #[arg(short, long)]
@@ -71,6 +75,18 @@ pub struct Args {
     /// gff: FitAllB's standard-error file (…_errors.gff) → sd_s_* columns.
     #[arg(long)]
     errors: Option<PathBuf>,
+    /// pegs: pixels per metre; default: r/rm from the file (PeGS's metersperpixel),
+    /// else lengths stay in pixels.
+    #[arg(long, value_name = "PX_PER_M")]
+    scale: Option<f64>,
+    /// pegs: the photograph PeGS analysed; its height places y (up) as `detect` does,
+    /// and image-frame.json is written for `strain` and overlays.
+    #[arg(long)]
+    image: Option<PathBuf>,
+    /// pegs: disk thickness [m]; PeGS's forces [N] become forces per unit thickness
+    /// (N/m, as 2D scenes hold them) and scene.json gets the thickness.
+    #[arg(long)]
+    thickness: Option<f64>,
 }
 
 fn unit(text: &str, table: &[(&str, f64)], what: &str) -> Result<f64> {
@@ -147,6 +163,15 @@ pub fn run(args: Args) -> Result<()> {
         }
         None => None,
     };
+    if let Format::Pegs = args.format {
+        return run_pegs(&args, gravity);
+    }
+    if args.inputs.len() != 2 {
+        return Err(Error::Invalid(format!(
+            "this format needs two input files, got {}",
+            args.inputs.len()
+        )));
+    }
     let (first, second) = (&args.inputs[0], &args.inputs[1]);
     let gravity = match args.format {
         Format::Lammps | Format::Liggghts if gravity.is_none() => {
@@ -210,8 +235,74 @@ pub fn run(args: Args) -> Result<()> {
                 errors: args.errors.clone(),
             },
         )?,
+        Format::Pegs => unreachable!("handled by run_pegs"),
     };
     imported.write(&args.output)?;
+    report(&args, &imported)
+}
+
+/// `import pegs`: the scene, PeGS's forces as forces.csv, and image-frame.json
+/// when the photograph is given.
+fn run_pegs(args: &Args, gravity: Option<[f64; 3]>) -> Result<()> {
+    // The format from the bytes, not the name: some "photo.jpg" are TIFFs.
+    let image_size = match &args.image {
+        Some(p) => {
+            let cannot = |e: &dyn std::fmt::Display| {
+                Error::data(p, None, None, format!("cannot read the image size: {e}"))
+            };
+            let reader = image::ImageReader::open(p)
+                .map_err(|e| Error::io(p, e))?
+                .with_guessed_format()
+                .map_err(|e| cannot(&e))?;
+            Some(reader.into_dimensions().map_err(|e| cannot(&e))?)
+        }
+        None => None,
+    };
+    let options = pegs::Options {
+        centres: args.inputs.get(1).cloned(),
+        px_per_m: args.scale,
+        image_height: image_size.map(|s| s.1),
+        thickness: args.thickness,
+        gravity,
+    };
+    let (imported, conversion) = pegs::import(&args.inputs[0], &options)?;
+    match conversion.scale_source {
+        pegs::ScaleSource::File => eprintln!(
+            "note: {} px/m from the file's r/rm (PeGS's metersperpixel)",
+            conversion.px_per_m
+        ),
+        pegs::ScaleSource::Pixels => {
+            eprintln!("note: no --scale and no rm in the file; lengths are written in pixels (1 px = 1 m)")
+        }
+        pegs::ScaleSource::Given => {}
+    }
+    if !conversion.height_given {
+        eprintln!(
+            "note: no --image; y is measured up from the lowest disk edge (row {}), not from the \
+             photograph's bottom edge",
+            conversion.image_height
+        );
+    }
+    if args.thickness.is_none() && imported.forces.is_some() {
+        eprintln!(
+            "note: no --thickness; PeGS's forces [N] are written as forces per metre of thickness"
+        );
+    }
+    // The scene is checked whole before anything is written.
+    imported.write(&args.output)?;
+    if let Some((width, height)) = image_size {
+        grainforce::image::PixelFrame {
+            px_per_m: conversion.px_per_m,
+            origin: [0.0, 0.0],
+            width,
+            height,
+        }
+        .write(&args.output.join(grainforce::image::FRAME_FILE))?;
+    }
+    report(args, &imported)
+}
+
+fn report(args: &Args, imported: &ImportedScene) -> Result<()> {
     let grains: usize = imported.frames.iter().map(|f| f.grains.len()).sum();
     let contacts: usize = imported.frames.iter().map(|f| f.contacts.len()).sum();
     status!(
@@ -221,7 +312,9 @@ pub fn run(args: Args) -> Result<()> {
         grains,
         contacts,
         imported.frames[0].dim,
-        if imported.forces.is_some() {
+        if imported.forces.is_some() && matches!(args.format, Format::Pegs) {
+            ", PeGS's forces in forces.csv (the reference for `score`)"
+        } else if imported.forces.is_some() {
             ", true forces in forces.csv"
         } else {
             ""

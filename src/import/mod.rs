@@ -15,6 +15,8 @@ pub mod dump;
 pub mod gff;
 pub mod lammps;
 pub mod liggghts;
+pub mod mat5;
+pub mod pegs;
 pub mod stiffness;
 pub mod yade;
 
