@@ -19,7 +19,13 @@ use grainforce::scene::{read_forces, read_scene, Scene, Vec3};
 use std::path::Path;
 use std::time::Instant;
 
-const NOISE_SEED: u64 = 18;
+/// `grainforce bench`'s noise seed, unless LAMBDA_SEED says otherwise.
+fn noise_seed() -> u64 {
+    std::env::var("LAMBDA_SEED")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(18)
+}
 
 fn load(case: &str) -> grainforce::Result<(Scene, Vec<Vec3>)> {
     if let Some((dim, size)) = case.split_once(':').filter(|(d, _)| d.ends_with('d')) {
@@ -28,14 +34,14 @@ fn load(case: &str) -> grainforce::Result<(Scene, Vec<Vec3>)> {
         let mut spec = PackingSpec::new(dim, grains);
         spec.sliding = if dim == 3 { 0.3 } else { 0.0 };
         let packing = generate(&spec)?;
-        let scene = perturb(&packing.scene, Noise::Stress, NOISE_SEED);
+        let scene = perturb(&packing.scene, Noise::Stress, noise_seed());
         Ok((scene, packing.truth))
     } else {
         let dir = Path::new(case);
         let scene = read_scene(dir)?;
         let file = dir.join("forces.csv");
         let truth = read_forces(&file)?.for_scene(&scene, &file)?;
-        Ok((perturb(&scene, Noise::Stress, NOISE_SEED), truth))
+        Ok((perturb(&scene, Noise::Stress, noise_seed()), truth))
     }
 }
 

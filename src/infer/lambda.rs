@@ -8,10 +8,11 @@
 //! one closely (the friction cones move the wall totals little). So the grid
 //! and the refinement (Brent's parabolic steps on the squared mismatch) use
 //! the unconstrained least squares (one numeric refactorisation per λ on the
-//! one symbolic analysis), and only the last step is constrained: three
-//! solves around the unconstrained optimum, warm-started from one another, and
-//! one at the vertex of the parabola through their squared mismatches. The
-//! answer is the best constrained solve. The grid is scanned from the largest
+//! one symbolic analysis), and only the last steps are constrained: three
+//! solves around the unconstrained optimum, warm-started from one another,
+//! then up to three Brent steps from them (the first at the vertex of the
+//! parabola through their squared mismatches). The answer is the best
+//! constrained solve. The grid is scanned from the largest
 //! λ down and stops once the mismatch no longer changes: below that it varies
 //! as λ², so it stays flat. `constrained_scan` keeps the former search (a
 //! constrained solve at every grid point and golden-section step).
@@ -37,8 +38,8 @@ pub struct LambdaSearch {
     /// `constrained_scan`.
     pub refine: usize,
     /// Scan and refine with constrained solves (the former search: 37
-    /// constrained solves at its defaults) rather than with the unconstrained
-    /// least squares and at most 4 constrained solves.
+    /// constrained solves at its defaults), rather than with the unconstrained
+    /// least squares and at most 6 constrained solves).
     pub constrained_scan: bool,
 }
 
@@ -57,9 +58,9 @@ impl Default for LambdaSearch {
 impl LambdaSearch {
     /// The most constrained solves the search makes (the answer is the best
     /// of them, so no solve follows). With the unconstrained scan:
-    /// [`Self::GUIDED_SOLVES`], three around the unconstrained optimum and one
-    /// at the vertex of their parabola (one alone when the mismatch is flat
-    /// at the low end).
+    /// [`Self::GUIDED_SOLVES`]: three around the unconstrained optimum, then
+    /// up to three of Brent's steps from them (one solve alone when the
+    /// mismatch is flat at the low end).
     /// When the constrained mismatch there differs from the unconstrained
     /// one by more than 0.05 (the cones move the wall totals, e.g. a feasible
     /// set that nearly collapses), the search falls back to constrained
@@ -73,8 +74,8 @@ impl LambdaSearch {
     }
 
     /// The constrained solves of the unconstrained scan when its mismatch
-    /// follows the constrained one (no fallback).
-    pub const GUIDED_SOLVES: usize = 4;
+    /// follows the constrained one (no fallback), at most.
+    pub const GUIDED_SOLVES: usize = 3 + CONSTRAINED_STEPS;
 
     /// The search before issue 20: 19 constrained solves on the grid and 16
     /// golden-section steps (37 constrained solves).
@@ -101,19 +102,19 @@ pub struct LambdaTrace {
     pub at_edge: bool,
 }
 
-/// Points of log λ closer than this (decades; the former search's final
-/// bracket was 3e-4) give the same answer for our purposes.
-const SAME_POINT: f64 = 5e-4;
+/// Precision (decades of λ) of the constrained steps and of the fallback;
+/// the former search's final bracket was 3e-4 decades.
+const FINE: f64 = 1e-4;
+
+/// Brent's steps on constrained solves after the three around the
+/// unconstrained optimum.
+const CONSTRAINED_STEPS: usize = 3;
 
 /// Difference between the constrained and the unconstrained relative wall
 /// mismatch at the unconstrained optimum beyond which the unconstrained scan
 /// is no guide (it is ~1e-3 on the packings measured; a collapsing feasible
 /// set gives ~1) and the search falls back to constrained solves.
 const PROXY: f64 = 0.05;
-
-/// Precision (decades of λ) of the constrained fallback; the former search's
-/// final bracket was 3e-4 decades.
-const FALLBACK_TOLERANCE: f64 = 1e-4;
 
 /// How far (in units of [`SPREAD`]) the constrained parabola's vertex may lie
 /// from the unconstrained optimum.
@@ -264,7 +265,7 @@ pub(crate) fn search(
             // budget).
             let refine = |u| probe(u, true, report);
             let (start, steps) = ((at(best), values[best]), 2 * s.refine);
-            brent((a, b), start, neighbours, steps, FALLBACK_TOLERANCE, refine)?;
+            brent((a, b), start, neighbours, steps, FINE, refine)?;
             break at_edge;
         }
         // The scan stopped on a flat low end that is as good as any point:
@@ -297,21 +298,31 @@ pub(crate) fn search(
         if plateau {
             break at_edge;
         }
-        // ... then its two neighbours (warm), then the vertex of the
-        // parabola through the three when it is not one of them.
+        // ... then its two neighbours (warm), then Brent's steps from the
+        // three: the first at the vertex of their parabola.
         let left = probe(optimum - SPREAD, true, report)?;
         let right = probe(optimum + SPREAD, true, report)?;
-        let curvature = left + right - 2.0 * centre;
-        if curvature > 0.0 {
-            let offset = (0.5 * SPREAD * (left - right) / curvature)
-                .clamp(-EXTRAPOLATION * SPREAD, EXTRAPOLATION * SPREAD);
-            if [-SPREAD, 0.0, SPREAD]
-                .iter()
-                .all(|p| (offset - p).abs() > SAME_POINT)
-            {
-                probe(optimum + offset, true, report)?;
-            }
-        }
+        let mut three = [
+            (optimum - SPREAD, left),
+            (optimum, centre),
+            (optimum + SPREAD, right),
+        ];
+        three.sort_by(|p, q| p.1.total_cmp(&q.1));
+        let reach = EXTRAPOLATION * SPREAD;
+        let bracket = match three[0].0 - optimum {
+            d if d < 0.0 => (optimum - reach, optimum),
+            d if d > 0.0 => (optimum, optimum + reach),
+            _ => (optimum - SPREAD, optimum + SPREAD),
+        };
+        let refine = |u| probe(u, true, report);
+        brent(
+            bracket,
+            three[0],
+            [three[1], three[2]],
+            CONSTRAINED_STEPS,
+            FINE,
+            refine,
+        )?;
         break at_edge;
     };
     let Search {
