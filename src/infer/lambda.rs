@@ -116,8 +116,9 @@ const CONSTRAINED_STEPS: usize = 3;
 /// set gives ~1) and the search falls back to constrained solves.
 const PROXY: f64 = 0.05;
 
-/// How far (in units of [`SPREAD`]) the constrained parabola's vertex may lie
-/// from the unconstrained optimum.
+/// How far (in units of [`SPREAD`]) the constrained steps may go beyond the
+/// constrained point they start from when it is a side one (the constrained
+/// optimum lay 0.015 decade from the unconstrained one on the 3D oedometer).
 const EXTRAPOLATION: f64 = 3.0;
 
 /// A change of the mismatch between neighbouring grid points, relative to the
@@ -129,8 +130,8 @@ const FLAT: f64 = 1e-5;
 /// (docs/bench.md, issue 20), and close points keep the warm starts short.
 const SPREAD: f64 = 0.01;
 
-/// Precision (decades of λ) of the unconstrained refinement; relerr moves by
-/// ~1e-4 over it near the optimum on the bench packings.
+/// Precision (decades of λ) of the unconstrained refinement: well inside
+/// [`SPREAD`], so the constrained steps start around their optimum.
 const TOLERANCE: f64 = 2e-3;
 
 /// The dimensionless λ, the trace, and the constrained solution at that λ
@@ -288,7 +289,12 @@ pub(crate) fn search(
         };
         // Constrained: the unconstrained optimum first (cold) ...
         let centre = probe(optimum, true, report)?;
-        if (centre.sqrt() - unconstrained.sqrt()).abs() > PROXY {
+        let gap = (centre.sqrt() - unconstrained.sqrt()).abs();
+        if gap > PROXY {
+            report.solver_attempts.push(format!(
+                "λ search: the friction cones change the wall mismatch by {gap:.2} at the unconstrained \
+                 optimum, so every λ was solved with them"
+            ));
             // The cones move the wall totals (e.g. the feasible set nearly
             // collapses): the unconstrained mismatch says nothing; search
             // with constrained solves.
@@ -455,4 +461,50 @@ fn brent(
         }
     }
     Ok((x, fx))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::brent;
+
+    /// Evaluations of `f` by Brent's search from the grid triple (−1, 0, 1).
+    fn minimise(f: impl Fn(f64) -> f64, steps: usize, tolerance: f64) -> (f64, usize) {
+        let mut calls = 0;
+        let (x, _) = brent(
+            (-1.0, 1.0),
+            (0.0, f(0.0)),
+            [(-1.0, f(-1.0)), (1.0, f(1.0))],
+            steps,
+            tolerance,
+            |u| {
+                calls += 1;
+                Ok(f(u))
+            },
+        )
+        .unwrap();
+        (x, calls)
+    }
+
+    #[test]
+    fn brent_finds_a_parabola_vertex_in_a_few_steps() {
+        let (x, calls) = minimise(|u| (u - 0.3).powi(2) + 1.0, 12, 1e-4);
+        assert!((x - 0.3).abs() < 1e-4, "{x}");
+        assert!(calls <= 4, "{calls} evaluations");
+    }
+
+    #[test]
+    fn brent_reaches_the_edge_of_a_cliff() {
+        // Decreasing toward a jump, as the mismatch does where the feasible
+        // set collapses (fixtures/regression/box3d_ungated).
+        let cliff = |u: f64| if u < 0.48 { 0.48 - u } else { 1.0 };
+        let (x, calls) = minimise(cliff, 40, 1e-4);
+        assert!((0.4795..0.48).contains(&x), "{x}");
+        assert!(calls <= 40);
+    }
+
+    #[test]
+    fn brent_keeps_to_its_budget() {
+        let (_, calls) = minimise(|u: f64| (u - 0.3).abs(), 3, 1e-9);
+        assert_eq!(calls, 3);
+    }
 }
