@@ -11,6 +11,7 @@
 //! Configurations compared by `search`: `GRID:REFINE` pairs in the env var
 //! `LAMBDA_CONFIGS` (e.g. `19:16:constrained,9:4`), default: the default
 //! search and the former one (19 constrained points + 16 golden steps).
+//! `LAMBDA_SEED` sets the noise seed; `LAMBDA_TRACE=1` prints every λ tried.
 
 use grainforce::bench::{generate, perturb, Noise, PackingSpec};
 use grainforce::infer::{infer, InferOptions, LambdaSearch, Method};
@@ -159,6 +160,7 @@ fn main() -> grainforce::Result<()> {
                 r.report.solver_status,
             );
             if std::env::var("LAMBDA_TRACE").is_ok() {
+                println!("    attempts: {:?}", r.report.solver_attempts);
                 if let Some(t) = trace {
                     let l = r.report.length_scale;
                     for (x, j) in &t.unconstrained {
