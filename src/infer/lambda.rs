@@ -98,7 +98,8 @@ pub struct LambdaTrace {
     pub points: Vec<(f64, f64)>,
     /// The same for the unconstrained least squares of the scan and refinement.
     pub unconstrained: Vec<(f64, f64)>,
-    /// The best λ lies at an end of the search range.
+    /// The best λ lies at an end of the search range (not said of a flat
+    /// low end, where every smaller λ gives the same answer).
     pub at_edge: bool,
 }
 
@@ -270,11 +271,12 @@ pub(crate) fn search(
             break at_edge;
         }
         // The scan stopped on a flat low end that is as good as any point:
-        // every smaller λ gives the same answer, so one constrained solve
-        // there is all.
+        // every smaller λ gives the same mismatch, so one constrained solve
+        // at the smallest λ of the range (the former search's choice, the
+        // closest to λ = 0 on exact data) is all.
         let plateau = lowest > 0 && values[lowest] - values[best] <= FLAT * largest;
         let (optimum, unconstrained) = if plateau {
-            (at(lowest), values[lowest])
+            (lo, values[lowest])
         } else {
             // Parabolic steps on the squared mismatch (smooth in log λ,
             // unlike the mismatch, which has a kink where it nearly vanishes).
