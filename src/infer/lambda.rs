@@ -210,8 +210,8 @@ pub(crate) fn search(
                 }
                 Ok(j)
             } else {
-                let xs =
-                    solve_all_least_squares(assembly, opts, lambda, factors)?.ok_or_else(|| {
+                let xs = solve_all_least_squares(assembly, opts, lambda, factors, report)?
+                    .ok_or_else(|| {
                         Error::Invalid(
                             "the λ scan needs the sparse least squares of every cluster".into(),
                         )

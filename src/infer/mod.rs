@@ -471,9 +471,10 @@ pub(crate) fn solve_all_least_squares(
     opts: &InferOptions,
     lambda: f64,
     factors: &FactorCache,
+    report: &mut InferenceReport,
 ) -> Result<Option<Vec<Vec<f64>>>> {
     use rayon::prelude::*;
-    assembly
+    let solved = assembly
         .systems
         .par_iter()
         .zip(factors.slots(assembly).par_iter())
@@ -484,10 +485,23 @@ pub(crate) fn solve_all_least_squares(
                 Vec::new()
             };
             let problem = system_problem(system, opts, lambda, cone_list);
-            Ok(cascade::least_squares_only(system, &problem, opts, slot)?.map(|sol| sol.x))
+            cascade::least_squares_only(system, &problem, opts, slot)
         })
-        .collect::<Result<Vec<Option<Vec<f64>>>>>()
-        .map(|xs| xs.into_iter().collect())
+        .collect::<Result<Vec<_>>>()?;
+    let mut xs = Vec::with_capacity(solved.len());
+    for sol in solved {
+        let Some(sol) = sol else { return Ok(None) };
+        // Its time and warnings, not its refinement steps: `iterations`
+        // counts the constrained solves' work.
+        report.solver_time += sol.solve_time;
+        for w in sol.warnings {
+            if !report.warnings.contains(&w) {
+                report.warnings.push(w);
+            }
+        }
+        xs.push(sol.x);
+    }
+    Ok(Some(xs))
 }
 
 /// One cluster's friction-constrained least squares (eq. 2.14) as a conic problem.
