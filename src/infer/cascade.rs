@@ -44,7 +44,7 @@ pub(crate) fn solve(
     let mut note = None;
     let mut unconstrained = None;
     if let Some(stacked) = problem.least_squares().filter(|_| sparse) {
-        let route = sparse_route(system, stacked.view(), &problem.cones, opts, slot)?;
+        let route = sparse_route(system, stacked.view(), &problem.cones, opts, slot, true)?;
         if problem.cones.is_empty() {
             return Ok(Solved {
                 solution: route.unconstrained.clone(),
@@ -152,13 +152,32 @@ pub(crate) fn ordering(system: &System, choice: Option<Ordering>) -> Ordering {
     choice.unwrap_or(Ordering::for_dim(system.dim))
 }
 
-/// Stages 1–3 on the cluster's cached factorisation.
+/// Stage 1 alone: the least squares without inequalities on the cluster's
+/// cached factorisation, built as the constrained stages need it so that they
+/// can follow on the same analysis. `None` when the problem has no sparse form.
+pub(crate) fn least_squares_only(
+    system: &System,
+    problem: &ConicProblem,
+    opts: &InferOptions,
+    slot: &FactorSlot,
+) -> Result<Option<ConicSolution>> {
+    match problem.least_squares() {
+        Some(stacked) => Ok(Some(
+            sparse_route(system, stacked.view(), &problem.cones, opts, slot, false)?.unconstrained,
+        )),
+        None => Ok(None),
+    }
+}
+
+/// Stages 1–3 on the cluster's cached factorisation (stage 1 alone unless
+/// `constrained`).
 fn sparse_route(
     system: &System,
     p: LeastSquares,
     cone_list: &[Cone],
     opts: &InferOptions,
     slot: &FactorSlot,
+    constrained: bool,
 ) -> Result<SparseRoute> {
     let start = Instant::now();
     let use_active_set = !cone_list.is_empty() && opts.solver == ConstrainedSolver::ActiveSet;
@@ -196,7 +215,7 @@ fn sparse_route(
         "equality-constrained least squares (faer)",
         warnings,
     );
-    if cone_list.is_empty() {
+    if cone_list.is_empty() || !constrained {
         return Ok(SparseRoute {
             unconstrained,
             constrained: None,

@@ -316,12 +316,9 @@ fn solve_method(
     let solved = match opts.method {
         Method::Qs => (solve_all(assembly, opts, 0.0, factors, report)?, None),
         Method::Tikhonov if opts.lambda.is_none() => {
-            let (lam, trace) = lambda::search(scene, assembly, opts, factors, report)?;
+            let (lam, trace, xs) = lambda::search(scene, assembly, opts, factors, report)?;
             report.lambda = Some(lam * assembly.scales.length);
-            (
-                solve_all(assembly, opts, lam, factors, report)?,
-                Some(trace),
-            )
+            (xs, Some(trace))
         }
         // `ls` (λ given or 0) and Tikhonov at a given λ.
         Method::Ls | Method::Tikhonov => (
@@ -465,6 +462,78 @@ pub(crate) fn solve_all(
     Ok(xs)
 }
 
+/// The unconstrained least squares of every cluster at dimensionless Tikhonov
+/// parameter `lambda`, on the factorisations the constrained solves use (a
+/// numeric refactorisation each, no active set): the λ search's cheap scan.
+/// `None` when a cluster has no sparse form.
+pub(crate) fn solve_all_least_squares(
+    assembly: &Assembly,
+    opts: &InferOptions,
+    lambda: f64,
+    factors: &FactorCache,
+    report: &mut InferenceReport,
+) -> Result<Option<Vec<Vec<f64>>>> {
+    use rayon::prelude::*;
+    let solved = assembly
+        .systems
+        .par_iter()
+        .zip(factors.slots(assembly).par_iter())
+        .map(|(system, slot)| {
+            let cone_list = if opts.method != Method::Ls {
+                cones(system, opts.cone)
+            } else {
+                Vec::new()
+            };
+            let problem = system_problem(system, opts, lambda, cone_list);
+            cascade::least_squares_only(system, &problem, opts, slot)
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let mut xs = Vec::with_capacity(solved.len());
+    for sol in solved {
+        let Some(sol) = sol else { return Ok(None) };
+        // Its time and warnings, not its refinement steps: `iterations`
+        // counts the constrained solves' work.
+        report.solver_time += sol.solve_time;
+        for w in sol.warnings {
+            if !report.warnings.contains(&w) {
+                report.warnings.push(w);
+            }
+        }
+        xs.push(sol.x);
+    }
+    Ok(Some(xs))
+}
+
+/// One cluster's friction-constrained least squares (eq. 2.14) as a conic problem.
+fn system_problem<'a>(
+    system: &'a System,
+    opts: &InferOptions,
+    lambda: f64,
+    cone_list: Vec<Cone>,
+) -> ConicProblem<'a> {
+    let mut problem = ConicProblem {
+        n: system.n,
+        terms: vec![Term {
+            matrix: &system.stress,
+            rhs: &system.stress_rhs,
+            weight: 1.0,
+        }],
+        equalities: vec![(&system.momentum, system.momentum_rhs.as_slice())],
+        lambda,
+        regularized: system.n,
+        cones: cone_list,
+    };
+    if opts.allow_infeasible {
+        problem.equalities.clear();
+        problem.terms.push(Term {
+            matrix: &system.momentum,
+            rhs: &system.momentum_rhs,
+            weight: LEAST_VIOLATION_WEIGHT,
+        });
+    }
+    problem
+}
+
 fn solve_system(
     system: &System,
     opts: &InferOptions,
@@ -493,26 +562,7 @@ fn solve_system(
             0.0
         }
     };
-    let mut problem = ConicProblem {
-        n: system.n,
-        terms: vec![Term {
-            matrix: &system.stress,
-            rhs: &system.stress_rhs,
-            weight: 1.0,
-        }],
-        equalities: vec![(&system.momentum, system.momentum_rhs.as_slice())],
-        lambda,
-        regularized: system.n,
-        cones: cone_list,
-    };
-    if opts.allow_infeasible {
-        problem.equalities.clear();
-        problem.terms.push(Term {
-            matrix: &system.momentum,
-            rhs: &system.momentum_rhs,
-            weight: LEAST_VIOLATION_WEIGHT,
-        });
-    }
+    let problem = system_problem(system, opts, lambda, cone_list);
     let use_active_set = with_cones && opts.solver == ConstrainedSolver::ActiveSet;
     let sparse = !opts.allow_infeasible && (opts.exact_first || !with_cones || use_active_set);
     let solved = match cascade::solve(system, &problem, sparse, opts, factor) {

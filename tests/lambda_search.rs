@@ -1,0 +1,138 @@
+//! The automatic Tikhonov λ (eq. 2.17) scans with the unconstrained least
+//! squares and makes at most `LambdaSearch::GUIDED_SOLVES` constrained solves;
+//! the former search made 37. On DEM fixtures with measured wall forces and
+//! the eq. 2.16 stress noise, the λ it picks must be as good against the
+//! exact forces as the former one's.
+
+use grainforce::bench::{perturb, Noise};
+use grainforce::infer::{infer, InferOptions, LambdaSearch, Method};
+use grainforce::report::metrics::relative_error;
+use grainforce::scene::{read_forces, read_scene};
+use std::path::Path;
+
+/// relerr may differ by this much (absolute; the relerr is 0.02–0.05 here):
+/// both searches stop at a precision of ~5e-4 decades of λ.
+const RELERR_TOLERANCE: f64 = 1e-4;
+
+fn compare(fixture: &str, seeds: std::ops::RangeInclusive<u64>) {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join(fixture);
+    let scene = read_scene(&dir).unwrap();
+    let file = dir.join("forces.csv");
+    let truth = read_forces(&file)
+        .unwrap()
+        .for_scene(&scene, &file)
+        .unwrap();
+    for seed in seeds {
+        let noisy = perturb(&scene, Noise::Stress, seed);
+        let run = |search: LambdaSearch| {
+            let r = infer(
+                &noisy,
+                &InferOptions {
+                    method: Method::Tikhonov,
+                    lambda_search: search,
+                    ..InferOptions::default()
+                },
+            )
+            .unwrap();
+            let relerr = relative_error(&truth, &r.forces_or_zero());
+            (r.report, relerr)
+        };
+        let (new, new_err) = run(LambdaSearch::default());
+        let (old, old_err) = run(LambdaSearch::former());
+        let (new_trace, old_trace) = (
+            new.lambda_trace.as_ref().unwrap(),
+            old.lambda_trace.as_ref().unwrap(),
+        );
+        let (new_lambda, old_lambda) = (new.lambda.unwrap(), old.lambda.unwrap());
+        eprintln!(
+            "{fixture} seed {seed}: λ {new_lambda:.4e} (was {old_lambda:.4e}), relerr {new_err:.6} (was {old_err:.6}), \
+             constrained solves {} + {} least squares (was {})",
+            new_trace.points.len(),
+            new_trace.unconstrained.len(),
+            old_trace.points.len()
+        );
+        // The noise inflates the stresses by 15 %: λ must do real work.
+        let qs_err = relative_error(
+            &truth,
+            &infer(&noisy, &InferOptions::default())
+                .unwrap()
+                .forces_or_zero(),
+        );
+        assert!(
+            new_err < 0.5 * qs_err,
+            "relerr {new_err} against qs {qs_err}"
+        );
+        assert!(
+            new_err <= old_err + RELERR_TOLERANCE,
+            "relerr {new_err} against the former search's {old_err}"
+        );
+        assert!(
+            (new_lambda / old_lambda).log10().abs() < 0.01,
+            "λ {new_lambda} against {old_lambda}"
+        );
+        assert!(!new_trace.unconstrained.is_empty());
+        assert!(
+            new_trace.points.len() <= LambdaSearch::GUIDED_SOLVES,
+            "{} constrained solves",
+            new_trace.points.len()
+        );
+        assert_eq!(
+            old_trace.points.len(),
+            LambdaSearch::former().max_constrained_solves()
+        );
+        assert!(!new_trace.at_edge && !old_trace.at_edge);
+    }
+}
+
+#[test]
+fn oedometer_2d_lambda_as_good_with_at_most_six_constrained_solves() {
+    compare("fixtures/oedometer", 1..=3);
+}
+
+#[test]
+fn oedometer_3d_lambda_as_good_with_at_most_six_constrained_solves() {
+    compare("fixtures/regression/oedometer3d_seed1", 1..=2);
+}
+
+/// Exact stresses: the mismatch is smallest, and flat, at the low end, so the
+/// scan stops early and one constrained solve at the range's smallest λ
+/// suffices; the answer is as exact as the former search's.
+#[test]
+fn exact_data_take_one_constrained_solve() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/oedometer");
+    let scene = read_scene(&dir).unwrap();
+    let file = dir.join("forces.csv");
+    let truth = read_forces(&file)
+        .unwrap()
+        .for_scene(&scene, &file)
+        .unwrap();
+    let run = |search: LambdaSearch| {
+        let r = infer(
+            &scene,
+            &InferOptions {
+                method: Method::Tikhonov,
+                lambda_search: search,
+                ..InferOptions::default()
+            },
+        )
+        .unwrap();
+        let relerr = relative_error(&truth, &r.forces_or_zero());
+        (r.report, relerr)
+    };
+    let (r, relerr) = run(LambdaSearch::default());
+    let (_, former) = run(LambdaSearch::former());
+    let trace = r.lambda_trace.as_ref().unwrap();
+    eprintln!(
+        "exact: λ {:.3e}, relerr {relerr:.2e} (former search {former:.2e}), {} least squares, {} constrained",
+        r.lambda.unwrap(),
+        trace.unconstrained.len(),
+        trace.points.len()
+    );
+    assert_eq!(trace.points.len(), 1);
+    assert!(trace.unconstrained.len() < LambdaSearch::default().grid);
+    assert!(relerr < 1e-8, "relerr {relerr}");
+    assert!(
+        relerr <= 1.01 * former + 1e-12,
+        "relerr {relerr} against {former}"
+    );
+}
