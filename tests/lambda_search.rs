@@ -5,14 +5,29 @@
 //! exact forces as the former one's.
 
 use grainforce::bench::{perturb, Noise};
-use grainforce::infer::{infer, InferOptions, LambdaSearch, Method};
+use grainforce::infer::{infer, InferOptions, InferenceReport, LambdaSearch, Method};
 use grainforce::report::metrics::relative_error;
-use grainforce::scene::{read_forces, read_scene};
+use grainforce::scene::{read_forces, read_scene, Scene, Vec3};
 use std::path::Path;
 
 /// relerr may differ by this much (absolute; the relerr is 0.02–0.05 here):
 /// both searches stop at a precision of ~5e-4 decades of λ.
 const RELERR_TOLERANCE: f64 = 1e-4;
+
+/// Automatic Tikhonov with the given search: the report and relerr.
+fn tikhonov(scene: &Scene, truth: &[Vec3], search: LambdaSearch) -> (InferenceReport, f64) {
+    let r = infer(
+        scene,
+        &InferOptions {
+            method: Method::Tikhonov,
+            lambda_search: search,
+            ..InferOptions::default()
+        },
+    )
+    .unwrap();
+    let relerr = relative_error(truth, &r.forces_or_zero());
+    (r.report, relerr)
+}
 
 fn compare(fixture: &str, seeds: std::ops::RangeInclusive<u64>) {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join(fixture);
@@ -24,19 +39,7 @@ fn compare(fixture: &str, seeds: std::ops::RangeInclusive<u64>) {
         .unwrap();
     for seed in seeds {
         let noisy = perturb(&scene, Noise::Stress, seed);
-        let run = |search: LambdaSearch| {
-            let r = infer(
-                &noisy,
-                &InferOptions {
-                    method: Method::Tikhonov,
-                    lambda_search: search,
-                    ..InferOptions::default()
-                },
-            )
-            .unwrap();
-            let relerr = relative_error(&truth, &r.forces_or_zero());
-            (r.report, relerr)
-        };
+        let run = |search| tikhonov(&noisy, &truth, search);
         let (new, new_err) = run(LambdaSearch::default());
         let (old, old_err) = run(LambdaSearch::former());
         let (new_trace, old_trace) = (
@@ -106,19 +109,7 @@ fn exact_data_take_one_constrained_solve() {
         .unwrap()
         .for_scene(&scene, &file)
         .unwrap();
-    let run = |search: LambdaSearch| {
-        let r = infer(
-            &scene,
-            &InferOptions {
-                method: Method::Tikhonov,
-                lambda_search: search,
-                ..InferOptions::default()
-            },
-        )
-        .unwrap();
-        let relerr = relative_error(&truth, &r.forces_or_zero());
-        (r.report, relerr)
-    };
+    let run = |search| tikhonov(&scene, &truth, search);
     let (r, relerr) = run(LambdaSearch::default());
     let (_, former) = run(LambdaSearch::former());
     let trace = r.lambda_trace.as_ref().unwrap();

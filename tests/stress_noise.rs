@@ -68,6 +68,17 @@ fn relative_model_on_eq_2_16_noise_3d() {
     assert!(rel < 0.5 * abs, "relative {rel} vs absolute {abs}");
 }
 
+/// rms of every stress component of every grain.
+fn rms_stress(scene: &Scene) -> f64 {
+    let comps = sym::components(scene.dim);
+    let sum: f64 = scene
+        .grains
+        .iter()
+        .flat_map(|g| comps.iter().map(move |&k| g.stress[k].powi(2)))
+        .sum();
+    (sum / (scene.grains.len() * comps.len()) as f64).sqrt()
+}
+
 /// Stresses with a known, uneven sd per component (sd_s_* columns).
 fn heteroscedastic(scene: &Scene, seed: u64) -> Scene {
     let mut s = scene.clone();
@@ -125,13 +136,7 @@ fn under_absolute_noise_the_absolute_model_stays_the_right_choice() {
         let mut noisy = scene.clone();
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let comps = sym::components(noisy.dim);
-        let rms = (noisy
-            .grains
-            .iter()
-            .flat_map(|g| comps.iter().map(move |&k| g.stress[k].powi(2)))
-            .sum::<f64>()
-            / (noisy.grains.len() * comps.len()) as f64)
-            .sqrt();
+        let rms = rms_stress(&noisy);
         for g in &mut noisy.grains {
             for &k in comps {
                 let e: f64 = StandardNormal.sample(&mut rng);
@@ -272,13 +277,7 @@ fn relative_model_on_eq_2_16_noise_sheared_dem_1000_spheres() {
 fn oracle(exact: &Scene, noisy: &Scene) -> Scene {
     let mut s = noisy.clone();
     let comps = sym::components(s.dim);
-    let rms = (exact
-        .grains
-        .iter()
-        .flat_map(|g| comps.iter().map(move |&k| g.stress[k].powi(2)))
-        .sum::<f64>()
-        / (exact.grains.len() * comps.len()) as f64)
-        .sqrt();
+    let rms = rms_stress(exact);
     for (g, e) in s.grains.iter_mut().zip(&exact.grains) {
         let mut sd = [0.0; 6];
         for &k in comps {
