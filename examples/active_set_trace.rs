@@ -1,8 +1,8 @@
 //! The active-set solver step by step on a synthetic packing, beside the
 //! interior point: solves, damping, changed contacts, fixed-point residual.
 //!
-//! Run: `cargo run --release --example active_set_trace [grains] [dim] [stress|geometry] [mu] [seed]`
-//! (defaults: 1000 2 stress 0.5 18 — noise seed 18 is `grainforce bench`'s; the
+//! Run: `cargo run --release --example active_set_trace [grains] [dim] [stress|geometry] [mu] [seed] [sliding]`
+//! (defaults: 1000 2 stress 0.5 18 0 — noise seed 18 is `grainforce bench`'s; the
 //! interior point is skipped above 20 000 grains), or with a scene folder
 //! instead of the grain count (e.g. `fixtures/regression/box3d_sheared`): that
 //! scene with the same noise, forces compared with the interior point's, and
@@ -38,6 +38,7 @@ fn main() -> grainforce::Result<()> {
         );
         spec.mu = arg(4, "0.5").parse().expect("mu");
         spec.shear = 0.5 * spec.mu;
+        spec.sliding = arg(6, "0").parse().expect("sliding share");
         let packing = generate(&spec)?;
         (perturb(&packing.scene, noise, seed), Some(packing.truth))
     };
