@@ -1,20 +1,9 @@
 //! The command line end to end: import a LAMMPS run, compute its statistics,
 //! export it for ParaView.
 
+mod common;
+use common::grainforce;
 use std::path::Path;
-use std::process::Command;
-
-fn grainforce(args: &[&str]) -> (bool, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_grainforce"))
-        .args(args)
-        .output()
-        .unwrap();
-    (
-        out.status.success(),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
 
 #[test]
 fn import_stats_export() {

@@ -2,6 +2,8 @@
 //! known scene (fixtures/import/pegs/make_pegs_fixture.py: the 2D oedometer
 //! DEM fixture drawn at 10000 px/m in a 760 px high image, disks 5 mm thick).
 
+mod common;
+use common::grainforce;
 use grainforce::import::pegs::{import, Options, ScaleSource};
 use grainforce::import::{mat5, ImportedScene};
 use grainforce::scene::{self, read_forces, read_scene, Body, Scene, Vec3};
@@ -19,13 +21,7 @@ fn fixture(name: &str) -> PathBuf {
 }
 
 fn truth() -> (Scene, Vec<Vec3>) {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/oedometer");
-    let scene = read_scene(&dir).unwrap();
-    let forces = read_forces(&dir.join("forces.csv"))
-        .unwrap()
-        .for_scene(&scene, &dir)
-        .unwrap();
-    (scene, forces)
+    common::fixture("oedometer")
 }
 
 fn solved(name: &str) -> ImportedScene {
@@ -282,18 +278,6 @@ fn inflation_is_capped() {
 }
 
 // The command line: import → infer → score, and bad files.
-
-fn grainforce(args: &[&str]) -> (bool, String, String) {
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_grainforce"))
-        .args(args)
-        .output()
-        .unwrap();
-    (
-        out.status.success(),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
 
 fn s(p: &Path) -> String {
     p.to_str().unwrap().to_owned()

@@ -4,11 +4,11 @@
 //! the eq. 2.16 stress noise, the λ it picks must be as good against the
 //! exact forces as the former one's.
 
+mod common;
 use grainforce::bench::{perturb, Noise};
 use grainforce::infer::{infer, InferOptions, InferenceReport, LambdaSearch, Method};
 use grainforce::report::metrics::relative_error;
-use grainforce::scene::{read_forces, read_scene, Scene, Vec3};
-use std::path::Path;
+use grainforce::scene::{Scene, Vec3};
 
 /// relerr may differ by this much (absolute; the relerr is 0.02–0.05 here):
 /// both searches stop at a precision of ~5e-4 decades of λ.
@@ -30,13 +30,7 @@ fn tikhonov(scene: &Scene, truth: &[Vec3], search: LambdaSearch) -> (InferenceRe
 }
 
 fn compare(fixture: &str, seeds: std::ops::RangeInclusive<u64>) {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join(fixture);
-    let scene = read_scene(&dir).unwrap();
-    let file = dir.join("forces.csv");
-    let truth = read_forces(&file)
-        .unwrap()
-        .for_scene(&scene, &file)
-        .unwrap();
+    let (scene, truth) = common::fixture(fixture);
     for seed in seeds {
         let noisy = perturb(&scene, Noise::Stress, seed);
         let run = |search| tikhonov(&noisy, &truth, search);
@@ -89,12 +83,12 @@ fn compare(fixture: &str, seeds: std::ops::RangeInclusive<u64>) {
 
 #[test]
 fn oedometer_2d_lambda_as_good_with_at_most_six_constrained_solves() {
-    compare("fixtures/oedometer", 1..=3);
+    compare("oedometer", 1..=3);
 }
 
 #[test]
 fn oedometer_3d_lambda_as_good_with_at_most_six_constrained_solves() {
-    compare("fixtures/regression/oedometer3d_seed1", 1..=2);
+    compare("regression/oedometer3d_seed1", 1..=2);
 }
 
 /// Exact stresses: the mismatch is smallest, and flat, at the low end, so the
@@ -102,13 +96,7 @@ fn oedometer_3d_lambda_as_good_with_at_most_six_constrained_solves() {
 /// suffices; the answer is as exact as the former search's.
 #[test]
 fn exact_data_take_one_constrained_solve() {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/oedometer");
-    let scene = read_scene(&dir).unwrap();
-    let file = dir.join("forces.csv");
-    let truth = read_forces(&file)
-        .unwrap()
-        .for_scene(&scene, &file)
-        .unwrap();
+    let (scene, truth) = common::fixture("oedometer");
     let run = |search| tikhonov(&scene, &truth, search);
     let (r, relerr) = run(LambdaSearch::default());
     let (_, former) = run(LambdaSearch::former());

@@ -130,6 +130,18 @@ fn a_sequence_whose_frames_all_fail_is_an_error() {
 }
 
 /// The lines of a forces.csv whose frame (first column) lies in first..=last.
+/// The 2D impact preset simulated (optionally cut short) and written as a sequence.
+fn impact_sequence(dir: &Path, seed: u64, duration: Option<f64>) -> grainforce::dem::DemRun {
+    let mut config =
+        grainforce::dem::DemConfig::preset(grainforce::dem::Preset::Impact, 2).seed(seed);
+    if let Some(d) = duration {
+        config = config.duration(d);
+    }
+    let run = grainforce::dem::simulate(&config).unwrap();
+    grainforce::scene::write_sequence(dir, &run.frames).unwrap();
+    run
+}
+
 fn rows_of_frames(text: &str, first: i64, last: i64) -> Vec<&str> {
     text.lines()
         .skip(1)
@@ -145,13 +157,7 @@ fn a_frame_range_reads_its_frames_and_gets_one_runs_forces() {
     // Accelerations in grains.csv (DEM): a range reads exactly its frames.
     let tmp = tempfile::tempdir().unwrap();
     let scene = tmp.path().join("impact");
-    let run = grainforce::dem::simulate(
-        &grainforce::dem::DemConfig::preset(grainforce::dem::Preset::Impact, 2)
-            .seed(1)
-            .duration(0.004),
-    )
-    .unwrap();
-    grainforce::scene::write_sequence(&scene, &run.frames).unwrap();
+    let run = impact_sequence(&scene, 1, Some(0.004));
     let (first, last) = (
         run.frames[0].frame.unwrap(),
         run.frames.last().unwrap().frame.unwrap(),
@@ -393,11 +399,7 @@ fn merged_blocks_are_one_run(scene: &Path, work: &Path, args: &[&str], blocks: &
 fn merged_blocks_give_one_runs_files() {
     let tmp = tempfile::tempdir().unwrap();
     let scene = tmp.path().join("impact");
-    let run = grainforce::dem::simulate(
-        &grainforce::dem::DemConfig::preset(grainforce::dem::Preset::Impact, 2).seed(2),
-    )
-    .unwrap();
-    grainforce::scene::write_sequence(&scene, &run.frames).unwrap();
+    let run = impact_sequence(&scene, 2, None);
     let (first, last) = (
         run.frames[0].frame.unwrap(),
         run.frames.last().unwrap().frame.unwrap(),
@@ -432,13 +434,7 @@ fn merged_blocks_give_one_runs_files() {
 fn a_frame_range_of_files_not_sorted_by_frame_reads_the_same_scenes() {
     let tmp = tempfile::tempdir().unwrap();
     let sorted = tmp.path().join("sorted");
-    let run = grainforce::dem::simulate(
-        &grainforce::dem::DemConfig::preset(grainforce::dem::Preset::Impact, 2)
-            .seed(1)
-            .duration(0.004),
-    )
-    .unwrap();
-    grainforce::scene::write_sequence(&sorted, &run.frames).unwrap();
+    let run = impact_sequence(&sorted, 1, Some(0.004));
     // The same rows, frames in reverse order (each frame's rows in order).
     let shuffled = tmp.path().join("shuffled");
     std::fs::create_dir(&shuffled).unwrap();

@@ -18,6 +18,19 @@ pub fn run(args: &[&str]) -> (bool, String) {
     )
 }
 
+/// Runs the grainforce binary: whether it succeeded, its stdout and its stderr.
+pub fn grainforce(args: &[&str]) -> (bool, String, String) {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_grainforce"))
+        .args(args)
+        .output()
+        .expect("the binary runs");
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
 /// A bundled scene under fixtures/ and its exact forces (forces.csv).
 pub fn fixture(name: &str) -> (Scene, Vec<Vec3>) {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
