@@ -261,11 +261,129 @@ fn changed_active_rows_bordered_around_a_factor_holding_others_match_a_dense_sol
         "the taken-out columns of the last border reused, new ones solved",
     );
 
-    // A spring taken out is never bordered (it could be of any stiffness).
-    let no_spring = ls
-        .solve_with_active(&a, &c, &b, &d, lambda, &g1, &Triplets::new(0, n))
-        .unwrap();
-    assert!(!no_spring.bordered && no_spring.solution.converged);
+    // A spring taken out: its stiffness subtracted through the border.
+    bordered_matches_dense(&g1, &Triplets::new(0, n), "the spring r_a taken out");
+}
+
+/// Rows and springs that only turned or stiffened a little since the kept
+/// factor (a 3D sliding direction between Newton steps) stay in it: GMRES on
+/// the factor reaches the dense KKT answer of the new rows with no new
+/// factorisation. Rows that moved far are bordered instead, and with
+/// `Bordering::Never` every change is a new factorisation.
+#[test]
+fn rows_that_turned_a_little_are_held_stale_and_give_the_dense_answer() {
+    use grainforce::solver::sparse_ls::Bordering;
+    // A: 8×8 bidiagonal and one row over each contact's three unknowns (an
+    // active row may only couple unknowns that share a row of A).
+    let n = 8;
+    let mut a = Triplets::new(n + 2, n);
+    for i in 0..n {
+        a.push(i, i, 1.5 + i as f64);
+        if i + 1 < n {
+            a.push(i, i + 1, -1.0);
+        }
+    }
+    for (row, at) in [(n, 0), (n + 1, 4)] {
+        for j in at..at + 3 {
+            a.push(row, j, 0.5 + 0.25 * j as f64);
+        }
+    }
+    let mut c = Triplets::new(1, n);
+    for j in 0..n {
+        c.push(0, j, 1.0);
+    }
+    let b = [1.0, -1.0, 0.5, 2.0, -0.5, 0.25, 1.5, -0.75, 0.3, -0.6];
+    let (d, lambda) = ([1.0], 0.2);
+    // A "sliding contact" on unknowns (0, 1, 2): the plane μ x₀ − cos θ x₁ − sin θ x₂ = 0
+    // and a spring across the direction; another on (4, 5, 6).
+    let contact = |theta: f64, stiffness: f64, at: usize| {
+        let mu = 0.5;
+        let norm = (1.0f64 + mu * mu).sqrt();
+        let row = vec![
+            (at, mu / norm),
+            (at + 1, -theta.cos() / norm),
+            (at + 2, -theta.sin() / norm),
+        ];
+        let spring = vec![
+            (at + 1, -theta.sin() * stiffness.sqrt()),
+            (at + 2, theta.cos() * stiffness.sqrt()),
+        ];
+        (row, spring)
+    };
+    let rows = |list: &[Vec<(usize, f64)>]| {
+        let mut t = Triplets::new(list.len(), n);
+        for (i, row) in list.iter().enumerate() {
+            for &(j, v) in row {
+                t.push(i, j, v);
+            }
+        }
+        t
+    };
+    let system = |turn: f64, stiffen: f64| {
+        let (g1, r1) = contact(0.3 + turn, 2.0 * stiffen, 0);
+        let (g2, r2) = contact(-1.1 - turn, 0.5 * stiffen, 4);
+        (rows(&[g1, g2]), rows(&[r1, r2]))
+    };
+    let check = |sol: &grainforce::solver::sparse_ls::ActiveLsSolution,
+                 g: &Triplets,
+                 r: &Triplets,
+                 what: &str| {
+        assert!(sol.solution.converged, "{what}: {sol:?}");
+        let z = dense_kkt(&a, &c, g, r, &b, &d, lambda);
+        for i in 0..n {
+            let (got, want) = (sol.solution.x[i], z[i]);
+            assert!((got - want).abs() < 1e-11, "{what}: x{i} = {got} vs {want}");
+        }
+        for j in 0..g.nrows {
+            let (got, want) = (sol.multipliers[j], -z[n + 1 + j]);
+            assert!(
+                (got - want).abs() < 1e-9,
+                "{what}: multiplier {j}: {got} vs {want}"
+            );
+        }
+    };
+    for bordering in [Bordering::Auto, Bordering::Always, Bordering::Never] {
+        let mut ls = EqualityLeastSquares::new(&a, &c).unwrap();
+        ls.set_bordering(bordering);
+        let (g0, r0) = system(0.0, 1.0);
+        let first = ls
+            .solve_with_active(&a, &c, &b, &d, lambda, &g0, &r0)
+            .unwrap();
+        assert!(!first.bordered);
+        check(&first, &g0, &r0, "first");
+        // Turned by 0.05 rad and 10 % stiffer: held stale with Always, never
+        // with Never (Auto weighs GMRES's solves against a factorisation,
+        // which costs about as much on a system this small).
+        let (g1, r1) = system(0.05, 1.1);
+        let sol = ls
+            .solve_with_active(&a, &c, &b, &d, lambda, &g1, &r1)
+            .unwrap();
+        if bordering != Bordering::Auto {
+            assert_eq!(
+                sol.bordered,
+                bordering == Bordering::Always,
+                "{bordering:?}: {sol:?}"
+            );
+        }
+        if sol.bordered {
+            assert!(sol.solution.refinement_steps > 1, "GMRES ran: {sol:?}");
+        }
+        check(&sol, &g1, &r1, &format!("{bordering:?}, turned a little"));
+        // Turned by a radian: far beyond the stale tolerance; bordered or
+        // factorised, always the dense answer.
+        let (g2, r2) = system(1.0, 1.0);
+        let far = ls
+            .solve_with_active(&a, &c, &b, &d, lambda, &g2, &r2)
+            .unwrap();
+        if bordering != Bordering::Auto {
+            assert_eq!(
+                far.bordered,
+                bordering == Bordering::Always,
+                "{bordering:?}"
+            );
+        }
+        check(&far, &g2, &r2, &format!("{bordering:?}, turned far"));
+    }
 }
 
 /// Rows and equalities together, against a dense KKT solve.

@@ -27,7 +27,7 @@
 //! dissection) and `numeric` (LDLᵀ and its cached state) are faer's two
 //! stages; `active_rows` and `border` take active rows in as penalties or
 //! around the kept factor (`nodes`: sparse solves on its supernodes); `refine`
-//! solves and refines; `spd` is the Cholesky path for definite matrices,
+//! solves and refines (`krylov`: GMRES when the factor holds stale rows); `spd` is the Cholesky path for definite matrices,
 //! `identifiability` the uniqueness probe, `checks` the input checks,
 //! `compressed` the CSR/CSC kernels.
 
@@ -37,6 +37,7 @@ mod checks;
 mod compressed;
 mod identifiability;
 mod kkt;
+mod krylov;
 mod nodes;
 mod numeric;
 mod ordering;
@@ -111,13 +112,15 @@ impl Ordering {
 pub enum Bordering {
     /// Border the k changed rows (one sparse forward solve each, over the
     /// part of the factor it reaches) when that is estimated to take less
-    /// than the numeric factorisation did, else factorise anew.
+    /// than the numeric factorisation did, else factorise anew. Rows and
+    /// springs with the same entries but values within 30 % are not
+    /// changed: the factor keeps its copies and GMRES corrects for them.
     #[default]
     Auto,
     /// Always a new numeric factorisation with the rows as penalties.
     Never,
     /// Border whenever a factor of the same values is at hand (at most 256
-    /// changed rows, no spring taken out).
+    /// changed rows).
     Always,
 }
 
@@ -152,8 +155,10 @@ pub struct ActiveLsSolution {
     /// G_i x ≥ 0: at a constrained optimum ∇(½‖Ax − b‖² + ½λ²‖x‖²) = Cᵀν + Gᵀy,
     /// and y_i > 0 means the row really holds the solution back.
     pub multipliers: Vec<f64>,
-    /// The active rows that changed since the kept factor were bordered
-    /// around it (no new numeric factorisation), see [`Bordering`].
+    /// No new numeric factorisation: the kept factor served, the active rows
+    /// that changed since bordered around it and those that only turned a
+    /// little (a 3D sliding direction) held stale, GMRES on the factor then
+    /// solving the exact system; see [`Bordering`].
     pub bordered: bool,
 }
 

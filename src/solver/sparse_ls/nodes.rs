@@ -296,6 +296,26 @@ impl Factor<'_> {
         entries as f64 / (2 * self.values.len()).max(1) as f64
     }
 
+    /// The share of a full solve that the dense Schur complement of a
+    /// border with these columns costs to form (a dot product of every pair
+    /// of their forward solves, each as long as the nodes its column
+    /// reaches) and to factorise (k³/3).
+    pub fn schur_share<'c>(&self, columns: impl Iterator<Item = &'c [(usize, f64)]>) -> f64 {
+        let mut marked = vec![false; self.count()];
+        let mut path = Vec::new();
+        let (mut k, mut length) = (0usize, 0usize);
+        for b in columns {
+            self.reach(b, &mut marked, &mut path);
+            for s in path.drain(..) {
+                marked[s as usize] = false;
+                length += self.node(s as usize).size;
+            }
+            k += 1;
+        }
+        let k = k as f64;
+        (0.5 * k * length as f64 + k * k * k / 3.0) / (2 * self.values.len()).max(1) as f64
+    }
+
     /// Each node's column range reached by w, with w's entries there.
     fn segments<'w>(
         &'w self,
@@ -521,6 +541,8 @@ mod tests {
             }
             let share = f.reach_share(columns.iter().map(|c| c.as_slice()));
             assert!(share > 0.0 && share < 3.0, "{share}");
+            let schur = f.schur_share(columns.iter().map(|c| c.as_slice()));
+            assert!(schur > 0.0 && schur < share, "{schur} vs {share}");
         }
     }
 }
