@@ -12,9 +12,9 @@
 //! out/ --radius 110..135`.
 
 use grainforce::image::photoelastic::{render_photoelastic, save_jpeg, PhotoelasticOptions};
-use grainforce::image::synthetic::{touching_disks, PackingSpec};
-use grainforce::image::{detect_images, ContactBody, DetectSettings, PixelFrame};
-use grainforce::scene::{Body, Scene};
+use grainforce::image::synthetic::{match_disks, touching_disks, PackingSpec};
+use grainforce::image::{detect_images, DetectSettings, PixelFrame};
+use grainforce::scene::Scene;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -102,46 +102,20 @@ fn detect(path: &Path) -> grainforce::Result<()> {
     let found = &detection.frames[0];
     let scene = packing();
     let frame = frame();
-    let mut disk_of_grain = vec![None; scene.grains.len()];
-    let mut used = vec![false; found.disks.len()];
-    let mut errors = Vec::new();
-    for (g, grain) in scene.grains.iter().enumerate() {
-        let p = frame.to_pixel([grain.position[0], grain.position[1]]);
-        let r = grain.radius.expect("packings have radii") * PX_PER_M;
-        let nearest = found
-            .disks
-            .iter()
-            .enumerate()
-            .filter(|(k, _)| !used[*k])
-            .map(|(k, d)| (k, (d.x - p[0]).hypot(d.y - p[1])))
-            .min_by(|a, b| a.1.total_cmp(&b.1));
-        match nearest {
-            Some((k, dist)) if dist < 0.25 * r => {
-                used[k] = true;
-                disk_of_grain[g] = Some(k);
-                errors.push(dist / r);
-            }
-            _ => println!("  missed the disk at ({:.0}, {:.0}) px", p[0], p[1]),
+    let matched = match_disks(&scene, &frame, &found.disks, |r| 0.25 * r);
+    for (g, disk) in matched.disk_of_grain.iter().enumerate() {
+        if disk.is_none() {
+            let grain = &scene.grains[g];
+            let p = frame.to_pixel([grain.position[0], grain.position[1]]);
+            println!("  missed the disk at ({:.0}, {:.0}) px", p[0], p[1]);
         }
     }
+    let radius_px = |g: usize| scene.grains[g].radius.expect("packings have radii") * PX_PER_M;
+    let mut errors: Vec<f64> = (matched.pairs.iter())
+        .map(|&(g, _, distance, _)| distance / radius_px(g))
+        .collect();
     errors.sort_by(f64::total_cmp);
-    let key = |a: usize, b: usize| (a.min(b), a.max(b));
-    let truth: Vec<(usize, usize)> = scene
-        .contacts
-        .iter()
-        .filter_map(|c| match c.b {
-            Body::Grain(b) => Some(key(disk_of_grain[c.a]?, disk_of_grain[b]?)),
-            Body::Wall(_) => None,
-        })
-        .collect();
-    let detected: Vec<(usize, usize)> = found
-        .contacts
-        .iter()
-        .filter_map(|c| match c.b {
-            ContactBody::Disk(b) => Some(key(c.a, b)),
-            ContactBody::Wall(_) => None,
-        })
-        .collect();
+    let (truth, detected) = matched.contact_pairs(&scene, &found.contacts);
     let right = detected.iter().filter(|d| truth.contains(d)).count();
     println!(
         "detect ({} threads): {wall:.2} s wall, {cpu:.2} CPU s, peak RSS {:.0} MB",

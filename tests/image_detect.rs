@@ -1,7 +1,7 @@
 //! Disk detection and contacts: rendered scenes with exactly known geometry,
 //! heavy noise and disks cut by the border, external images, bad input.
 
-use grainforce::image::synthetic::{assign_random_stresses, touching_disks, PackingSpec};
+use grainforce::image::synthetic::{self, assign_random_stresses, touching_disks, PackingSpec};
 use grainforce::image::{
     detect_disks, detect_images, find_contacts, load_gray, render_scene, save_gray, ContactBody,
     DetectOptions, DetectSettings, Disk, Elasticity, PixelFrame, PlaneCondition, RenderOptions,
@@ -35,39 +35,22 @@ struct Matched {
     false_found: Vec<usize>,
 }
 
-/// Matches grains (those `wanted`) to detections, nearest first within 3 px.
+/// Matches grains to detections, nearest first within 3 px; the grains
+/// `wanted` and left unmatched are missed.
 fn match_disks(
     scene: &Scene,
     disks: &[Disk],
     frame: &PixelFrame,
     wanted: &dyn Fn(usize) -> bool,
 ) -> Matched {
-    let mut used = vec![false; disks.len()];
-    let mut pairs = Vec::new();
-    let mut missed = Vec::new();
-    for (g, grain) in scene.grains.iter().enumerate() {
-        let p = frame.to_pixel([grain.position[0], grain.position[1]]);
-        let r = grain.radius.unwrap() * frame.px_per_m;
-        let best = disks
-            .iter()
-            .enumerate()
-            .filter(|(k, _)| !used[*k])
-            .map(|(k, d)| (k, ((d.x - p[0]).powi(2) + (d.y - p[1]).powi(2)).sqrt()))
-            .min_by(|a, b| a.1.total_cmp(&b.1));
-        match best {
-            Some((k, dist)) if dist < 3.0 => {
-                used[k] = true;
-                pairs.push((g, k, dist, disks[k].r - r));
-            }
-            _ if wanted(g) => missed.push(g),
-            _ => {}
-        }
-    }
-    let false_found = (0..disks.len()).filter(|&k| !used[k]).collect();
+    let matched = synthetic::match_disks(scene, frame, disks, |_| 3.0);
+    let missed = (0..scene.grains.len())
+        .filter(|&g| matched.disk_of_grain[g].is_none() && wanted(g))
+        .collect();
     Matched {
-        pairs,
+        pairs: matched.pairs,
         missed,
-        false_found,
+        false_found: matched.unmatched_disks,
     }
 }
 

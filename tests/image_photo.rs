@@ -6,7 +6,7 @@
 
 mod common;
 use grainforce::image::photoelastic::{render_photoelastic, save_jpeg, PhotoelasticOptions};
-use grainforce::image::synthetic::{touching_disks_of_sizes, PackingSpec};
+use grainforce::image::synthetic::{match_disks, touching_disks_of_sizes, PackingSpec};
 use grainforce::image::{detect_images, ContactBody, DetectSettings, DetectedFrame, PixelFrame};
 use grainforce::scene::{Body, Scene};
 use std::path::{Path, PathBuf};
@@ -126,29 +126,12 @@ impl Score {
 /// detected contacts to the rendered tangencies.
 fn score(photo: &Photo, found: &DetectedFrame) -> Score {
     let scene = &photo.scene;
-    let mut disk_of_grain = vec![None; scene.grains.len()];
-    let mut used = vec![false; found.disks.len()];
-    let mut errors = Vec::new();
-    let mut radius_errors = Vec::new();
-    for (g, grain) in scene.grains.iter().enumerate() {
-        let p = photo.frame.to_pixel([grain.position[0], grain.position[1]]);
-        let r = grain.radius.unwrap() * PX_PER_M;
-        let best = found
-            .disks
-            .iter()
-            .enumerate()
-            .filter(|(k, _)| !used[*k])
-            .map(|(k, d)| (k, (d.x - p[0]).hypot(d.y - p[1])))
-            .min_by(|a, b| a.1.total_cmp(&b.1));
-        if let Some((k, dist)) = best {
-            if dist < 0.25 * r {
-                used[k] = true;
-                disk_of_grain[g] = Some(k);
-                errors.push(dist / r);
-                radius_errors.push((found.disks[k].r - r).abs());
-            }
-        }
-    }
+    let matched = match_disks(scene, &photo.frame, &found.disks, |r| 0.25 * r);
+    let disk_of_grain = &matched.disk_of_grain;
+    let mut errors: Vec<f64> = (matched.pairs.iter())
+        .map(|&(g, _, distance, _)| distance / (scene.grains[g].radius.unwrap() * PX_PER_M))
+        .collect();
+    let mut radius_errors: Vec<f64> = matched.pairs.iter().map(|p| p.3.abs()).collect();
     if std::env::var_os("GRAINFORCE_VERBOSE").is_some() {
         for (g, k) in disk_of_grain.iter().enumerate() {
             if k.is_none() {
@@ -160,24 +143,8 @@ fn score(photo: &Photo, found: &DetectedFrame) -> Score {
     }
     errors.sort_by(f64::total_cmp);
     radius_errors.sort_by(f64::total_cmp);
+    let (truth, detected) = matched.contact_pairs(scene, &found.contacts);
     let key = |a: usize, b: usize| (a.min(b), a.max(b));
-    let truth: Vec<(usize, usize)> = scene
-        .contacts
-        .iter()
-        .filter_map(|c| match c.b {
-            Body::Grain(b) => Some((disk_of_grain[c.a]?, disk_of_grain[b]?)),
-            Body::Wall(_) => None,
-        })
-        .map(|(a, b)| key(a, b))
-        .collect();
-    let detected: Vec<(usize, usize)> = found
-        .contacts
-        .iter()
-        .filter_map(|c| match c.b {
-            ContactBody::Disk(b) => Some(key(c.a, b)),
-            ContactBody::Wall(_) => None,
-        })
-        .collect();
     if std::env::var_os("GRAINFORCE_VERBOSE").is_some() && !found.rims.is_empty() {
         for t in &truth {
             if !detected.contains(t) {
@@ -204,10 +171,8 @@ fn score(photo: &Photo, found: &DetectedFrame) -> Score {
                 }
             }
         }
-        for (k, d) in found.disks.iter().enumerate() {
-            if !used[k] {
-                println!("  false disk {d:?}");
-            }
+        for &k in &matched.unmatched_disks {
+            println!("  false disk {:?}", found.disks[k]);
         }
         for (g, k) in disk_of_grain.iter().enumerate() {
             if let Some(k) = k {

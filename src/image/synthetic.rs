@@ -1,8 +1,12 @@
 //! Synthetic scenes with exactly known geometry, for tests and benchmarks of
 //! the image pipeline: random packings of disks where every contact is an
-//! exact tangency and every non-contact gap is clearly open.
+//! exact tangency and every non-contact gap is clearly open, and the matching
+//! of a detection back to such a scene.
 
+use super::contacts::{ContactBody, PixelContact};
+use super::detect::Disk;
 use super::elastic::Elasticity;
+use super::PixelFrame;
 use crate::error::{Error, Result};
 use crate::scene::{Body, Contact, Grain, Scene};
 use rand::{Rng, SeedableRng};
@@ -178,4 +182,144 @@ fn circle_intersections(c0: [f64; 2], r0: f64, c1: [f64; 2], r1: f64) -> Option<
         [m[0] - h * u[1], m[1] + h * u[0]],
         [m[0] + h * u[1], m[1] - h * u[0]],
     ])
+}
+
+/// Two detected disks in contact, the smaller index first.
+pub type DiskPair = (usize, usize);
+
+/// A detection matched to the scene it was rendered from, for scoring a
+/// detector against exact geometry.
+#[derive(Debug, Clone, Default)]
+pub struct DetectionMatch {
+    /// The detected disk of each grain, when one lay close enough.
+    pub disk_of_grain: Vec<Option<usize>>,
+    /// Each match in grain order: grain, disk, centre distance [px] and
+    /// detected minus true radius [px].
+    pub pairs: Vec<(usize, usize, f64, f64)>,
+    /// Detected disks that match no grain.
+    pub unmatched_disks: Vec<usize>,
+}
+
+/// Matches grains to detected disks, grain by grain: the nearest disk not yet
+/// taken, when its centre lies within `max_distance(radius in px)` px of the
+/// grain's (grains without a radius count as radius 0).
+pub fn match_disks(
+    scene: &Scene,
+    frame: &PixelFrame,
+    disks: &[Disk],
+    max_distance: impl Fn(f64) -> f64,
+) -> DetectionMatch {
+    let mut taken = vec![false; disks.len()];
+    let mut disk_of_grain = vec![None; scene.grains.len()];
+    let mut pairs = Vec::new();
+    for (g, grain) in scene.grains.iter().enumerate() {
+        let p = frame.to_pixel([grain.position[0], grain.position[1]]);
+        let r = grain.radius.unwrap_or(0.0) * frame.px_per_m;
+        let nearest = (disks.iter().enumerate())
+            .filter(|(k, _)| !taken[*k])
+            .map(|(k, d)| (k, (d.x - p[0]).hypot(d.y - p[1])))
+            .min_by(|a, b| a.1.total_cmp(&b.1));
+        if let Some((k, distance)) = nearest {
+            if distance < max_distance(r) {
+                taken[k] = true;
+                disk_of_grain[g] = Some(k);
+                pairs.push((g, k, distance, disks[k].r - r));
+            }
+        }
+    }
+    DetectionMatch {
+        disk_of_grain,
+        pairs,
+        unmatched_disks: (0..disks.len()).filter(|&k| !taken[k]).collect(),
+    }
+}
+
+impl DetectionMatch {
+    /// The scene's grain–grain contacts between matched grains and the
+    /// detected disk–disk contacts, both as disk pairs (smaller index first).
+    pub fn contact_pairs(
+        &self,
+        scene: &Scene,
+        found: &[PixelContact],
+    ) -> (Vec<DiskPair>, Vec<DiskPair>) {
+        let key = |a: usize, b: usize| (a.min(b), a.max(b));
+        let disk = |g: usize| self.disk_of_grain.get(g).copied().flatten();
+        let truth = (scene.contacts.iter())
+            .filter_map(|c| match c.b {
+                Body::Grain(b) => Some(key(disk(c.a)?, disk(b)?)),
+                Body::Wall(_) => None,
+            })
+            .collect();
+        let detected = (found.iter())
+            .filter_map(|c| match c.b {
+                ContactBody::Disk(b) => Some(key(c.a, b)),
+                ContactBody::Wall(_) => None,
+            })
+            .collect();
+        (truth, detected)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Three touching disks; the detection finds two of them (one exact, one
+    /// 1 px off and 1 px too large) and a disk far from every grain.
+    #[test]
+    fn disks_match_nearest_first_within_the_distance_and_contacts_pair_up() {
+        let scene = touching_disks(&PackingSpec {
+            width: 0.3,
+            height: 0.3,
+            radius_min: 0.03,
+            radius_max: 0.03,
+            count: 3,
+            min_gap: 0.005,
+            seed: 4,
+        })
+        .unwrap();
+        assert_eq!(scene.grains.len(), 3);
+        let frame = PixelFrame::around([0.0, 0.0], [0.3, 0.3], 1000.0, 10.0).unwrap();
+        let at = |g: usize, dx: f64| {
+            let p = frame.to_pixel([scene.grains[g].position[0], scene.grains[g].position[1]]);
+            Disk {
+                x: p[0] + dx,
+                y: p[1],
+                r: 31.0,
+                support: 1.0,
+                visible: 1.0,
+                contrast: 1.0,
+                rms: 0.1,
+            }
+        };
+        let far = Disk {
+            x: -500.0,
+            ..at(0, 0.0)
+        };
+        let disks = [far, at(1, 1.0), at(0, 0.0)];
+        let matched = match_disks(&scene, &frame, &disks, |r| 0.25 * r);
+        assert_eq!(matched.disk_of_grain, vec![Some(2), Some(1), None]);
+        assert_eq!(matched.unmatched_disks, vec![0]);
+        let (g, k, distance, dr) = matched.pairs[1];
+        assert_eq!((g, k), (1, 1));
+        assert!((distance - 1.0).abs() < 1e-9 && (dr - 1.0).abs() < 1e-9);
+        // Within 0.5 px only the exact disk matches.
+        let strict = match_disks(&scene, &frame, &disks, |_| 0.5);
+        assert_eq!(strict.disk_of_grain, vec![Some(2), None, None]);
+
+        let found = [PixelContact {
+            a: 1,
+            b: ContactBody::Disk(2),
+            point: [0.0; 2],
+            normal: [1.0, 0.0],
+            gap: 0.0,
+        }];
+        let (truth, detected) = matched.contact_pairs(&scene, &found);
+        let touching_01 = scene
+            .contacts
+            .iter()
+            .any(|c| (c.a, c.b) == (0, Body::Grain(1)) || (c.a, c.b) == (1, Body::Grain(0)));
+        assert_eq!(truth, if touching_01 { vec![(1, 2)] } else { vec![] });
+        assert_eq!(detected, vec![(1, 2)]);
+    }
 }
