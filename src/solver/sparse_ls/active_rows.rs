@@ -134,6 +134,19 @@ impl Changes {
         }
     }
 
+    /// No change: a factor just computed holds exactly the current rows.
+    pub(super) fn unchanged(rows: usize) -> Self {
+        Changes {
+            kept: vec![true; rows],
+            added: Vec::new(),
+            added_springs: Vec::new(),
+            removed: Vec::new(),
+            removed_springs: Vec::new(),
+            stale: Vec::new(),
+            stale_springs: 0,
+        }
+    }
+
     /// Rows and springs to border (stale ones are not).
     pub(super) fn count(&self) -> usize {
         self.added.len()
@@ -233,4 +246,54 @@ fn row_change(
     (mo.range(j).zip(mn.range(i)))
         .map(|(p, q)| (scaled(mo, p) * to - scaled(mn, q) * tn).abs())
         .fold(0.0, f64::max)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 3D sliding contact on unknowns (0, 1, 2): its face row and the spring
+    /// across its sliding direction θ.
+    fn contact(theta: f64, stiffness: f64) -> ActiveRows {
+        let (mut g, mut r) = (Triplets::new(1, 3), Triplets::new(1, 3));
+        let norm = 1.25f64.sqrt();
+        g.push(0, 0, 0.5 / norm);
+        g.push(0, 1, -theta.cos() / norm);
+        g.push(0, 2, -theta.sin() / norm);
+        r.push(0, 1, -theta.sin() * stiffness.sqrt());
+        r.push(0, 2, theta.cos() * stiffness.sqrt());
+        ActiveRows::new(3, &g, &r, &[1.0; 3])
+    }
+
+    #[test]
+    fn rows_that_turned_a_little_are_stale_and_far_ones_change() {
+        let old = contact(0.3, 4.0);
+        let same = Changes::between(&old, &contact(0.3, 4.0), &[1.0; 3]);
+        assert!(same.kept == [true] && same.count() == 0 && !same.any_stale());
+
+        let turned = Changes::between(&old, &contact(0.35, 4.4), &[1.0; 3]);
+        assert_eq!(turned.kept, [true]);
+        assert_eq!(
+            (turned.stale.as_slice(), turned.stale_springs),
+            (&[(0, 0)][..], 1)
+        );
+        assert_eq!(turned.count(), 0);
+
+        // A radian: row and spring both replaced, bordered both ways.
+        let far = Changes::between(&old, &contact(1.3, 4.0), &[1.0; 3]);
+        assert_eq!(far.kept, [false]);
+        assert!(!far.any_stale());
+        assert_eq!((far.added.len(), far.removed.len()), (1, 1));
+        assert_eq!((far.added_springs.len(), far.removed_springs.len()), (1, 1));
+
+        // A spring far weaker than the Hessian's unit diagonal may change by
+        // any factor; a stiff one by the same factor may not.
+        let weak = Changes::between(&contact(0.3, 1e-4), &contact(0.3, 4e-4), &[1.0; 3]);
+        assert_eq!((weak.stale_springs, weak.added_springs.len()), (1, 0));
+        let stiff = Changes::between(&contact(0.3, 4.0), &contact(0.3, 16.0), &[1.0; 3]);
+        assert_eq!((stiff.stale_springs, stiff.added_springs.len()), (0, 1));
+
+        let none = Changes::unchanged(2);
+        assert!(none.kept == [true, true] && none.count() == 0 && !none.any_stale());
+    }
 }
