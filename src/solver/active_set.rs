@@ -358,7 +358,7 @@ pub fn solve_from(
     ls.set_refinement_target(CONVERGED_TOL);
     let initial = match warm.filter(|w| w.0.len() == contacts.len()) {
         Some(w) => Some(w.0.clone()),
-        None if settings.predict => predict::pieces(problem, &contacts, start, &diag),
+        None if settings.predict => predict::pieces(problem, &contacts, start, &diag, &rho),
         None => None,
     };
     let outcome = iterate(

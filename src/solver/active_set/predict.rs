@@ -167,18 +167,20 @@ impl<const K: usize> Stencils<K> {
     }
 }
 
-/// The pieces the relaxed correction lands on. `diag` is diag(AᵀA + λ²I).
+/// The pieces the relaxed correction lands on. `diag` is diag(AᵀA + λ²I),
+/// `rho` each contact's ρ of the Newton iteration (for the 3D springs).
 /// `None` when the stencils do not fit (more than 2³² rows).
 pub(super) fn pieces(
     problem: &LeastSquares,
     contacts: &[Contact],
     start: &[f64],
     diag: &[f64],
+    rho: &[f64],
 ) -> Option<Vec<Piece>> {
     if contacts.iter().any(|ct| ct.tangents.len() > 1) {
-        pieces_in::<3>(problem, contacts, start, diag)
+        pieces_in::<3>(problem, contacts, start, diag, rho)
     } else {
-        pieces_in::<2>(problem, contacts, start, diag)
+        pieces_in::<2>(problem, contacts, start, diag, rho)
     }
 }
 
@@ -187,6 +189,7 @@ fn pieces_in<const K: usize>(
     contacts: &[Contact],
     start: &[f64],
     diag: &[f64],
+    rho: &[f64],
 ) -> Option<Vec<Piece>> {
     let LeastSquares { a, c, lambda, .. } = *problem;
     let mut pieces: Vec<Piece> = contacts
@@ -310,6 +313,26 @@ fn pieces_in<const K: usize>(
             }
         }
     }
+    // A 3D sliding contact's Newton step carries a spring across its sliding
+    // direction, stiffened by the cone's force v (κ = μα/τ of the projection
+    // of x − ρv). The relaxed gradient is that force's guess. Without it the
+    // first solve had no springs and the second added them all (10⁵ spheres:
+    // ~50 000). With them, 3D 10⁴ spheres, 30 % sliding, stress noise: 5
+    // solves (2 factorised) instead of 6 (3 factorised).
+    if K == 3 {
+        (guess.par_iter_mut().enumerate()).for_each(|(i, piece)| {
+            if !matches!(piece, Piece::Boundary { .. }) {
+                return;
+            }
+            let k = order[i];
+            let (force, grad) = (sweep.current(i, &delta[i]), sweep.gradient(i, &delta[i]));
+            let shifted: Vec<f64> = (0..K).map(|j| force[j] - rho[k] * grad[j]).collect();
+            let (sliding, _, _) = contacts[k].project(shifted[0], [shifted[1], shifted[2]]);
+            if matches!(sliding, Piece::Boundary { .. }) {
+                *piece = sliding;
+            }
+        });
+    }
     for (&k, piece) in order.iter().zip(guess) {
         pieces[k] = piece;
     }
@@ -335,10 +358,9 @@ fn load(row: &[AtomicU64; 2]) -> [f64; 2] {
 }
 
 impl<const K: usize> Sweep<'_, K> {
-    /// Moves contact k (its correction `delta`) to the minimum of its local
-    /// problem and updates its rows; returns whether its piece changed.
-    fn relax(&self, k: usize, delta: &mut [f64; K], piece: &mut Piece) -> bool {
-        let ct = &self.locals[k];
+    /// The relaxed objective's gradient over contact k's unknowns: the force
+    /// its cone would exert (the multipliers' guess).
+    fn gradient(&self, k: usize, delta: &[f64; K]) -> [f64; K] {
         let mut grad = [0.0; K];
         for i in 0..K {
             grad[i] = self.lambda2 * delta[i];
@@ -349,10 +371,25 @@ impl<const K: usize> Sweep<'_, K> {
                 grad[i] += v[i] * with_shift;
             }
         }
+        grad
+    }
+
+    /// Contact k's force: the start plus its correction.
+    fn current(&self, k: usize, delta: &[f64; K]) -> [f64; K] {
+        let ct = &self.locals[k];
         let mut current = [0.0; K];
         for i in 0..ct.count {
             current[i] = self.start[ct.unknowns[i]] + delta[i];
         }
+        current
+    }
+
+    /// Moves contact k (its correction `delta`) to the minimum of its local
+    /// problem and updates its rows; returns whether its piece changed.
+    fn relax(&self, k: usize, delta: &mut [f64; K], piece: &mut Piece) -> bool {
+        let ct = &self.locals[k];
+        let grad = self.gradient(k, delta);
+        let current = self.current(k, delta);
         let block = &self.blocks[k];
         // h = g − H x: the same quadratic with its origin at the apex.
         let mut h = [0.0; 3];
@@ -655,5 +692,105 @@ mod cone_tests {
                 assert!(value(&m, &h, &y) >= best - 1e-7, "{y:?} beats {z:?}");
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod spring_tests {
+    use super::super::{solve, ActiveSetSettings, Contact, Piece};
+    use crate::assemble::{assemble, AssembleOptions};
+    use crate::bench::{generate, perturb, Noise, PackingSpec};
+    use crate::infer::{cones, ConeModel};
+    use crate::solver::sparse_ls::{EqualityLeastSquares, Ordering};
+    use crate::solver::LeastSquares;
+
+    /// Spring stiffness k = (1 − κ)/(κρ) of a piece (0 off the boundary).
+    fn stiffness(piece: Piece, rho: f64) -> f64 {
+        match piece {
+            Piece::Boundary { kappa, .. } => (1.0 - kappa) / (kappa * rho),
+            _ => 0.0,
+        }
+    }
+
+    /// The guess gives 3D sliding contacts the spring of the cone's force,
+    /// close to the optimum's; with κ = 1 (no spring, as before) the first
+    /// solve's springs all differed from the second's.
+    #[test]
+    fn guessed_springs_are_near_the_optimum_springs() {
+        let mut spec = PackingSpec::new(3, 1000);
+        spec.shear = 0.5 * spec.mu;
+        spec.sliding = 0.3;
+        let packing = generate(&spec).unwrap();
+        let scene = perturb(&packing.scene, Noise::Stress, 18);
+        let assembly = assemble(&scene, &AssembleOptions::default()).unwrap();
+        let system = assembly.systems.iter().max_by_key(|s| s.n).unwrap();
+        let cone_list = cones(system, ConeModel::Exact);
+        let problem = LeastSquares {
+            a: &system.stress,
+            b: &system.stress_rhs,
+            c: &system.momentum,
+            d: &system.momentum_rhs,
+            lambda: 0.0,
+        };
+        let mut ls = EqualityLeastSquares::with_ordering(
+            problem.a,
+            problem.c,
+            &system.contact_blocks(),
+            Ordering::for_dim(3),
+        )
+        .unwrap();
+        let start = ls
+            .solve(problem.a, problem.c, problem.b, problem.d, 0.0)
+            .unwrap();
+        let optimum = solve(
+            &mut ls,
+            &problem,
+            &cone_list,
+            &start.x,
+            &ActiveSetSettings::default(),
+        )
+        .unwrap();
+        assert!(optimum.converged, "{:?}", optimum.reason);
+
+        let contacts: Vec<Contact> = cone_list.iter().map(|c| Contact::of(c).unwrap()).collect();
+        let mut diag = vec![0.0; system.n];
+        for q in 0..problem.a.nnz() {
+            diag[problem.a.cols[q]] += problem.a.vals[q].powi(2);
+        }
+        // ρ as the Newton iteration takes it: RHO_FACTOR over the mean diagonal.
+        let rho: Vec<f64> = (contacts.iter())
+            .map(|ct| {
+                let idx: Vec<usize> = std::iter::once(ct.normal)
+                    .chain(ct.tangents.clone())
+                    .collect();
+                super::super::RHO_FACTOR * idx.len() as f64
+                    / idx.iter().map(|&j| diag[j]).sum::<f64>()
+            })
+            .collect();
+        let guess = super::pieces(&problem, &contacts, &start.x, &diag, &rho).unwrap();
+        // Log-ratios of guessed to optimal stiffness where both slide.
+        let mut logs: Vec<f64> = (0..contacts.len())
+            .filter_map(|k| {
+                let (g, o) = (
+                    stiffness(guess[k], rho[k]),
+                    stiffness(optimum.pieces.0[k], rho[k]),
+                );
+                (g > 0.0 && o > 0.0).then(|| (g / o).ln().abs())
+            })
+            .collect();
+        let sliding = optimum.sliding;
+        assert!(
+            logs.len() >= sliding * 9 / 10,
+            "{} of {sliding} sliding contacts have a guessed spring",
+            logs.len()
+        );
+        logs.sort_by(f64::total_cmp);
+        let median = logs[logs.len() / 2];
+        let p90 = logs[logs.len() * 9 / 10];
+        eprintln!(
+            "{} springs: |ln(guess/optimum)| median {median:.3}, 90th percentile {p90:.3}",
+            logs.len()
+        );
+        assert!(median < 0.2 && p90 < 0.7, "median {median}, p90 {p90}");
     }
 }
