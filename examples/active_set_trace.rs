@@ -102,7 +102,11 @@ fn main() -> grainforce::Result<()> {
                     h.changed,
                     h.residual,
                     h.seconds,
-                    if h.bordered { "bordered" } else { "factorised" }
+                    if h.reused_factor {
+                        "reused"
+                    } else {
+                        "factorised"
+                    }
                 );
             }
             if let Some(r) = sol.reason {

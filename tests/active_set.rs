@@ -184,7 +184,7 @@ fn bordered_and_refactorised_active_rows_agree_with_a_dense_solve() {
             .solve_with_active(&a, &c, &b, &[1.0], lambda, &g, &r)
             .unwrap();
         assert!(sol.solution.converged, "{bordering:?}");
-        assert_eq!(sol.bordered, bordering == Bordering::Always);
+        assert_eq!(sol.reused_factor, bordering == Bordering::Always);
         assert!(sol.solution.refinement_steps <= 2, "{bordering:?}: {sol:?}");
         for i in 0..n {
             assert!(
@@ -254,13 +254,16 @@ fn changed_active_rows_bordered_around_a_factor_holding_others_match_a_dense_sol
     let first = ls
         .solve_with_active(&a, &c, &b, &d, lambda, &g1, &r1)
         .unwrap();
-    assert!(first.solution.converged && !first.bordered);
+    assert!(first.solution.converged && !first.reused_factor);
 
     // A bordered solve of (g, r) on `ls`: the dense KKT answer and multipliers.
     ls.set_bordering(Bordering::Always);
     let mut bordered_matches_dense = |g: &Triplets, r: &Triplets, what: &str| {
         let sol = ls.solve_with_active(&a, &c, &b, &d, lambda, g, r).unwrap();
-        assert!(sol.bordered && sol.solution.converged, "{what}: {sol:?}");
+        assert!(
+            sol.reused_factor && sol.solution.converged,
+            "{what}: {sol:?}"
+        );
         assert!(sol.solution.refinement_steps <= 3, "{what}: {sol:?}");
         assert_dense_answer((&a, &c, &b[..], &d[..], lambda), g, r, &sol, 1e-12, what);
     };
@@ -358,7 +361,7 @@ fn rows_that_turned_a_little_are_held_stale_and_give_the_dense_answer() {
         let first = ls
             .solve_with_active(&a, &c, &b, &d, lambda, &g0, &r0)
             .unwrap();
-        assert!(!first.bordered);
+        assert!(!first.reused_factor);
         check(&first, &g0, &r0, "first");
         // Turned by 0.05 rad and 10 % stiffer (held stale), then by a radian
         // (far beyond the stale tolerance: bordered): reused with Always,
@@ -371,7 +374,7 @@ fn rows_that_turned_a_little_are_held_stale_and_give_the_dense_answer() {
                 .unwrap();
             if bordering != Bordering::Auto {
                 let reused = bordering == Bordering::Always;
-                assert_eq!(sol.bordered, reused, "{bordering:?}, {what}: {sol:?}");
+                assert_eq!(sol.reused_factor, reused, "{bordering:?}, {what}: {sol:?}");
             }
             check(&sol, &g, &r, &format!("{bordering:?}, {what}"));
         }

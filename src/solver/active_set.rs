@@ -117,9 +117,10 @@ pub struct ActiveSetStep {
     pub residual: f64,
     /// Wall-clock time of the linear solve (factorisation and refinement) [s].
     pub seconds: f64,
-    /// The rows that changed since the last factorisation were bordered
-    /// around it (no new factorisation).
-    pub bordered: bool,
+    /// No new factorisation: the last one served, the rows that changed
+    /// since bordered around it or held stale (see
+    /// [`ActiveLsSolution::reused_factor`](super::sparse_ls::ActiveLsSolution::reused_factor)).
+    pub reused_factor: bool,
 }
 
 /// Which piece of its cone a contact's force lies on.
@@ -452,7 +453,7 @@ fn iterate(
             changed: 0,
             residual: f64::NAN,
             seconds: clock.elapsed().as_secs_f64(),
-            bordered: sol.bordered,
+            reused_factor: sol.reused_factor,
         });
         let x_full = sol.solution.x;
         // v_c = Σ y_i a_i over the contact's rows.

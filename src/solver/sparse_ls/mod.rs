@@ -159,7 +159,7 @@ pub struct ActiveLsSolution {
     /// that changed since bordered around it and those that only turned a
     /// little (a 3D sliding direction) held stale, GMRES on the factor then
     /// solving the exact system; see [`Bordering`].
-    pub bordered: bool,
+    pub reused_factor: bool,
 }
 
 /// Symbolic analysis of the KKT pattern plus the cached numeric factorisation.
@@ -356,7 +356,7 @@ impl EqualityLeastSquares {
                     kkt_residual: if equality_residual == 0.0 { 0.0 } else { 1.0 },
                 },
                 multipliers: vec![0.0; g.nrows],
-                bordered: false,
+                reused_factor: false,
             });
         }
         // δ ladder: the first δ suits almost everything; a larger one trades
@@ -415,7 +415,7 @@ impl EqualityLeastSquares {
                 kkt_residual,
             },
             multipliers: best.multipliers,
-            bordered: best.bordered,
+            reused_factor: best.reused_factor,
         })
     }
 }

@@ -19,7 +19,7 @@ pub(super) struct Attempt {
     pub(super) dual: f64,
     pub(super) primal: f64,
     pub(super) steps: usize,
-    pub(super) bordered: bool,
+    pub(super) reused_factor: bool,
 }
 
 impl Attempt {
@@ -58,7 +58,7 @@ impl EqualityLeastSquares {
         springs: &Triplets,
     ) -> Result<Attempt> {
         match self.attempt_on(a, c, b, d, lambda, delta, g, springs, true) {
-            Ok(att) if !att.bordered || att.rho() <= CONVERGED_TOL => Ok(att),
+            Ok(att) if !att.reused_factor || att.rho() <= CONVERGED_TOL => Ok(att),
             Ok(_) | Err(Error::Solver(_)) => {
                 self.attempt_on(a, c, b, d, lambda, delta, g, springs, false)
             }
@@ -308,7 +308,7 @@ impl EqualityLeastSquares {
             dual: best.1,
             primal: best.2,
             steps,
-            bordered: border || stale,
+            reused_factor: border || stale,
         })
     }
 
