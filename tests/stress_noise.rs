@@ -3,6 +3,7 @@
 
 mod common;
 use common::fixture;
+use grainforce::bench::noise::{STRESS_BIAS, STRESS_SCATTER};
 use grainforce::dem::perturb::{perturb, PerturbConfig};
 use grainforce::infer::{infer, InferOptions, Method, StressNoise};
 use grainforce::report::metrics::relative_error;
@@ -273,7 +274,8 @@ fn relative_model_on_eq_2_16_noise_sheared_dem_1000_spheres() {
 }
 
 /// The best a row weighting can do on eq. 2.16 data: the 15 % scale removed
-/// and every component weighted by its true sd (0.1·|exact|, as `columns`).
+/// and every component weighted by its true sd (the scatter times |exact|,
+/// as `columns`).
 fn oracle(exact: &Scene, noisy: &Scene) -> Scene {
     let mut s = noisy.clone();
     let comps = sym::components(s.dim);
@@ -281,8 +283,8 @@ fn oracle(exact: &Scene, noisy: &Scene) -> Scene {
     for (g, e) in s.grains.iter_mut().zip(&exact.grains) {
         let mut sd = [0.0; 6];
         for &k in comps {
-            g.stress[k] /= 1.15;
-            sd[k] = 0.1 * e.stress[k].abs() + 1e-3 * rms;
+            g.stress[k] /= 1.0 + STRESS_BIAS;
+            sd[k] = STRESS_SCATTER * e.stress[k].abs() + 1e-3 * rms;
         }
         g.stress_sd = Some(sd);
     }

@@ -5,6 +5,11 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 
+/// Eq. 2.16's stress error: the modulus overestimated by this share...
+pub const STRESS_BIAS: f64 = 0.15;
+/// ...and this relative scatter (sd of a normal factor) per component.
+pub const STRESS_SCATTER: f64 = 0.1;
+
 /// Which measurement error a benchmark case carries.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
@@ -50,7 +55,7 @@ pub fn perturb(scene: &Scene, noise: Noise, seed: u64) -> Scene {
         Noise::Stress => {
             for g in &mut s.grains {
                 for &k in scene::sym::components(dim) {
-                    g.stress[k] *= 1.0 + 0.15 + 0.1 * unit.sample(&mut rng);
+                    g.stress[k] *= 1.0 + STRESS_BIAS + STRESS_SCATTER * unit.sample(&mut rng);
                 }
             }
         }

@@ -44,8 +44,8 @@ impl PerturbConfig {
     /// The original study's model: b ← b + (0.15 + N(0, 0.1))·b.
     pub fn original_study(seed: u64) -> Self {
         PerturbConfig {
-            stress_bias: 0.15,
-            stress_noise: 0.1,
+            stress_bias: crate::bench::noise::STRESS_BIAS,
+            stress_noise: crate::bench::noise::STRESS_SCATTER,
             seed,
             ..Default::default()
         }
