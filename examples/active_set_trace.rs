@@ -15,8 +15,8 @@ use grainforce::bench::{generate, perturb, Noise, PackingSpec};
 use grainforce::infer::{infer, ConstrainedSolver, InferOptions};
 use grainforce::report::metrics::relative_error;
 use grainforce::scene::read_scene;
+use grainforce::solver::active_set;
 use grainforce::solver::sparse_ls::{EqualityLeastSquares, Ordering};
-use grainforce::solver::{active_set, LeastSquares};
 use std::time::Instant;
 
 fn main() -> grainforce::Result<()> {
@@ -72,13 +72,7 @@ fn main() -> grainforce::Result<()> {
                 0.0,
             )?;
             let t_ls = t.elapsed().as_secs_f64();
-            let problem = LeastSquares {
-                a: &system.stress,
-                b: &system.stress_rhs,
-                c: &system.momentum,
-                d: &system.momentum_rhs,
-                lambda: 0.0,
-            };
+            let problem = system.least_squares(0.0);
             let settings = active_set::ActiveSetSettings {
                 predict,
                 ..Default::default()

@@ -597,14 +597,8 @@ fn active_set_after_least_squares(
     warm: Option<&grainforce::solver::active_set::ActivePieces>,
     settings: &grainforce::solver::active_set::ActiveSetSettings,
 ) -> grainforce::solver::active_set::ActiveSetSolution {
-    use grainforce::solver::{active_set, LeastSquares};
-    let problem = LeastSquares {
-        a: &system.stress,
-        b: &system.stress_rhs,
-        c: &system.momentum,
-        d: &system.momentum_rhs,
-        lambda,
-    };
+    use grainforce::solver::active_set;
+    let problem = system.least_squares(lambda);
     let start = ls
         .solve(problem.a, problem.c, problem.b, problem.d, lambda)
         .unwrap();

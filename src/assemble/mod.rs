@@ -12,7 +12,7 @@ mod cluster;
 
 use crate::error::{Error, Result};
 use crate::scene::{self, Body, Scene, Vec3};
-use crate::solver::Triplets;
+use crate::solver::{LeastSquares, Triplets};
 
 /// How a contact's force is constrained.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -93,6 +93,18 @@ impl System {
             }
         }
         blocks
+    }
+
+    /// The static problem (eq. 2.14) in the solvers' terms: the stress rows
+    /// fitted, momentum balance imposed, Tikhonov λ.
+    pub fn least_squares(&self, lambda: f64) -> LeastSquares<'_> {
+        LeastSquares {
+            a: &self.stress,
+            b: &self.stress_rhs,
+            c: &self.momentum,
+            d: &self.momentum_rhs,
+            lambda,
+        }
     }
 
     /// The physical force (on grain a by b) of each modelled contact.

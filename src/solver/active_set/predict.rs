@@ -702,7 +702,6 @@ mod spring_tests {
     use crate::bench::{generate, perturb, Noise, PackingSpec};
     use crate::infer::{cones, ConeModel};
     use crate::solver::sparse_ls::{EqualityLeastSquares, Ordering};
-    use crate::solver::LeastSquares;
 
     /// Spring stiffness k = (1 − κ)/(κρ) of a piece (0 off the boundary).
     fn stiffness(piece: Piece, rho: f64) -> f64 {
@@ -725,13 +724,7 @@ mod spring_tests {
         let assembly = assemble(&scene, &AssembleOptions::default()).unwrap();
         let system = assembly.systems.iter().max_by_key(|s| s.n).unwrap();
         let cone_list = cones(system, ConeModel::Exact);
-        let problem = LeastSquares {
-            a: &system.stress,
-            b: &system.stress_rhs,
-            c: &system.momentum,
-            d: &system.momentum_rhs,
-            lambda: 0.0,
-        };
+        let problem = system.least_squares(0.0);
         let mut ls = EqualityLeastSquares::with_ordering(
             problem.a,
             problem.c,
