@@ -326,9 +326,10 @@ fn pieces_in<const K: usize>(
             }
             let k = order[i];
             let (force, grad) = (sweep.current(i, &delta[i]), sweep.gradient(i, &delta[i]));
-            let shifted: Vec<f64> = (0..K).map(|j| force[j] - rho[k] * grad[j]).collect();
-            let (sliding, _, _) = contacts[k].project(shifted[0], [shifted[1], shifted[2]]);
-            if matches!(sliding, Piece::Boundary { .. }) {
+            let shifted = |j: usize| force[j] - rho[k] * grad[j];
+            let (sliding, _, _) = contacts[k].project(shifted(0), [shifted(1), shifted(2)]);
+            // A non-finite force keeps the guess's piece without a spring.
+            if matches!(sliding, Piece::Boundary { kappa, dir } if kappa.is_finite() && dir.iter().all(|d| d.is_finite())) {
                 *piece = sliding;
             }
         });
