@@ -229,6 +229,20 @@ impl Contact {
 }
 
 impl Contact {
+    /// The natural residual ‖x_c − Π_K(x_c − ρ v_c)‖ of the contact's force
+    /// x_c = (n, t) against its cone's force v_c, and the piece that
+    /// projection lands on (with κ for the 3D spring).
+    fn natural(
+        &self,
+        (xn, xt): (f64, [f64; 2]),
+        (vn, vt): (f64, [f64; 2]),
+        rho: f64,
+    ) -> (f64, Piece) {
+        let (piece, pn, pt) =
+            self.project(xn - rho * vn, [xt[0] - rho * vt[0], xt[1] - rho * vt[1]]);
+        ((pn - xn).hypot((pt[0] - xt[0]).hypot(pt[1] - xt[1])), piece)
+    }
+
     /// The Newton linearisation of the 3D cone's projection on its boundary
     /// adds, besides the tangent plane, a spring on the tangential component
     /// across the sliding direction: v⊥ = −k x⊥ with k = (1 − κ)/(κρ). Returned
@@ -318,7 +332,7 @@ pub fn solve_from(
     warm: Option<&ActivePieces>,
     settings: &ActiveSetSettings,
 ) -> Result<ActiveSetSolution> {
-    let LeastSquares { a, lambda, .. } = *problem;
+    let a = problem.a;
     if settings.max_iterations == 0 || !(settings.tolerance > 0.0 && settings.tolerance < 1.0) {
         return Err(Error::Invalid(format!(
             "active set: need at least one solve and a tolerance in (0, 1), got {} and {}",
@@ -332,28 +346,10 @@ pub fn solve_from(
             a.ncols
         )));
     }
-    let n = a.ncols;
     let Some(contacts) = cones.iter().map(Contact::of).collect::<Option<Vec<_>>>() else {
         return Ok(fail(start.to_vec(), Vec::new(), StopReason::PyramidalCones));
     };
-    // ρ_c = RHO_FACTOR / (mean diagonal of AᵀA + λ² over the contact's
-    // unknowns): the step that turns a multiplier (a gradient) into a force.
-    let mut diag = vec![lambda * lambda; n];
-    for k in 0..a.nnz() {
-        diag[a.cols[k]] += a.vals[k] * a.vals[k];
-    }
-    let rho: Vec<f64> = contacts
-        .iter()
-        .map(|ct| {
-            let idx = std::iter::once(ct.normal).chain(ct.tangents.iter().copied());
-            let h = idx.clone().map(|j| diag[j]).sum::<f64>() / idx.count() as f64;
-            if h > 0.0 && h.is_finite() {
-                RHO_FACTOR / h
-            } else {
-                1.0
-            }
-        })
-        .collect();
+    let (diag, rho) = diagonal_and_rho(problem, &contacts);
 
     // Each solve only needs the accuracy at which convergence is declared.
     ls.set_refinement_target(CONVERGED_TOL);
@@ -367,6 +363,30 @@ pub fn solve_from(
     );
     ls.set_refinement_target(0.0);
     outcome
+}
+
+/// diag(AᵀA + λ²I), and each contact's ρ_c = RHO_FACTOR / (mean of that
+/// diagonal over its unknowns): the step that turns a multiplier (a
+/// gradient) into a force.
+fn diagonal_and_rho(problem: &LeastSquares, contacts: &[Contact]) -> (Vec<f64>, Vec<f64>) {
+    let LeastSquares { a, lambda, .. } = *problem;
+    let mut diag = vec![lambda * lambda; a.ncols];
+    for k in 0..a.nnz() {
+        diag[a.cols[k]] += a.vals[k] * a.vals[k];
+    }
+    let rho = contacts
+        .iter()
+        .map(|ct| {
+            let idx = std::iter::once(ct.normal).chain(ct.tangents.iter().copied());
+            let h = idx.clone().map(|j| diag[j]).sum::<f64>() / idx.count() as f64;
+            if h > 0.0 && h.is_finite() {
+                RHO_FACTOR / h
+            } else {
+                1.0
+            }
+        })
+        .collect();
+    (diag, rho)
 }
 
 /// An unconverged outcome.
@@ -402,13 +422,7 @@ fn iterate(
     // and the piece that projection lands on.
     let natural = |x: &[f64], v: &[(f64, [f64; 2])], k: usize| -> (f64, Piece) {
         let ct = &contacts[k];
-        let (xn, xt) = ct.split(x);
-        let (vn, vt) = v[k];
-        let (piece, pn, pt) = ct.project(
-            xn - rho[k] * vn,
-            [xt[0] - rho[k] * vt[0], xt[1] - rho[k] * vt[1]],
-        );
-        ((pn - xn).hypot((pt[0] - xt[0]).hypot(pt[1] - xt[1])), piece)
+        ct.natural(ct.split(x), v[k], rho[k])
     };
     let merit = |x: &[f64], v: &[(f64, [f64; 2])]| -> f64 {
         (0..contacts.len())

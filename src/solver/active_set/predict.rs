@@ -326,8 +326,11 @@ fn pieces_in<const K: usize>(
             }
             let k = order[i];
             let (force, grad) = (sweep.current(i, &delta[i]), sweep.gradient(i, &delta[i]));
-            let shifted = |j: usize| force[j] - rho[k] * grad[j];
-            let (sliding, _, _) = contacts[k].project(shifted(0), [shifted(1), shifted(2)]);
+            let (_, sliding) = contacts[k].natural(
+                (force[0], [force[1], force[2]]),
+                (grad[0], [grad[1], grad[2]]),
+                rho[k],
+            );
             // A non-finite force keeps the guess's piece without a spring.
             if matches!(sliding, Piece::Boundary { kappa, dir } if kappa.is_finite() && dir.iter().all(|d| d.is_finite())) {
                 *piece = sliding;
@@ -698,11 +701,11 @@ mod cone_tests {
 
 #[cfg(test)]
 mod spring_tests {
-    use super::super::{solve, ActiveSetSettings, Contact, Piece};
+    use super::super::{diagonal_and_rho, solve, ActiveSetSettings, Contact, Piece};
     use crate::assemble::{assemble, AssembleOptions};
     use crate::bench::{generate, perturb, Noise, PackingSpec};
     use crate::infer::{cones, ConeModel};
-    use crate::solver::sparse_ls::{EqualityLeastSquares, Ordering};
+    use crate::solver::sparse_ls::{EqualityLeastSquares, Ordering, STALE_TOL};
 
     /// Spring stiffness k = (1 − κ)/(κρ) of a piece (0 off the boundary).
     fn stiffness(piece: Piece, rho: f64) -> f64 {
@@ -747,44 +750,35 @@ mod spring_tests {
         assert!(optimum.converged, "{:?}", optimum.reason);
 
         let contacts: Vec<Contact> = cone_list.iter().map(|c| Contact::of(c).unwrap()).collect();
-        let mut diag = vec![0.0; system.n];
-        for q in 0..problem.a.nnz() {
-            diag[problem.a.cols[q]] += problem.a.vals[q].powi(2);
-        }
-        // ρ as the Newton iteration takes it: RHO_FACTOR over the mean diagonal.
-        let rho: Vec<f64> = (contacts.iter())
-            .map(|ct| {
-                let idx: Vec<usize> = std::iter::once(ct.normal)
-                    .chain(ct.tangents.clone())
-                    .collect();
-                super::super::RHO_FACTOR * idx.len() as f64
-                    / idx.iter().map(|&j| diag[j]).sum::<f64>()
-            })
-            .collect();
+        let (diag, rho) = diagonal_and_rho(&problem, &contacts);
         let guess = super::pieces(&problem, &contacts, &start.x, &diag, &rho).unwrap();
         // Log-ratios of guessed to optimal stiffness where both slide.
-        let mut logs: Vec<f64> = (0..contacts.len())
+        // Guessed/optimal stiffness where both slide.
+        let ratios: Vec<f64> = (0..contacts.len())
             .filter_map(|k| {
                 let (g, o) = (
                     stiffness(guess[k], rho[k]),
                     stiffness(optimum.pieces.0[k], rho[k]),
                 );
-                (g > 0.0 && o > 0.0).then(|| (g / o).ln().abs())
+                (g > 0.0 && o > 0.0).then_some(g / o)
             })
             .collect();
         let sliding = optimum.sliding;
         assert!(
-            logs.len() >= sliding * 9 / 10,
+            ratios.len() >= sliding * 9 / 10,
             "{} of {sliding} sliding contacts have a guessed spring",
-            logs.len()
+            ratios.len()
         );
-        logs.sort_by(f64::total_cmp);
-        let median = logs[logs.len() / 2];
-        let p90 = logs[logs.len() * 9 / 10];
+        // What counts is that the factor can keep them: within the stale
+        // tolerance of the solves' factor reuse (measured: 355 of 419).
+        let kept = ratios
+            .iter()
+            .filter(|r| (*r - 1.0).abs() <= STALE_TOL)
+            .count();
         eprintln!(
-            "{} springs: |ln(guess/optimum)| median {median:.3}, 90th percentile {p90:.3}",
-            logs.len()
+            "{kept} of {} guessed springs within {STALE_TOL} of the optimum's",
+            ratios.len()
         );
-        assert!(median < 0.2 && p90 < 0.7, "median {median}, p90 {p90}");
+        assert!(4 * kept >= 3 * ratios.len(), "{kept} of {}", ratios.len());
     }
 }

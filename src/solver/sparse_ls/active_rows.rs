@@ -91,7 +91,7 @@ impl ActiveRows {
 /// 30 % sliding, stress noise): 0.05 and 0.3 both reuse the factor in the
 /// last three of six solves, 0.3 with 10 Krylov steps each against 7;
 /// 1 fails over to a new factor once.
-pub(super) const STALE_TOL: f64 = 0.3;
+pub(crate) const STALE_TOL: f64 = 0.3;
 
 /// How the current rows differ from those inside the factor.
 pub(super) struct Changes {

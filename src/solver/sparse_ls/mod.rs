@@ -48,6 +48,8 @@ mod symbolic;
 pub use identifiability::{identifiability, Identifiability};
 pub use spd::SpdFactor;
 
+#[cfg(test)]
+pub(crate) use active_rows::STALE_TOL;
 pub(crate) use checks::{check_finite, check_pair, check_triplets};
 
 use checks::{norm2, sub};
