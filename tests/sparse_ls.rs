@@ -4,9 +4,12 @@
 use std::path::Path;
 
 use grainforce::assemble::{assemble, AssembleOptions};
+use grainforce::bench::{generate, PackingSpec};
 use grainforce::dem::{simulate, DemConfig, Preset};
 use grainforce::scene::read_scene;
-use grainforce::solver::sparse_ls::{identifiability, EqualityLeastSquares, CONVERGED_TOL};
+use grainforce::solver::sparse_ls::{
+    identifiability, identifiability_with, EqualityLeastSquares, Ordering, CONVERGED_TOL,
+};
 use grainforce::solver::Triplets;
 use grainforce::Error;
 use nalgebra::{DMatrix, DVector};
@@ -495,6 +498,60 @@ fn identifiability_full_rank_and_planted_null_vectors() {
     let empty_col = identifiability(&a3, &c3).unwrap();
     assert!(!empty_col.unique);
     assert!(empty_col.null_vector.unwrap()[7].abs() > 1.0 - 1e-10);
+}
+
+/// Column `from` of `t` copied onto column `onto` (whose own entries are
+/// dropped): e_from − e_onto is then a null vector.
+fn copy_column(t: &Triplets, from: usize, onto: usize) -> Triplets {
+    let mut out = Triplets::new(t.nrows, t.ncols);
+    for k in 0..t.vals.len() {
+        if t.cols[k] != onto {
+            out.push(t.rows[k], t.cols[k], t.vals[k]);
+        }
+        if t.cols[k] == from {
+            out.push(t.rows[k], onto, t.vals[k]);
+        }
+    }
+    out
+}
+
+#[test]
+fn identifiability_is_the_same_on_amd_and_nested_dissection() {
+    // A 3D packing large enough (8 700 unknowns) that nested dissection cuts
+    // the graph many times over (pieces of ≤ 200 go to AMD).
+    let p = generate(&PackingSpec::new(3, 1000)).unwrap();
+    let assembly = assemble(&p.scene, &AssembleOptions::default()).unwrap();
+    let s = &assembly.systems[0];
+    assert!(s.n > 5000, "{} unknowns", s.n);
+    let (amd, nd) = (
+        identifiability_with(&s.stress, &s.momentum, Ordering::Amd).unwrap(),
+        identifiability_with(&s.stress, &s.momentum, Ordering::NestedDissection).unwrap(),
+    );
+    assert!(amd.unique && nd.unique, "{amd:?} {nd:?}");
+    let gap = (amd.sigma_min_relative / nd.sigma_min_relative - 1.0).abs();
+    assert!(
+        gap < 1e-3,
+        "σ_min/σ_max: AMD {:e}, ND {:e}",
+        amd.sigma_min_relative,
+        nd.sigma_min_relative
+    );
+
+    // Two unknowns made indistinguishable in both blocks: one null vector.
+    let (from, onto) = (10, s.n / 2);
+    let (a, c) = (
+        copy_column(&s.stress, from, onto),
+        copy_column(&s.momentum, from, onto),
+    );
+    for ordering in [Ordering::Amd, Ordering::NestedDissection] {
+        let id = identifiability_with(&a, &c, ordering).unwrap();
+        assert!(
+            !id.unique && id.null_dimension_estimate == 1,
+            "{ordering:?}: {id:?}"
+        );
+        let v = id.null_vector.unwrap();
+        let planted = (v[from] - v[onto]) / 2f64.sqrt();
+        assert!(planted.abs() > 1.0 - 1e-8, "{ordering:?}: cosine {planted}");
+    }
 }
 
 #[test]

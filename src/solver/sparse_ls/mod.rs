@@ -45,7 +45,7 @@ mod refine;
 mod spd;
 mod symbolic;
 
-pub use identifiability::{identifiability, Identifiability};
+pub use identifiability::{identifiability, identifiability_with, Identifiability};
 pub use spd::SpdFactor;
 
 #[cfg(test)]
