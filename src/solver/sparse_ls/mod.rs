@@ -113,8 +113,10 @@ impl Ordering {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Bordering {
     /// Border the k changed rows (one sparse forward solve each, over the
-    /// part of the factor it reaches) when that is estimated to take less
-    /// than the numeric factorisation did, else factorise anew. Rows and
+    /// part of the factor it reaches) when that is modelled to cost less
+    /// than a new numeric factorisation, else factorise anew. The model
+    /// counts the factor's entries and multiply-adds, not seconds, so a run
+    /// is reproducible to the bit. Rows and
     /// springs with the same entries but values within 30 % are not
     /// changed: the factor keeps its copies and GMRES corrects for them.
     #[default]

@@ -316,6 +316,20 @@ impl Factor<'_> {
         (0.5 * k * length as f64 + k * k * k / 3.0) / (2 * self.values.len()).max(1) as f64
     }
 
+    /// The numeric factorisation's cost in full solves: its multiply-adds
+    /// (w³/6 + p w²/2 + p² w/2 for a node of w columns over p rows below)
+    /// against a solve's two per factor entry.
+    pub fn factorisation_share(&self) -> f64 {
+        let products: f64 = (0..self.count())
+            .map(|s| {
+                let node = self.node(s);
+                let (w, p) = (node.size as f64, node.pattern.len() as f64);
+                w * w * w / 6.0 + p * w * w / 2.0 + p * p * w / 2.0
+            })
+            .sum();
+        products / (2 * self.values.len()).max(1) as f64
+    }
+
     /// Each node's column range reached by w, with w's entries there.
     fn segments<'w>(
         &'w self,

@@ -29,11 +29,12 @@ pub(super) struct Numeric {
     /// The last border solved around this factor, whose columns the next
     /// border may reuse.
     pub(super) last_border: Option<Bordered>,
-    /// Time of the numeric factorisation and of one solve [s]: a border
-    /// costs the share of a solve its columns reach, a new factor one
-    /// factorisation.
-    pub(super) factor_seconds: f64,
-    pub(super) solve_seconds: f64,
+    /// What a new numeric factorisation costs in full solves on this
+    /// factor, modelled from its nodes ([`factorisation_in_solves`]): a
+    /// border costs the share of a solve its columns reach, GMRES on a
+    /// stale factor a few solves. A model and not a clock, so that the same
+    /// data take the same route, and give the same bits, on every run.
+    pub(super) factor_solves: f64,
 }
 
 impl Numeric {
@@ -76,7 +77,6 @@ impl EqualityLeastSquares {
                 old.map(|num| num.l_values).unwrap_or_default(),
             ),
         };
-        let clock = std::time::Instant::now();
         let n = self.n;
         let size = n + c.nrows;
         let active = ActiveRows::new(n, g, springs, &base.col_scale);
@@ -137,18 +137,43 @@ impl EqualityLeastSquares {
                     "sparse LDLᵀ of the {size}×{size} KKT matrix failed ({e:?}); λ = {lambda}, δ = {delta}"
                 ))
             })?;
+        let nodes = FactorNodes::new(symbolic, &l_values);
+        let factor = Factor {
+            symbolic,
+            values: &l_values,
+            nodes: &nodes,
+        };
+        let factor_solves = factorisation_in_solves(&factor);
         self.numeric = Some(Numeric {
             base,
             in_factor: active.clone(),
             active,
-            nodes: FactorNodes::new(symbolic, &l_values),
+            nodes,
             l_values,
             last_border: None,
-            factor_seconds: clock.elapsed().as_secs_f64(),
-            solve_seconds: f64::INFINITY,
+            factor_solves,
         });
         Ok(())
     }
+}
+
+/// The model of a numeric factorisation's cost in solves on the same
+/// factor, R = [`FACTOR_PER_SHARE`] · share + [`FACTOR_FIXED`], where share
+/// is the factorisation's multiply-adds over a solve's
+/// ([`Factor::factorisation_share`]; dense kernels on supernodes run them
+/// faster than the memory-bound sweeps of a solve, hence the slope < 1).
+/// Fitted to the seconds of a factorisation over a solve measured on
+/// 2 cores (faer parallel from 2·10⁵ KKT rows), share → measured (model):
+/// 2D 10⁴ grains 27.5 → 9.2 (7.8), 2D 10⁵ 95 → 16.9 (14.5), 3D 2·10³
+/// spheres 88 → 12.3 (13.8), 3D 10⁴ 322 → 43.8 (37.2), 3D 10⁵ 1 177 →
+/// 107.6 (122.7): within 16 %, while repeated measurements of one ratio
+/// spread by up to 30 %.
+const FACTOR_PER_SHARE: f64 = 0.1;
+const FACTOR_FIXED: f64 = 5.0;
+
+/// The numeric factorisation's modelled cost in solves on `factor`.
+pub(super) fn factorisation_in_solves(factor: &Factor<'_>) -> f64 {
+    FACTOR_PER_SHARE * factor.factorisation_share() + FACTOR_FIXED
 }
 
 pub(super) fn thread_count(par: Par) -> usize {

@@ -85,8 +85,8 @@ impl EqualityLeastSquares {
         // On a factor of the same A, C, λ and δ, the rows that changed since
         // it was computed (rows added, rows it holds that are no longer
         // active) are bordered around it — one sparse forward solve each —
-        // instead of a new numeric factorisation, when those solves cost less
-        // than the factorisation did.
+        // instead of a new numeric factorisation, when those solves are
+        // modelled to cost less than it.
         let mut changes = None;
         // The border's columns, when the choice below already built them.
         let mut built = None;
@@ -98,15 +98,11 @@ impl EqualityLeastSquares {
                 let diff = Changes::between(&num.in_factor, &num.active, &num.base.col_scale);
                 let k = diff.count();
                 // GMRES on a factor holding stale rows costs many solves.
-                let gmres_seconds = if diff.any_stale() {
-                    STALE_SOLVES * num.solve_seconds
-                } else {
-                    0.0
-                };
+                let gmres_solves = if diff.any_stale() { STALE_SOLVES } else { 0.0 };
                 let reuse = match self.bordering {
                     Bordering::Never => k == 0 && !diff.any_stale(),
                     Bordering::Always => k <= BORDER_MAX_ROWS,
-                    Bordering::Auto if k == 0 => gmres_seconds < num.factor_seconds,
+                    Bordering::Auto if k == 0 => gmres_solves < num.factor_solves,
                     Bordering::Auto if k > BORDER_MAX_ROWS => false,
                     Bordering::Auto => {
                         // Only the columns the last border did not solve cost solves.
@@ -117,9 +113,9 @@ impl EqualityLeastSquares {
                             .map(|(entries, _)| entries.as_slice());
                         let share = factor.reach_share(fresh)
                             + factor.schur_share(columns.iter().map(|(e, _)| e.as_slice()));
-                        let seconds = share * num.solve_seconds / thread_count(self.par) as f64;
+                        let solves = share / thread_count(self.par) as f64;
                         built = Some(columns);
-                        seconds + gmres_seconds < num.factor_seconds
+                        solves + gmres_solves < num.factor_solves
                     }
                 };
                 // Without `may_border` (the retry after a border or stale
@@ -220,9 +216,7 @@ impl EqualityLeastSquares {
         let mut z = mul_t_scaled(&self.a_csr, &ones_a, &num.base.col_scale, b, n);
         z.extend_from_slice(&d_hat);
         z.resize(size + mg, 0.0);
-        let clock = std::time::Instant::now();
         kkt_solve(&mut z);
-        let first_solve_seconds = clock.elapsed().as_secs_f64();
         let (mut r, mut dual, mut primal) = self.kkt_residual(num, &ones_a, b, &d_hat, &z);
         if !(dual.is_finite() && primal.is_finite()) {
             return Err(Error::Solver(
@@ -236,9 +230,9 @@ impl EqualityLeastSquares {
         let mut stalled = 0;
         // On a stale factor, refinement is GMRES preconditioned by the
         // factor; stop it before it costs more than the factorisation it saves.
-        // (`Always` runs it to the end: the same route whatever the timings.)
+        // (`Always` runs it to the end.)
         let max_steps = if stale && self.bordering == Bordering::Auto {
-            ((num.factor_seconds / num.solve_seconds) as usize).clamp(4, MAX_REFINEMENT_STEPS)
+            (num.factor_solves as usize).clamp(4, MAX_REFINEMENT_STEPS)
         } else {
             MAX_REFINEMENT_STEPS
         };
@@ -296,10 +290,6 @@ impl EqualityLeastSquares {
             .map(|(w, t)| -w * t)
             .collect();
         if let Some(num) = self.numeric.as_mut() {
-            if !border && !stale {
-                // A plain solve on the factor: the unit of a border's cost.
-                num.solve_seconds = first_solve_seconds;
-            }
             num.last_border = bordered.or(previous);
         }
         Ok(Attempt {
