@@ -11,6 +11,17 @@ use crate::solver::Triplets;
 use crate::{Error, Result};
 use faer::Par;
 
+/// Block labels of the KKT's vertices for nested dissection: the unknowns of
+/// one row of `coupling` (a contact) share a label, every other unknown and
+/// every row of C has its own.
+pub(super) fn kkt_blocks(n: usize, c_rows: usize, coupling: &Triplets) -> Vec<usize> {
+    let mut labels: Vec<usize> = (0..n + c_rows).map(|v| coupling.nrows + v).collect();
+    for (&row, &col) in coupling.rows.iter().zip(&coupling.cols) {
+        labels[col] = labels[col].min(row);
+    }
+    labels
+}
+
 /// What every factorisation of one A, C, λ and δ starts from, whatever the
 /// active rows: the equilibration and the KKT values without those rows.
 pub(super) struct Base {
@@ -84,7 +95,8 @@ impl EqualityLeastSquares {
             row_idx.push(n + i);
             col_ptr.push(row_idx.len());
         }
-        let symbolic = symbolic_analysis(n + c.nrows, &col_ptr, &row_idx, ordering)?;
+        let blocks = kkt_blocks(n, c.nrows, coupling);
+        let symbolic = symbolic_analysis(n + c.nrows, &col_ptr, &row_idx, ordering, Some(&blocks))?;
         Ok(EqualityLeastSquares {
             n,
             a_pattern: (a.nrows, a.rows.clone(), a.cols.clone()),

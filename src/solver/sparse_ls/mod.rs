@@ -234,11 +234,13 @@ impl EqualityLeastSquares {
     /// Redoes the symbolic analysis with this fill-reducing ordering (and keeps
     /// it when a new pattern is analysed); drops the cached factorisation.
     pub fn set_ordering(&mut self, ordering: Ordering) -> Result<()> {
+        let blocks = kkt::kkt_blocks(self.n, self.c_pattern.0, &self.coupling);
         self.symbolic = symbolic_analysis(
             self.n + self.c_pattern.0,
             &self.kkt_col_ptr,
             &self.kkt_row_idx,
             ordering,
+            Some(&blocks),
         )?;
         self.ordering = ordering;
         self.numeric = None;

@@ -48,7 +48,7 @@ impl SpdFactor {
             )));
         }
         let par = default_parallelism(size);
-        let symbolic = symbolic_analysis(size, col_ptr, row_idx, ordering)?;
+        let symbolic = symbolic_analysis(size, col_ptr, row_idx, ordering, None)?;
         let Some(sym) = &symbolic else {
             return Ok(SpdFactor {
                 symbolic,

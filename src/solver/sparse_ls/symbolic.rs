@@ -12,11 +12,14 @@ use super::{ordering, Ordering};
 use crate::{Error, Result};
 
 /// Ordering and symbolic Cholesky of the upper KKT pattern (None when empty).
+/// `blocks` labels vertices that nested dissection may keep together (see
+/// [`ordering::nested_dissection`]).
 pub(super) fn symbolic_analysis(
     size: usize,
     col_ptr: &[usize],
     row_idx: &[usize],
     ordering: Ordering,
+    blocks: Option<&[usize]>,
 ) -> Result<Option<SymbolicCholesky<usize>>> {
     if size == 0 {
         return Ok(None);
@@ -25,7 +28,7 @@ pub(super) fn symbolic_analysis(
     let perm = match ordering {
         Ordering::Amd => None,
         Ordering::NestedDissection => {
-            let fwd = ordering::nested_dissection(size, col_ptr, row_idx);
+            let fwd = ordering::nested_dissection(size, col_ptr, row_idx, blocks);
             let mut inv = vec![0usize; size];
             for (new, &old) in fwd.iter().enumerate() {
                 inv[old] = new;
