@@ -107,11 +107,11 @@ pub(crate) fn polish(
     }
     let mut d = ls.d.to_vec();
     d.resize(c.nrows, 0.0);
-    let none = Triplets::new(0, n);
+    // Contacts coupled so nested dissection cuts contacts (see cascade).
     let mut factor = sparse_ls::EqualityLeastSquares::with_ordering(
         ls.a,
         &c,
-        &none,
+        &system.contact_blocks(),
         super::ordering(system, None),
     )?;
     let sol = factor.solve(ls.a, &c, ls.b, &d, ls.lambda)?;
