@@ -277,7 +277,6 @@ impl Graph {
         let mut order: Vec<usize> = (0..n).collect();
         order.sort_by_key(|&v| (self.ptr[v + 1] - self.ptr[v], v));
         let mut coarse_n = 0;
-        let mut mate = vec![usize::MAX; n];
         for &v in &order {
             if map[v] != usize::MAX {
                 continue;
@@ -290,59 +289,10 @@ impl Graph {
             map[v] = coarse_n;
             if let Some(u) = partner {
                 map[u] = coarse_n;
-                mate[v] = u;
-                mate[u] = v;
             }
             coarse_n += 1;
         }
-        // Representatives in coarse order, then merged adjacency.
-        let mut members = vec![usize::MAX; coarse_n];
-        for v in 0..n {
-            if members[map[v]] == usize::MAX {
-                members[map[v]] = v;
-            }
-        }
-        let mut ptr = Vec::with_capacity(coarse_n + 1);
-        ptr.push(0);
-        let mut adj = Vec::new();
-        let mut edge_weight = Vec::new();
-        let mut weight = Vec::with_capacity(coarse_n);
-        let mut slot = vec![usize::MAX; coarse_n];
-        for (c, &v) in members.iter().enumerate() {
-            let begin = adj.len();
-            let pair = [v, mate[v]];
-            let mut w = 0;
-            for &x in pair.iter().filter(|&&x| x != usize::MAX) {
-                w += self.weight[x];
-                for (u, ew) in self.edges(x) {
-                    let cu = map[u];
-                    if cu == c {
-                        continue;
-                    }
-                    if slot[cu] == usize::MAX {
-                        slot[cu] = adj.len();
-                        adj.push(cu);
-                        edge_weight.push(ew);
-                    } else {
-                        edge_weight[slot[cu]] += ew;
-                    }
-                }
-            }
-            for &cu in &adj[begin..] {
-                slot[cu] = usize::MAX;
-            }
-            weight.push(w);
-            ptr.push(adj.len());
-        }
-        (
-            Graph {
-                ptr,
-                adj,
-                edge_weight,
-                weight,
-            },
-            map,
-        )
+        (self.contract(&map, coarse_n), map)
     }
 
     /// BFS from `root`; the levels, and each reached vertex's level in `level`
@@ -1018,20 +968,25 @@ mod tests {
         );
     }
 
+    /// The largest cluster's system of a synthetic 3D packing.
+    fn packing_system(grains: usize) -> crate::assemble::System {
+        use crate::assemble::{assemble, AssembleOptions};
+        use crate::bench::{generate, PackingSpec};
+        let packing = generate(&PackingSpec::new(3, grains)).expect("packing");
+        let assembly = assemble(&packing.scene, &AssembleOptions::default()).expect("assembly");
+        assembly
+            .systems
+            .into_iter()
+            .max_by_key(|s| s.n)
+            .expect("a cluster")
+    }
+
     #[test]
     fn fills_less_than_amd_on_a_3d_packing() {
         // The KKT matrix of a 1000-grain 3D packing (measured in release: ND
         // 1.53 M vs AMD 1.79 M factor entries, 0.86×).
-        use crate::assemble::{assemble, AssembleOptions};
-        use crate::bench::{generate, PackingSpec};
         use crate::solver::sparse_ls::{EqualityLeastSquares, Ordering};
-        let packing = generate(&PackingSpec::new(3, 1000)).expect("packing");
-        let assembly = assemble(&packing.scene, &AssembleOptions::default()).expect("assembly");
-        let system = assembly
-            .systems
-            .iter()
-            .max_by_key(|s| s.n)
-            .expect("a cluster");
+        let system = packing_system(1000);
         let mut ls = EqualityLeastSquares::with_coupling(
             &system.stress,
             &system.momentum,
@@ -1109,17 +1064,9 @@ mod tests {
         // (measured on this 1000-grain packing: 4 300 supervariables of 14 700
         // vertices, fill 1.01 × the plain dissection's; at 10⁴ grains 0.28 ×
         // the vertices, 0.95 × the fill, a quarter of the time).
-        use crate::assemble::{assemble, AssembleOptions};
-        use crate::bench::{generate, PackingSpec};
         use crate::solver::sparse_ls::kkt::kkt_blocks;
         use crate::solver::sparse_ls::EqualityLeastSquares;
-        let packing = generate(&PackingSpec::new(3, 1000)).expect("packing");
-        let assembly = assemble(&packing.scene, &AssembleOptions::default()).expect("assembly");
-        let system = assembly
-            .systems
-            .iter()
-            .max_by_key(|s| s.n)
-            .expect("a cluster");
+        let system = packing_system(1000);
         let coupling = system.contact_blocks();
         let ls = EqualityLeastSquares::with_coupling(&system.stress, &system.momentum, &coupling)
             .expect("analysis");
