@@ -11,13 +11,17 @@ use crate::solver::Triplets;
 use crate::{Error, Result};
 use faer::Par;
 
-/// Block labels of the KKT's vertices for nested dissection: the unknowns of
-/// one row of `coupling` (a contact) share a label, every other unknown and
-/// every row of C has its own.
+/// Block labels of the KKT's vertices for nested dissection, each a vertex of
+/// its block: the unknowns of one row of `coupling` (a contact) are labelled
+/// by the first of them, every other unknown and every row of C by itself.
 pub(super) fn kkt_blocks(n: usize, c_rows: usize, coupling: &Triplets) -> Vec<usize> {
-    let mut labels: Vec<usize> = (0..n + c_rows).map(|v| coupling.nrows + v).collect();
+    let mut first = vec![usize::MAX; coupling.nrows];
     for (&row, &col) in coupling.rows.iter().zip(&coupling.cols) {
-        labels[col] = labels[col].min(row);
+        first[row] = first[row].min(col);
+    }
+    let mut labels: Vec<usize> = (0..n + c_rows).collect();
+    for (&row, &col) in coupling.rows.iter().zip(&coupling.cols) {
+        labels[col] = labels[col].min(first[row]);
     }
     labels
 }

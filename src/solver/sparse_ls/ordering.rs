@@ -15,6 +15,7 @@
 //!
 //! Purely graph based (no coordinates), deterministic, O(nnz · log n).
 
+use std::borrow::Cow;
 use std::cmp::Reverse;
 use std::collections::BinaryHeap;
 
@@ -359,34 +360,43 @@ impl Supervariables {
     }
 }
 
-/// The graph of `blocks` (one vertex per label) and then, when
-/// `merge_twins`, of its twins, with each of its vertices' members.
-fn quotient(graph: &Graph, blocks: Option<&[usize]>, merge_twins: bool) -> (Graph, Supervariables) {
+/// The graph of `blocks` (one vertex per label; labels are vertices) and
+/// then, when `merge_twins`, of its twins, with each of its vertices'
+/// members. Borrows `graph` when nothing merges.
+fn quotient<'g>(
+    graph: &'g Graph,
+    blocks: Option<&[usize]>,
+    merge_twins: bool,
+) -> (Cow<'g, Graph>, Supervariables) {
     let n = graph.len();
-    // Labels renumbered 0.. by first appearance.
+    let mut quotient = Cow::Borrowed(graph);
     let (mut group, mut count) = match blocks {
         Some(labels) => {
-            let mut id = std::collections::HashMap::new();
+            debug_assert!(labels.len() == n && labels.iter().all(|&l| l < n));
+            // Labels renumbered 0.. by first appearance.
+            let mut id = vec![usize::MAX; n];
+            let mut count = 0;
             let group: Vec<usize> = labels
                 .iter()
                 .map(|&label| {
-                    let next = id.len();
-                    *id.entry(label).or_insert(next)
+                    if id[label] == usize::MAX {
+                        id[label] = count;
+                        count += 1;
+                    }
+                    id[label]
                 })
                 .collect();
-            (group, id.len())
+            if count < n {
+                quotient = Cow::Owned(graph.contract(&group, count));
+            }
+            (group, count)
         }
         None => ((0..n).collect(), n),
-    };
-    let mut quotient = if blocks.is_some() {
-        graph.contract(&group, count)
-    } else {
-        graph.clone()
     };
     if merge_twins {
         let (twin, twin_count) = quotient.twin_groups();
         if twin_count < count {
-            quotient = quotient.contract(&twin, twin_count);
+            quotient = Cow::Owned(quotient.contract(&twin, twin_count));
             group.iter_mut().for_each(|g| *g = twin[*g]);
             count = twin_count;
         }
@@ -1073,7 +1083,20 @@ mod tests {
         let (cp, ri) = (&ls.kkt_col_ptr, &ls.kkt_row_idx);
         let n = cp.len() - 1;
         let blocks = kkt_blocks(system.n, system.momentum.nrows, &coupling);
-        let (merged, _) = quotient(&Graph::from_pattern(n, cp, ri), Some(&blocks), true);
+        // Each contact's unknowns carry its first unknown's label; every
+        // label is a vertex of its own block.
+        let mut first = vec![usize::MAX; coupling.nrows];
+        for (&row, &col) in coupling.rows.iter().zip(&coupling.cols) {
+            first[row] = first[row].min(col);
+        }
+        assert!(coupling
+            .rows
+            .iter()
+            .zip(&coupling.cols)
+            .all(|(&row, &col)| blocks[col] == first[row]));
+        assert!(blocks.iter().all(|&label| blocks[label] == label));
+        let graph = Graph::from_pattern(n, cp, ri);
+        let (merged, _) = quotient(&graph, Some(&blocks), true);
         assert!(
             (merged.len() as f64) < 0.35 * n as f64,
             "{} supervariables of {n} vertices",
