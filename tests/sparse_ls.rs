@@ -114,6 +114,15 @@ fn matches_dense_solution_on_random_problems() {
         let ad = dense(&a);
         let r = &ad * DVector::from_column_slice(&sol.x) - DVector::from_column_slice(&b);
         assert!((sol.residual - r.norm()).abs() <= 1e-12 * (1.0 + r.norm()));
+        // Stationarity with the returned multipliers: Aᵀ(Ax − b) + λ²x = Cᵀν.
+        let gradient = ad.transpose() * &r + lambda * lambda * DVector::from_column_slice(&sol.x);
+        let pull = dense(&c).transpose() * DVector::from_column_slice(&sol.equality_multipliers);
+        let stationarity = (&gradient - &pull).amax();
+        assert!(
+            stationarity <= 1e-9 * (1.0 + gradient.amax().max(pull.amax())),
+            "case {case}: ∇f − Cᵀν = {stationarity:e} (∇f {:e})",
+            gradient.amax()
+        );
     }
 }
 

@@ -132,6 +132,9 @@ pub enum Bordering {
 #[derive(Debug, Clone)]
 pub struct LsSolution {
     pub x: Vec<f64>,
+    /// Multiplier ν of C x = d: at the solution ∇(½‖Ax − b‖² + ½λ²‖x‖²)
+    /// = Cᵀν (+ Gᵀy with active rows).
+    pub equality_multipliers: Vec<f64>,
     /// ‖A x − b‖₂.
     pub residual: f64,
     /// ‖C x − d‖∞.
@@ -247,6 +250,11 @@ impl EqualityLeastSquares {
         Ok(())
     }
 
+    /// The rows whose unknowns the analysed pattern couples beyond A's.
+    pub fn coupling(&self) -> &Triplets {
+        &self.coupling
+    }
+
     /// The fill-reducing ordering of the symbolic analysis.
     pub fn ordering(&self) -> Ordering {
         self.ordering
@@ -355,6 +363,7 @@ impl EqualityLeastSquares {
             return Ok(ActiveLsSolution {
                 solution: LsSolution {
                     x: Vec::new(),
+                    equality_multipliers: vec![0.0; c.nrows],
                     residual: norm2(b),
                     equality_residual,
                     refinement_steps: 0,
@@ -404,7 +413,7 @@ impl EqualityLeastSquares {
                 failures.join("; ")
             )));
         };
-        let x = best.x;
+        let (x, equality_multipliers) = (best.x, best.equality_multipliers);
         let residual = norm2(&sub(&a.mul(&x), b));
         let equality_residual = sub(&c.mul(&x), d)
             .iter()
@@ -414,6 +423,7 @@ impl EqualityLeastSquares {
         Ok(ActiveLsSolution {
             solution: LsSolution {
                 x,
+                equality_multipliers,
                 residual,
                 equality_residual,
                 refinement_steps: best.steps,

@@ -15,6 +15,7 @@ use crate::{Error, Result};
 /// Outcome of one factorisation + refinement.
 pub(super) struct Attempt {
     pub(super) x: Vec<f64>,
+    pub(super) equality_multipliers: Vec<f64>,
     pub(super) multipliers: Vec<f64>,
     pub(super) dual: f64,
     pub(super) primal: f64,
@@ -284,6 +285,11 @@ impl EqualityLeastSquares {
         }
         // The refined system reads (AᵀA + λ²)x + … + Gᵀ(T w) = Aᵀb, so the
         // multiplier of G x ≥ 0 in ∇ = Cᵀν + Gᵀy is y = −T w.
+        let equality_multipliers = best.3[n..size]
+            .iter()
+            .zip(&num.base.c_row_scale)
+            .map(|(m, t)| -m * t)
+            .collect();
         let multipliers = best.3[size..]
             .iter()
             .zip(&num.active.row_scale)
@@ -294,6 +300,7 @@ impl EqualityLeastSquares {
         }
         Ok(Attempt {
             x,
+            equality_multipliers,
             multipliers,
             dual: best.1,
             primal: best.2,
