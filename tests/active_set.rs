@@ -630,31 +630,48 @@ fn dynamic_weighted_momentum_uses_the_active_set() {
     assert!(gap < 1e-6, "{gap:.2e}");
 }
 
-/// With too few solves allowed it cannot settle: the interior point answers
-/// and the report says why.
+/// With too few solves allowed it cannot settle: the interior point on the
+/// sparse factorisation answers, at clarabel's optimum, and the report says
+/// why the active set did not.
 #[test]
-fn an_unsettled_active_set_falls_back_to_the_interior_point_and_says_so() {
+fn an_unsettled_active_set_hands_over_to_the_sparse_interior_point_and_says_so() {
     let (scene, _) = noisy_packing(2, 400, 0.5, Noise::Stress);
     let mut o = with_solver(Method::Qs, ConstrainedSolver::ActiveSet);
     o.active_set.max_iterations = 1;
     // The 2D guess of the first active set is good enough to settle in one.
     o.active_set.predict = false;
     let r = infer(&scene, &o).unwrap();
-    assert_ne!(r.report.solver_status, SolveStatus::ActiveSet);
     assert!(
-        r.report
-            .solver_attempts
-            .iter()
-            .any(|a| a.contains("active set") && a.contains("interior point instead")),
+        matches!(
+            r.report.solver_status,
+            SolveStatus::SparseInteriorPoint { .. }
+        ),
         "{:?}",
         r.report.solver_attempts
     );
+    assert!(
+        r.report.solver_attempts.iter().any(|a| a
+            .contains("active set: the active set did not settle in 1 solves")
+            && a.contains("interior point on the sparse factorisation")),
+        "{:?}",
+        r.report.solver_attempts
+    );
+    assert!(r.report.coulomb_violation == 0.0);
     let ip = infer(
         &scene,
         &with_solver(Method::Qs, ConstrainedSolver::InteriorPoint),
     )
     .unwrap();
-    assert!(relative_error(&ip.forces_or_zero(), &r.forces_or_zero()) < 1e-6);
+    let gap = relative_error(&ip.forces_or_zero(), &r.forces_or_zero());
+    eprintln!(
+        "2D, 400 disks: {} gap to clarabel {gap:.2e}",
+        r.report.solver_status
+    );
+    // Clarabel's answer is polished to the exact optimum here; the sparse
+    // interior point stops at its certificate (gap 1e-9 of ½‖b‖²), which
+    // leaves the forces 3e-5 from it, too far for polishing to find the
+    // tight set (measured; it stalls when asked for less).
+    assert!(gap < 1e-4, "{gap:.2e}");
 }
 
 #[test]
@@ -876,45 +893,63 @@ fn the_route_and_the_answer_are_the_same_on_every_run() {
 
 /// A sheared 3D DEM packing with friction at its limit
 /// (fixtures/regression/box3d_sheared, 197 contacts sliding in the truth)
-/// with eq. 2.16 stress noise. Open (issue 20): the active set stops at its
-/// first Newton step there and the interior point answers. Whatever the
-/// route, the answer is clarabel's optimum, meets friction exactly, and a
-/// fallback is said in the report, never silent.
+/// with eq. 2.16 stress noise. The active set stops at its first Newton step
+/// there (statically determinate grains with contacts at the edge of their
+/// pieces); the interior point on the sparse factorisation answers, at
+/// clarabel's optimum (to the two solvers' tolerances), meeting friction
+/// exactly, with no clarabel fallback,
+/// and the report says why the active set did not.
 #[test]
-fn sheared_dem_packing_reaches_the_optimum_and_reports_its_route() {
+fn sheared_dem_packing_is_solved_on_the_sparse_factorisation() {
     let dir =
         std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/regression/box3d_sheared");
     let scene = grainforce::scene::read_scene(&dir).unwrap();
-    let scene = perturb(&scene, Noise::Stress, 18);
-    let fast = infer(
-        &scene,
-        &with_solver(Method::Qs, ConstrainedSolver::ActiveSet),
-    )
-    .unwrap();
-    let ip = infer(
-        &scene,
-        &with_solver(Method::Qs, ConstrainedSolver::InteriorPoint),
-    )
-    .unwrap();
-    let gap = relative_error(&ip.forces_or_zero(), &fast.forces_or_zero());
-    eprintln!(
-        "sheared 3D packing: {} ({:?}), gap to the interior point {gap:.2e}",
-        fast.report.solver_status, fast.report.solver_attempts
-    );
-    assert!(gap < 1e-6, "{gap:.2e}");
-    assert!(
-        fast.report.coulomb_violation < 1e-12,
-        "{}",
-        fast.report.coulomb_violation
-    );
-    if fast.report.solver_status != SolveStatus::ActiveSet {
+    for seed in [18, 3] {
+        let scene = perturb(&scene, Noise::Stress, seed);
+        let fast = infer(
+            &scene,
+            &with_solver(Method::Qs, ConstrainedSolver::ActiveSet),
+        )
+        .unwrap();
+        let ip = infer(
+            &scene,
+            &with_solver(Method::Qs, ConstrainedSolver::InteriorPoint),
+        )
+        .unwrap();
+        let gap = relative_error(&ip.forces_or_zero(), &fast.forces_or_zero());
+        eprintln!(
+            "sheared 3D packing, seed {seed}: {} ({:?}), gap to clarabel {gap:.2e}",
+            fast.report.solver_status, fast.report.solver_attempts
+        );
+        // Two interior points, each stopped at its tolerance (clarabel's
+        // default 1e-8, ours 1e-8 with a gap ten times finer): clarabel's own
+        // answer at 1e-10 lies 1.5e-7 from its default one here, ours ~1e-6.
+        assert!(gap < 1e-5, "seed {seed}: {gap:.2e}");
         assert!(
-            fast.report
-                .solver_attempts
-                .iter()
-                .any(|a| a.contains("solved by the interior point instead")),
-            "{:?}",
+            fast.report.coulomb_violation < 1e-12,
+            "{}",
+            fast.report.coulomb_violation
+        );
+        assert!(
+            matches!(
+                fast.report.solver_status,
+                SolveStatus::ActiveSet | SolveStatus::SparseInteriorPoint { .. }
+            ),
+            "seed {seed}: {:?}",
             fast.report.solver_attempts
         );
+        if matches!(
+            fast.report.solver_status,
+            SolveStatus::SparseInteriorPoint { .. }
+        ) {
+            assert!(
+                fast.report
+                    .solver_attempts
+                    .iter()
+                    .any(|a| a.starts_with("active set: ")),
+                "{:?}",
+                fast.report.solver_attempts
+            );
+        }
     }
 }

@@ -73,9 +73,10 @@ pub struct Args {
     pub cone: ConeArg,
     /// Algorithm for friction-constrained problems: active-set (primal–dual
     /// active set on the sparse factorisation, warm-started from the
-    /// unconstrained answer; stops at the KKT conditions to 1e-10, falls back to the interior point
-    /// when it does not settle) or interior-point (clarabel, to --tolerance, then
-    /// polished). Pyramids always use the interior point.
+    /// unconstrained answer; stops at the KKT conditions to 1e-10; when it does
+    /// not settle, a primal–dual interior point on the same sparse
+    /// factorisation, then clarabel) or interior-point (clarabel, to
+    /// --tolerance, then polished). Pyramids skip the active set.
     #[arg(long, value_enum, default_value_t = SolverArg::ActiveSet)]
     pub solver: SolverArg,
     /// Fill-reducing ordering of the sparse factorisation: auto (nested

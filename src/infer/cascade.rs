@@ -6,9 +6,12 @@
 //! 2. that answer, when it already meets every cone;
 //! 3. the active set on the same factorisation, warm-started from the previous
 //!    solve's active pieces, then cold;
-//! 4. the interior point (clarabel) when the active set does not converge, its
-//!    answer projected onto the cones;
-//! 5. on request, [`polish`] of an interior-point answer.
+//! 4. when it does not converge, the interior point on the same pattern
+//!    (`solver::interior_point`: statically determinate grains with contacts
+//!    at the edge of their pieces defeat the active set, not it);
+//! 5. clarabel when that does not converge either, its answer projected onto
+//!    the cones;
+//! 6. on request, [`polish`] of an interior-point answer.
 //!
 //! Callers build one [`ConicProblem`] and read the route taken from the
 //! solution's [`SolveStatus`] and `attempts`.
@@ -18,6 +21,7 @@ use crate::assemble::System;
 use crate::error::Result;
 use crate::solver::active_set::{self, ActivePieces, ActiveSetSettings};
 use crate::solver::conic::{self, Cone, ConicProblem, ConicSettings, ConicSolution};
+use crate::solver::interior_point::{self, InteriorPointSettings};
 use crate::solver::sparse_ls::{self, EqualityLeastSquares, Ordering};
 use crate::solver::{LeastSquares, SolveStatus};
 use std::sync::Mutex;
@@ -285,13 +289,41 @@ pub(crate) fn constrained_on_factor(
         sol = active_set::solve(factor, p, cone_list, &unconstrained.x, settings)?;
     }
     if !sol.converged {
+        let why = sol
+            .reason
+            .map_or_else(|| "not converged".to_owned(), |r| r.to_string());
+        let ip = interior_point::solve(
+            p,
+            cone_list,
+            &unconstrained.x,
+            factor.coupling(),
+            factor.ordering(),
+            &InteriorPointSettings::default(),
+        )?;
+        if !ip.converged {
+            return Ok((
+                None,
+                Some(format!(
+                    "active set: {why}; interior point on the sparse factorisation: {} after {} iterations; solved by the interior point instead",
+                    ip.reason.as_deref().unwrap_or("not converged"),
+                    ip.iterations
+                )),
+            ));
+        }
         return Ok((
+            Some(ConicSolution {
+                x: ip.x,
+                status: SolveStatus::SparseInteriorPoint { polished: false },
+                iterations: ip.iterations as u32,
+                solve_time: start.elapsed().as_secs_f64(),
+                attempts: vec![format!(
+                    "active set: {why}; interior point on the sparse factorisation: {} iterations (gap {:.1e})",
+                    ip.iterations, ip.gap
+                )],
+                softened: false,
+                warnings: Vec::new(),
+            }),
             None,
-            Some(format!(
-                "active set: {}; solved by the interior point instead",
-                sol.reason
-                    .map_or_else(|| "not converged".to_owned(), |r| r.to_string())
-            )),
         ));
     }
     *pieces = Some(sol.pieces);

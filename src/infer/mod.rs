@@ -70,7 +70,8 @@ impl std::fmt::Display for Method {
 #[serde(rename_all = "kebab-case")]
 pub enum ConstrainedSolver {
     /// Primal–dual active set on the sparse factorisation, warm-started from the
-    /// unconstrained answer; falls back to the interior point if it does not settle.
+    /// unconstrained answer; when it does not settle, an interior point on the
+    /// same sparse factorisation, then clarabel.
     ActiveSet,
     /// Clarabel's interior point (lifted QP/SOCP), then active-set polishing.
     InteriorPoint,

@@ -1,8 +1,10 @@
-//! Solver back-ends: clarabel for the constrained QP/SOCP, faer for the sparse
-//! equality-constrained least squares (the fast floor).
+//! Solver back-ends: faer for the sparse equality-constrained least squares
+//! (the fast floor), the active set and an interior point on that
+//! factorisation, and clarabel for the constrained QP/SOCP as the fallback.
 
 pub mod active_set;
 pub mod conic;
+pub mod interior_point;
 pub mod sparse_ls;
 
 /// How a solve ended: the route that produced the answer. Reports print and
@@ -16,6 +18,9 @@ pub enum SolveStatus {
     LeastSquares,
     /// The active set on the sparse factorisation converged.
     ActiveSet,
+    /// The interior point on the sparse factorisation converged (the active
+    /// set could not settle).
+    SparseInteriorPoint { polished: bool },
     /// The interior point (clarabel) converged to its tolerance.
     Solved { polished: bool },
     /// The interior point reached only reduced accuracy.
@@ -27,13 +32,18 @@ impl SolveStatus {
     pub fn is_interior_point(self) -> bool {
         matches!(
             self,
-            SolveStatus::Solved { .. } | SolveStatus::AlmostSolved { .. }
+            SolveStatus::SparseInteriorPoint { .. }
+                | SolveStatus::Solved { .. }
+                | SolveStatus::AlmostSolved { .. }
         )
     }
 
     /// The same status after polishing (interior-point answers only).
     pub fn polished(self) -> SolveStatus {
         match self {
+            SolveStatus::SparseInteriorPoint { .. } => {
+                SolveStatus::SparseInteriorPoint { polished: true }
+            }
             SolveStatus::Solved { .. } => SolveStatus::Solved { polished: true },
             SolveStatus::AlmostSolved { .. } => SolveStatus::AlmostSolved { polished: true },
             other => other,
@@ -57,6 +67,7 @@ impl std::fmt::Display for SolveStatus {
             SolveStatus::NotRun => ("not run", false),
             SolveStatus::LeastSquares => ("LeastSquares", false),
             SolveStatus::ActiveSet => ("ActiveSet", false),
+            SolveStatus::SparseInteriorPoint { polished } => ("SparseInteriorPoint", polished),
             SolveStatus::Solved { polished } => ("Solved", polished),
             SolveStatus::AlmostSolved { polished } => ("AlmostSolved", polished),
         };
