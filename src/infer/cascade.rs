@@ -292,24 +292,34 @@ pub(crate) fn constrained_on_factor(
         let why = sol
             .reason
             .map_or_else(|| "not converged".to_owned(), |r| r.to_string());
-        let ip = interior_point::solve(
+        // A failure of this stage (e.g. its own analysis) is a reason to
+        // fall back to clarabel, not an error of the inference.
+        let ip = match interior_point::solve(
             p,
             cone_list,
             &unconstrained.x,
             factor.coupling(),
             factor.ordering(),
             &InteriorPointSettings::default(),
-        )?;
-        if !ip.converged {
-            return Ok((
-                None,
-                Some(format!(
-                    "active set: {why}; interior point on the sparse factorisation: {} after {} iterations; solved by the interior point instead",
-                    ip.reason.as_deref().unwrap_or("not converged"),
-                    ip.iterations
-                )),
-            ));
-        }
+        ) {
+            Ok(ip) if ip.converged => ip,
+            outcome => {
+                let failure = match outcome {
+                    Ok(ip) => format!(
+                        "{} after {} iterations",
+                        ip.reason.as_deref().unwrap_or("not converged"),
+                        ip.iterations
+                    ),
+                    Err(e) => e.to_string(),
+                };
+                return Ok((
+                    None,
+                    Some(format!(
+                        "active set: {why}; interior point on the sparse factorisation: {failure}; solved by the interior point instead"
+                    )),
+                ));
+            }
+        };
         return Ok((
             Some(ConicSolution {
                 x: ip.x,

@@ -363,6 +363,16 @@ impl Augmented {
         }
     }
 
+    /// R x, from R's own entries (A x is not needed on this path).
+    fn rows_times(&self, x: &[f64]) -> Vec<f64> {
+        let mut out = vec![0.0; self.a.nrows - self.rows_at];
+        let a = &self.a;
+        for k in self.vals_at..a.vals.len() {
+            out[a.rows[k] - self.rows_at] += a.vals[k] * x[a.cols[k]];
+        }
+        out
+    }
+
     /// R = W⁻¹ G for this scaling.
     fn set_scaling(&mut self, rows: &ConeRows, w: &Scaling) {
         let vals = &mut self.a.vals[self.vals_at..];
@@ -755,10 +765,9 @@ impl Iterate {
             .solve(&aug.a, problem.c, &aug.b, problem.d, problem.lambda)
             .map_err(|e| format!("linear solve failed: {e}"))?;
         let x_new = sol.x;
-        let r_new = aug.a.mul(&x_new);
         let spring_gap: Vec<f64> = t
             .iter()
-            .zip(&r_new[aug.rows_at..])
+            .zip(aug.rows_times(&x_new))
             .map(|(t, r)| t - r)
             .collect();
         let z_new = w.apply(rows, &spring_gap, true);
