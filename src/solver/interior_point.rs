@@ -440,6 +440,7 @@ pub fn solve(
     let rows = ConeRows::new(cones);
     let mut aug = Augmented::new(problem, &rows);
     let mut ls = EqualityLeastSquares::with_ordering(&aug.a, problem.c, coupling, ordering)?;
+    ls.set_first_regularisation(REGULARISATION);
 
     let mut it = Iterate::start(problem, cones, &rows, start);
     let tol = settings.tolerance;
@@ -505,6 +506,15 @@ pub fn solve(
 /// gap (the objective without ½‖b‖²) a gap of 1e-8 left the forces 5e-6
 /// from clarabel's on a sheared 10³ packing, 1e-9 left them 1.4e-6.
 const GAP_WEIGHT: f64 = 10.0;
+/// Static regularisation of the Newton systems' factorisation. Near the end
+/// the cone rows' weights W⁻² make the Schur complement on C x = d tiny in
+/// some directions and refinement of those rows contracts only by about
+/// δ/σ_min per step. Measured with δ = 1e-10, 1e-12, 1e-14: the sheared 10³
+/// packing's last solves took 60, 4 and 35 refinement steps (interior point
+/// 1.4 s → 0.8 s at 1e-12, same iterations and answer); the random problems
+/// of the tests 384, 287 and 273 iterations in all, the worst distance to
+/// clarabel 1.5e-5, 7.4e-6, and at 1e-14 three stalled.
+const REGULARISATION: f64 = 1e-12;
 /// Linear solves are refined to this share of the current gap.
 const REFINE_SHARE: f64 = 1e-7;
 /// Iterations without halving the worst of gap and residuals before giving up.
@@ -576,11 +586,11 @@ impl Iterate {
             c.project(&mut projected);
         }
         let moved: Vec<f64> = projected.iter().zip(&x).map(|(p, q)| p - q).collect();
-        let push = inf_norm(&hessian_times(problem, &moved));
+        let push = inf_norm(&problem.hessian_times(&moved));
         let z_scale = if push > 0.0 {
             push
         } else {
-            inf_norm(&gradient_of_fit(problem, &x)).max(f64::MIN_POSITIVE)
+            inf_norm(&problem.gradient(&x)).max(f64::MIN_POSITIVE)
         };
         let mu0_e = unit(rows, z_scale * scale);
         let z = jordan_divide(rows, &s, &mu0_e);
@@ -603,7 +613,7 @@ impl Iterate {
         for c in cones {
             c.project(&mut x);
         }
-        let fit = gradient_of_fit(problem, &x);
+        let fit = problem.gradient(&x);
         let cy = problem.c.mul_transpose(&self.y);
         let g: Vec<f64> = fit.iter().zip(&cy).map(|(a, b)| a - b).collect();
         let mut covered = vec![false; x.len()];
@@ -668,7 +678,7 @@ impl Iterate {
         let gx = rows.mul(&self.x);
         let primal_gap: Vec<f64> = gx.iter().zip(&self.s).map(|(a, b)| a - b).collect();
         // ∇f − Cᵀy − Gᵀz, against the largest of its terms.
-        let fit = gradient_of_fit(problem, &self.x);
+        let fit = problem.gradient(&self.x);
         let cy = problem.c.mul_transpose(&self.y);
         let gz = rows.mul_transpose(&self.z, self.x.len());
         let dual_gap: Vec<f64> = (0..fit.len()).map(|j| fit[j] - cy[j] - gz[j]).collect();
@@ -833,46 +843,9 @@ fn inf_norm(v: &[f64]) -> f64 {
 /// without its constant ½‖b‖² (½xᵀPx − bᵀAx), or the fit itself when larger.
 /// A gap of ε then moves the fit ½‖Ax − b‖² by at most ε of ½‖b‖².
 fn gap_scale(problem: &LeastSquares, x: &[f64]) -> f64 {
-    let f = objective(problem, x);
+    let f = problem.objective(x);
     let constant = 0.5 * problem.b.iter().map(|v| v * v).sum::<f64>();
     f.max((f - constant).abs()).max(f64::MIN_POSITIVE)
-}
-
-/// ½‖A x − b‖² + ½λ²‖x‖².
-fn objective(problem: &LeastSquares, x: &[f64]) -> f64 {
-    let r2: f64 = problem
-        .a
-        .mul(x)
-        .iter()
-        .zip(problem.b)
-        .map(|(ax, b)| (ax - b).powi(2))
-        .sum();
-    0.5 * (r2 + problem.lambda.powi(2) * x.iter().map(|v| v * v).sum::<f64>())
-}
-
-/// Aᵀ(A x − b) + λ² x.
-fn gradient_of_fit(problem: &LeastSquares, x: &[f64]) -> Vec<f64> {
-    let r: Vec<f64> = problem
-        .a
-        .mul(x)
-        .iter()
-        .zip(problem.b)
-        .map(|(ax, b)| ax - b)
-        .collect();
-    let mut g = problem.a.mul_transpose(&r);
-    for (gi, xi) in g.iter_mut().zip(x) {
-        *gi += problem.lambda * problem.lambda * xi;
-    }
-    g
-}
-
-/// (AᵀA + λ²I) v.
-fn hessian_times(problem: &LeastSquares, v: &[f64]) -> Vec<f64> {
-    let mut h = problem.a.mul_transpose(&problem.a.mul(v));
-    for (hi, vi) in h.iter_mut().zip(v) {
-        *hi += problem.lambda * problem.lambda * vi;
-    }
-    h
 }
 
 #[cfg(test)]
@@ -1065,7 +1038,6 @@ mod tests {
         // absolute tolerances do not follow the data to 1e-6 or 1e6). Its
         // default answer (1e-8) lies up to 8e-6 from that reference here.
         let settings = InteriorPointSettings::default();
-        let mut converged = 0;
         for (seed, kind) in [(3, "circular"), (8, "circular"), (4, "wedge")] {
             for mu in [0.01, 0.5, 10.0] {
                 let unit = random_problem(seed, 40, kind, mu, 1.0);
@@ -1098,21 +1070,17 @@ mod tests {
                     assert!(binding > 0, "{case}: the cones must bind");
                     let ours = solve(&ls, &p.cones, &start, &p.coupling, Ordering::Amd, &settings)
                         .unwrap();
-                    if !ours.converged {
-                        // The caller then falls back to clarabel; it must say why.
-                        eprintln!("{case}: not converged: {:?}", ours.reason);
-                        assert!(ours.reason.is_some());
-                        assert!(seed == 3 && mu == 0.5, "{case}: {:?}", ours.reason);
-                        continue;
-                    }
-                    converged += 1;
+                    // Every case converges (before δ = 1e-12, seed 3 at
+                    // μ = 0.5 stalled at two scales).
+                    assert!(ours.converged, "{case}: {:?}", ours.reason);
                     let expected: Vec<f64> = reference.x.iter().map(|v| v * scale).collect();
                     let gap = relative_gap(&ours.x, &expected);
                     eprintln!(
                         "{case}: {} iterations, gap to clarabel {gap:.1e}, {binding} cones violated at the start",
                         ours.iterations
                     );
-                    assert!(gap < 5e-5, "{case}: {gap:.1e}");
+                    // Measured at most 7.4e-6.
+                    assert!(gap < 2e-5, "{case}: {gap:.1e}");
                     let worst = p
                         .cones
                         .iter()
@@ -1122,7 +1090,6 @@ mod tests {
                 }
             }
         }
-        assert!(converged >= 25, "{converged} of 27 converged");
     }
 
     #[test]

@@ -96,6 +96,45 @@ pub struct LeastSquares<'a> {
     pub lambda: f64,
 }
 
+impl LeastSquares<'_> {
+    /// ½‖A x − b‖² + ½λ²‖x‖².
+    pub fn objective(&self, x: &[f64]) -> f64 {
+        let r2: f64 = self
+            .a
+            .mul(x)
+            .iter()
+            .zip(self.b)
+            .map(|(ax, b)| (ax - b).powi(2))
+            .sum();
+        0.5 * (r2 + self.lambda.powi(2) * x.iter().map(|v| v * v).sum::<f64>())
+    }
+
+    /// The objective's gradient Aᵀ(A x − b) + λ² x.
+    pub fn gradient(&self, x: &[f64]) -> Vec<f64> {
+        let r: Vec<f64> = self
+            .a
+            .mul(x)
+            .iter()
+            .zip(self.b)
+            .map(|(ax, b)| ax - b)
+            .collect();
+        let mut g = self.a.mul_transpose(&r);
+        for (gi, xi) in g.iter_mut().zip(x) {
+            *gi += self.lambda * self.lambda * xi;
+        }
+        g
+    }
+
+    /// (AᵀA + λ²I) v.
+    pub fn hessian_times(&self, v: &[f64]) -> Vec<f64> {
+        let mut h = self.a.mul_transpose(&self.a.mul(v));
+        for (hi, vi) in h.iter_mut().zip(v) {
+            *hi += self.lambda * self.lambda * vi;
+        }
+        h
+    }
+}
+
 /// A sparse matrix in triplet form (duplicates add up), the common currency
 /// between assembly and the back-ends.
 #[derive(Debug, Clone, Default, PartialEq)]

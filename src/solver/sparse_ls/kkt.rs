@@ -115,6 +115,7 @@ impl EqualityLeastSquares {
             symbolic,
             par,
             refine_to: ROUNDOFF_FLOOR,
+            first_delta: super::DELTA_LADDER[0],
             bordering: Bordering::Auto,
             numeric: None,
         })

@@ -185,6 +185,8 @@ pub struct EqualityLeastSquares {
     par: Par,
     /// Refinement stops once the relative KKT residual is below this.
     refine_to: f64,
+    /// The first δ tried (then the larger ones of [`DELTA_LADDER`]).
+    first_delta: f64,
     bordering: Bordering,
     numeric: Option<Numeric>,
 }
@@ -272,6 +274,15 @@ impl EqualityLeastSquares {
         self.refine_to = target.max(ROUNDOFF_FLOOR);
     }
 
+    /// Try this static regularisation first (then the larger δ of the
+    /// ladder). A smaller δ suits systems whose Schur complement on C is
+    /// tiny in some directions — the interior point's near its end: there
+    /// refinement of C x = d contracts by about δ/σ_min per step (measured on
+    /// a sheared 10³ packing: 60 steps at 1e-10, 4 at 1e-12).
+    pub(crate) fn set_first_regularisation(&mut self, delta: f64) {
+        self.first_delta = delta.clamp(1e-14, DELTA_LADDER[0]);
+    }
+
     /// Number of stored entries in the factor L (0 for an empty problem).
     pub fn factor_nnz(&self) -> usize {
         self.symbolic.as_ref().map_or(0, |s| s.len_val())
@@ -352,9 +363,9 @@ impl EqualityLeastSquares {
         check_finite(d, "d")?;
         if !self.same_pattern(a, c) {
             let coupling = std::mem::take(&mut self.coupling);
-            let (refine_to, bordering) = (self.refine_to, self.bordering);
+            let kept = (self.refine_to, self.first_delta, self.bordering);
             *self = Self::analyse(a, c, &coupling, self.par, self.ordering)?;
-            (self.refine_to, self.bordering) = (refine_to, bordering);
+            (self.refine_to, self.first_delta, self.bordering) = kept;
         }
         let n = self.n;
         if n == 0 {
@@ -379,6 +390,9 @@ impl EqualityLeastSquares {
         // first attempt breaks down. Inconsistent constraints (dual residual
         // converged, primal stuck) are not helped by a larger δ.
         let mut ladder: Vec<f64> = DELTA_LADDER.to_vec();
+        if self.first_delta < ladder[0] {
+            ladder.insert(0, self.first_delta);
+        }
         if let Some(num) = &self.numeric {
             if num.base.same_problem(a, c, lambda) && num.active.same(g, springs) {
                 ladder.retain(|&delta| delta >= num.base.delta);
