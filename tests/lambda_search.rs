@@ -115,3 +115,59 @@ fn exact_data_take_one_constrained_solve() {
         "relerr {relerr} against {former}"
     );
 }
+
+/// On a sheared packing the active set cannot settle at any λ: after the
+/// first constrained solve the search skips it and starts the interior point
+/// from the previous λ's mid-path iterate, in fewer iterations. The answer is
+/// still the optimum at the chosen λ: a cold solve by clarabel there agrees
+/// to the two interior points' tolerances.
+#[test]
+fn sheared_3d_search_restarts_the_interior_point_and_keeps_the_optimum() {
+    use grainforce::infer::ConstrainedSolver;
+    let dir =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/regression/box3d_sheared");
+    let scene = perturb(
+        &grainforce::scene::read_scene(&dir).unwrap(),
+        Noise::Stress,
+        18,
+    );
+    let r = infer(
+        &scene,
+        &InferOptions {
+            method: Method::Tikhonov,
+            ..InferOptions::default()
+        },
+    )
+    .unwrap();
+    let attempts = &r.report.solver_attempts;
+    eprintln!("{attempts:#?}");
+    let iterations = |a: &str| -> usize {
+        let (_, tail) = a
+            .split_once("factorisation: ")
+            .expect("the sparse interior point");
+        tail.split(' ').next().unwrap().parse().unwrap()
+    };
+    assert!(attempts.len() >= 2, "{attempts:?}");
+    assert!(attempts[0].starts_with("active set: no descent"));
+    for later in &attempts[1..] {
+        assert!(
+            later.starts_with("active set: skipped (it did not settle at a nearby λ)"),
+            "{later}"
+        );
+        assert!(iterations(later) < iterations(&attempts[0]), "{later}");
+    }
+    let lambda = r.report.lambda.unwrap();
+    let cold = infer(
+        &scene,
+        &InferOptions {
+            method: Method::Tikhonov,
+            lambda: Some(lambda),
+            solver: ConstrainedSolver::InteriorPoint,
+            ..InferOptions::default()
+        },
+    )
+    .unwrap();
+    let gap = relative_error(&cold.forces_or_zero(), &r.forces_or_zero());
+    eprintln!("λ {lambda:.4e}: {gap:.2e} from a cold clarabel solve");
+    assert!(gap < 1e-5, "{gap:.2e}");
+}

@@ -895,3 +895,55 @@ fn spd_factor_solves_columns_and_rejects_a_bad_pattern() {
     let err = SpdFactor::new(2, &col_ptr, &row_idx, &[1.0, 2.0, 1.0], Ordering::Amd, 0.0);
     assert!(matches!(err, Err(grainforce::Error::Solver(_))));
 }
+
+/// A with rows appended on single groups of the coupling (the interior
+/// point's cone rows on each contact) has the analysed KKT pattern: a solver
+/// sharing the analysis solves it as a fresh one does. A row across two
+/// groups widens the pattern and is refused.
+#[test]
+fn appended_rows_within_the_coupling_share_the_analysis() {
+    let mut rng = ChaCha8Rng::seed_from_u64(41);
+    let (n, groups) = (30, 10);
+    let a = random_sparse(&mut rng, 40, n, 0.1);
+    let c = random_sparse(&mut rng, 8, n, 0.2);
+    let mut coupling = Triplets::new(groups, n);
+    for j in 0..n {
+        coupling.push(j / 3, j, 1.0);
+    }
+    let base = EqualityLeastSquares::with_ordering(&a, &c, &coupling, Ordering::Amd).unwrap();
+    let mut appended = a.clone();
+    for g in 0..groups {
+        appended.nrows += 1;
+        for j in 3 * g..3 * g + 3 {
+            appended.push(appended.nrows - 1, j, rng.gen_range(0.5..2.0));
+        }
+    }
+    let (b, d) = (
+        random_vec(&mut rng, appended.nrows),
+        random_vec(&mut rng, c.nrows),
+    );
+    let mut shared = base
+        .sharing_analysis(&appended, &c)
+        .unwrap()
+        .expect("rows within the coupling keep the pattern");
+    let mut fresh =
+        EqualityLeastSquares::with_ordering(&appended, &c, &coupling, Ordering::Amd).unwrap();
+    let x_shared = shared.solve(&appended, &c, &b, &d, 0.0).unwrap().x;
+    let x_fresh = fresh.solve(&appended, &c, &b, &d, 0.0).unwrap().x;
+    assert!(rel_diff(&x_shared, &x_fresh) < 1e-12);
+    assert!(rel_diff(&x_shared, &dense_solution(&appended, &c, &b, &d, 0.0)) < 1e-8);
+
+    // Two unknowns of different groups that no row of A couples yet.
+    let dense_a = dense(&a);
+    let (i, j) = (0..n)
+        .flat_map(|i| (i + 1..n).map(move |j| (i, j)))
+        .find(|&(i, j)| {
+            i / 3 != j / 3 && (0..a.nrows).all(|r| dense_a[(r, i)] == 0.0 || dense_a[(r, j)] == 0.0)
+        })
+        .unwrap();
+    let mut across = a.clone();
+    across.nrows += 1;
+    across.push(a.nrows, i, 1.0);
+    across.push(a.nrows, j, 1.0);
+    assert!(base.sharing_analysis(&across, &c).unwrap().is_none());
+}

@@ -626,7 +626,7 @@ pub fn infer_time_fit(
         },
         &problem.cones,
         &unconstrained,
-        &mut None,
+        &mut Default::default(),
         stages,
         &opts.active_set,
         Instant::now(),

@@ -9,7 +9,9 @@ use super::{
 };
 use crate::solver::Triplets;
 use crate::{Error, Result};
+use faer::sparse::linalg::cholesky::SymbolicCholesky;
 use faer::Par;
+use std::sync::Arc;
 
 /// Block labels of the KKT's vertices for nested dissection, each a vertex of
 /// its block: the unknowns of one row of `coupling` (a contact) are labelled
@@ -24,6 +26,49 @@ pub(super) fn kkt_blocks(n: usize, c_rows: usize, coupling: &Triplets) -> Vec<us
         labels[col] = labels[col].min(first[row]);
     }
     labels
+}
+
+/// The upper pattern of the KKT matrix: [A; coupling]ᵀ[A; coupling], then
+/// the rows of C (each with its diagonal entry), after validating the three.
+fn kkt_pattern(
+    a: &Triplets,
+    c: &Triplets,
+    coupling: &Triplets,
+) -> Result<(Vec<usize>, Vec<usize>)> {
+    check_pair(a, c)?;
+    check_triplets(coupling, "coupling")?;
+    if coupling.ncols != a.ncols {
+        return Err(Error::Invalid(format!(
+            "the coupling pattern has {} columns but A has {}",
+            coupling.ncols, a.ncols
+        )));
+    }
+    let n = a.ncols;
+    let a_csr = Compressed::from_entries(a.nrows, n, &a.rows, &a.cols);
+    let a_csc = Compressed::from_entries(n, a.nrows, &a.cols, &a.rows);
+    let c_csr = Compressed::from_entries(c.nrows, n, &c.rows, &c.cols);
+    let stacked_rows: Vec<usize> = a
+        .rows
+        .iter()
+        .copied()
+        .chain(coupling.rows.iter().map(|r| r + a.nrows))
+        .collect();
+    let stacked_cols: Vec<usize> = a.cols.iter().chain(&coupling.cols).copied().collect();
+    let stacked_m = a.nrows + coupling.nrows;
+    let (mut col_ptr, mut row_idx) = if coupling.nrows == 0 {
+        gram_upper_pattern(&a_csr, &a_csc)
+    } else {
+        gram_upper_pattern(
+            &Compressed::from_entries(stacked_m, n, &stacked_rows, &stacked_cols),
+            &Compressed::from_entries(n, stacked_m, &stacked_cols, &stacked_rows),
+        )
+    };
+    for i in 0..c.nrows {
+        row_idx.extend_from_slice(&c_csr.idx[c_csr.range(i)]);
+        row_idx.push(n + i);
+        col_ptr.push(row_idx.len());
+    }
+    Ok((col_ptr, row_idx))
 }
 
 /// What every factorisation of one A, C, λ and δ starts from, whatever the
@@ -65,52 +110,77 @@ impl EqualityLeastSquares {
         par: Par,
         ordering: Ordering,
     ) -> Result<Self> {
-        check_pair(a, c)?;
-        check_triplets(coupling, "coupling")?;
-        if coupling.ncols != a.ncols {
-            return Err(Error::Invalid(format!(
-                "the coupling pattern has {} columns but A has {}",
-                coupling.ncols, a.ncols
-            )));
+        let (kkt_col_ptr, kkt_row_idx) = kkt_pattern(a, c, coupling)?;
+        let blocks = kkt_blocks(a.ncols, c.nrows, coupling);
+        let symbolic = symbolic_analysis(
+            a.ncols + c.nrows,
+            &kkt_col_ptr,
+            &kkt_row_idx,
+            ordering,
+            Some(&blocks),
+        )?
+        .map(Arc::new);
+        Ok(Self::on_analysis(
+            a,
+            c,
+            coupling,
+            (kkt_col_ptr, kkt_row_idx),
+            symbolic,
+            par,
+            ordering,
+        ))
+    }
+
+    /// A solver for another A whose KKT pattern (with this coupling and C) is
+    /// the analysed one — e.g. A with rows appended on single contacts — that
+    /// shares this symbolic analysis instead of redoing the ordering. `None`
+    /// when the patterns differ.
+    pub fn sharing_analysis(&self, a: &Triplets, c: &Triplets) -> Result<Option<Self>> {
+        if c.nrows != self.c_pattern.0
+            || c.rows != self.c_pattern.1
+            || c.cols != self.c_pattern.2
+            || a.ncols != self.n
+        {
+            return Ok(None);
         }
+        let pattern = kkt_pattern(a, c, &self.coupling)?;
+        if pattern.0 != self.kkt_col_ptr || pattern.1 != self.kkt_row_idx {
+            return Ok(None);
+        }
+        let mut shared = Self::on_analysis(
+            a,
+            c,
+            &self.coupling,
+            pattern,
+            self.symbolic.clone(),
+            self.par,
+            self.ordering,
+        );
+        (shared.refine_to, shared.first_delta, shared.bordering) =
+            (self.refine_to, self.first_delta, self.bordering);
+        Ok(Some(shared))
+    }
+
+    fn on_analysis(
+        a: &Triplets,
+        c: &Triplets,
+        coupling: &Triplets,
+        (kkt_col_ptr, kkt_row_idx): (Vec<usize>, Vec<usize>),
+        symbolic: Option<Arc<SymbolicCholesky<usize>>>,
+        par: Par,
+        ordering: Ordering,
+    ) -> Self {
         let n = a.ncols;
-        let a_csr = Compressed::from_entries(a.nrows, n, &a.rows, &a.cols);
-        let a_csc = Compressed::from_entries(n, a.nrows, &a.cols, &a.rows);
-        let c_csr = Compressed::from_entries(c.nrows, n, &c.rows, &c.cols);
-        // Pattern of [A; coupling]ᵀ[A; coupling].
-        let stacked_rows: Vec<usize> = a
-            .rows
-            .iter()
-            .copied()
-            .chain(coupling.rows.iter().map(|r| r + a.nrows))
-            .collect();
-        let stacked_cols: Vec<usize> = a.cols.iter().chain(&coupling.cols).copied().collect();
-        let stacked_m = a.nrows + coupling.nrows;
-        let (mut col_ptr, mut row_idx) = if coupling.nrows == 0 {
-            gram_upper_pattern(&a_csr, &a_csc)
-        } else {
-            gram_upper_pattern(
-                &Compressed::from_entries(stacked_m, n, &stacked_rows, &stacked_cols),
-                &Compressed::from_entries(n, stacked_m, &stacked_cols, &stacked_rows),
-            )
-        };
-        for i in 0..c.nrows {
-            row_idx.extend_from_slice(&c_csr.idx[c_csr.range(i)]);
-            row_idx.push(n + i);
-            col_ptr.push(row_idx.len());
-        }
-        let blocks = kkt_blocks(n, c.nrows, coupling);
-        let symbolic = symbolic_analysis(n + c.nrows, &col_ptr, &row_idx, ordering, Some(&blocks))?;
-        Ok(EqualityLeastSquares {
+        EqualityLeastSquares {
             n,
             a_pattern: (a.nrows, a.rows.clone(), a.cols.clone()),
             c_pattern: (c.nrows, c.rows.clone(), c.cols.clone()),
             coupling: coupling.clone(),
-            a_csr,
-            a_csc,
-            c_csr,
-            kkt_col_ptr: col_ptr,
-            kkt_row_idx: row_idx,
+            a_csr: Compressed::from_entries(a.nrows, n, &a.rows, &a.cols),
+            a_csc: Compressed::from_entries(n, a.nrows, &a.cols, &a.rows),
+            c_csr: Compressed::from_entries(c.nrows, n, &c.rows, &c.cols),
+            kkt_col_ptr,
+            kkt_row_idx,
             ordering,
             symbolic,
             par,
@@ -118,7 +188,7 @@ impl EqualityLeastSquares {
             first_delta: super::DELTA_LADDER[0],
             bordering: Bordering::Auto,
             numeric: None,
-        })
+        }
     }
 
     pub(super) fn same_pattern(&self, a: &Triplets, c: &Triplets) -> bool {

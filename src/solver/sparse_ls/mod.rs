@@ -181,7 +181,8 @@ pub struct EqualityLeastSquares {
     kkt_col_ptr: Vec<usize>,
     kkt_row_idx: Vec<usize>,
     ordering: Ordering,
-    symbolic: Option<SymbolicCholesky<usize>>,
+    /// Shared with solvers made by [`Self::sharing_analysis`].
+    symbolic: Option<std::sync::Arc<SymbolicCholesky<usize>>>,
     par: Par,
     /// Refinement stops once the relative KKT residual is below this.
     refine_to: f64,
@@ -246,7 +247,8 @@ impl EqualityLeastSquares {
             &self.kkt_row_idx,
             ordering,
             Some(&blocks),
-        )?;
+        )?
+        .map(std::sync::Arc::new);
         self.ordering = ordering;
         self.numeric = None;
         Ok(())
