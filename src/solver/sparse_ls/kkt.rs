@@ -28,47 +28,59 @@ pub(super) fn kkt_blocks(n: usize, c_rows: usize, coupling: &Triplets) -> Vec<us
     labels
 }
 
-/// The upper pattern of the KKT matrix: [A; coupling]ᵀ[A; coupling], then
-/// the rows of C (each with its diagonal entry), after validating the three.
-fn kkt_pattern(
-    a: &Triplets,
-    c: &Triplets,
-    coupling: &Triplets,
-) -> Result<(Vec<usize>, Vec<usize>)> {
-    check_pair(a, c)?;
-    check_triplets(coupling, "coupling")?;
-    if coupling.ncols != a.ncols {
-        return Err(Error::Invalid(format!(
-            "the coupling pattern has {} columns but A has {}",
-            coupling.ncols, a.ncols
-        )));
+/// A's and C's patterns compressed, and the upper pattern of the KKT matrix
+/// they make: [A; coupling]ᵀ[A; coupling], then the rows of C (each with its
+/// diagonal entry).
+struct Patterns {
+    a_csr: Compressed,
+    a_csc: Compressed,
+    c_csr: Compressed,
+    kkt: (Vec<usize>, Vec<usize>),
+}
+
+impl Patterns {
+    /// After validating A, C and the coupling.
+    fn new(a: &Triplets, c: &Triplets, coupling: &Triplets) -> Result<Self> {
+        check_pair(a, c)?;
+        check_triplets(coupling, "coupling")?;
+        if coupling.ncols != a.ncols {
+            return Err(Error::Invalid(format!(
+                "the coupling pattern has {} columns but A has {}",
+                coupling.ncols, a.ncols
+            )));
+        }
+        let n = a.ncols;
+        let a_csr = Compressed::from_entries(a.nrows, n, &a.rows, &a.cols);
+        let a_csc = Compressed::from_entries(n, a.nrows, &a.cols, &a.rows);
+        let c_csr = Compressed::from_entries(c.nrows, n, &c.rows, &c.cols);
+        let stacked_rows: Vec<usize> = a
+            .rows
+            .iter()
+            .copied()
+            .chain(coupling.rows.iter().map(|r| r + a.nrows))
+            .collect();
+        let stacked_cols: Vec<usize> = a.cols.iter().chain(&coupling.cols).copied().collect();
+        let stacked_m = a.nrows + coupling.nrows;
+        let (mut col_ptr, mut row_idx) = if coupling.nrows == 0 {
+            gram_upper_pattern(&a_csr, &a_csc)
+        } else {
+            gram_upper_pattern(
+                &Compressed::from_entries(stacked_m, n, &stacked_rows, &stacked_cols),
+                &Compressed::from_entries(n, stacked_m, &stacked_cols, &stacked_rows),
+            )
+        };
+        for i in 0..c.nrows {
+            row_idx.extend_from_slice(&c_csr.idx[c_csr.range(i)]);
+            row_idx.push(n + i);
+            col_ptr.push(row_idx.len());
+        }
+        Ok(Patterns {
+            a_csr,
+            a_csc,
+            c_csr,
+            kkt: (col_ptr, row_idx),
+        })
     }
-    let n = a.ncols;
-    let a_csr = Compressed::from_entries(a.nrows, n, &a.rows, &a.cols);
-    let a_csc = Compressed::from_entries(n, a.nrows, &a.cols, &a.rows);
-    let c_csr = Compressed::from_entries(c.nrows, n, &c.rows, &c.cols);
-    let stacked_rows: Vec<usize> = a
-        .rows
-        .iter()
-        .copied()
-        .chain(coupling.rows.iter().map(|r| r + a.nrows))
-        .collect();
-    let stacked_cols: Vec<usize> = a.cols.iter().chain(&coupling.cols).copied().collect();
-    let stacked_m = a.nrows + coupling.nrows;
-    let (mut col_ptr, mut row_idx) = if coupling.nrows == 0 {
-        gram_upper_pattern(&a_csr, &a_csc)
-    } else {
-        gram_upper_pattern(
-            &Compressed::from_entries(stacked_m, n, &stacked_rows, &stacked_cols),
-            &Compressed::from_entries(n, stacked_m, &stacked_cols, &stacked_rows),
-        )
-    };
-    for i in 0..c.nrows {
-        row_idx.extend_from_slice(&c_csr.idx[c_csr.range(i)]);
-        row_idx.push(n + i);
-        col_ptr.push(row_idx.len());
-    }
-    Ok((col_ptr, row_idx))
 }
 
 /// What every factorisation of one A, C, λ and δ starts from, whatever the
@@ -110,24 +122,18 @@ impl EqualityLeastSquares {
         par: Par,
         ordering: Ordering,
     ) -> Result<Self> {
-        let (kkt_col_ptr, kkt_row_idx) = kkt_pattern(a, c, coupling)?;
+        let patterns = Patterns::new(a, c, coupling)?;
         let blocks = kkt_blocks(a.ncols, c.nrows, coupling);
         let symbolic = symbolic_analysis(
             a.ncols + c.nrows,
-            &kkt_col_ptr,
-            &kkt_row_idx,
+            &patterns.kkt.0,
+            &patterns.kkt.1,
             ordering,
             Some(&blocks),
         )?
         .map(Arc::new);
         Ok(Self::on_analysis(
-            a,
-            c,
-            coupling,
-            (kkt_col_ptr, kkt_row_idx),
-            symbolic,
-            par,
-            ordering,
+            a, c, coupling, patterns, symbolic, par, ordering,
         ))
     }
 
@@ -143,15 +149,15 @@ impl EqualityLeastSquares {
         {
             return Ok(None);
         }
-        let pattern = kkt_pattern(a, c, &self.coupling)?;
-        if pattern.0 != self.kkt_col_ptr || pattern.1 != self.kkt_row_idx {
+        let patterns = Patterns::new(a, c, &self.coupling)?;
+        if patterns.kkt.0 != self.kkt_col_ptr || patterns.kkt.1 != self.kkt_row_idx {
             return Ok(None);
         }
         let mut shared = Self::on_analysis(
             a,
             c,
             &self.coupling,
-            pattern,
+            patterns,
             self.symbolic.clone(),
             self.par,
             self.ordering,
@@ -165,20 +171,25 @@ impl EqualityLeastSquares {
         a: &Triplets,
         c: &Triplets,
         coupling: &Triplets,
-        (kkt_col_ptr, kkt_row_idx): (Vec<usize>, Vec<usize>),
+        patterns: Patterns,
         symbolic: Option<Arc<SymbolicCholesky<usize>>>,
         par: Par,
         ordering: Ordering,
     ) -> Self {
-        let n = a.ncols;
+        let Patterns {
+            a_csr,
+            a_csc,
+            c_csr,
+            kkt: (kkt_col_ptr, kkt_row_idx),
+        } = patterns;
         EqualityLeastSquares {
-            n,
+            n: a.ncols,
             a_pattern: (a.nrows, a.rows.clone(), a.cols.clone()),
             c_pattern: (c.nrows, c.rows.clone(), c.cols.clone()),
             coupling: coupling.clone(),
-            a_csr: Compressed::from_entries(a.nrows, n, &a.rows, &a.cols),
-            a_csc: Compressed::from_entries(n, a.nrows, &a.cols, &a.rows),
-            c_csr: Compressed::from_entries(c.nrows, n, &c.rows, &c.cols),
+            a_csr,
+            a_csc,
+            c_csr,
             kkt_col_ptr,
             kkt_row_idx,
             ordering,
