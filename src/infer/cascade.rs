@@ -329,67 +329,22 @@ pub(crate) fn constrained_on_factor(
     };
     let sol = match sol {
         Some(sol) if sol.converged => sol,
-        _ => {
-            let why = match sol {
+        failed => {
+            let why = match failed {
                 Some(sol) => sol
                     .reason
                     .map_or_else(|| "not converged".to_owned(), |r| r.to_string()),
                 None => "skipped (it did not settle at a nearby λ)".to_owned(),
             };
-            // Only a nearby λ's mid-path iterate is a good start.
-            let restart = if warm.expects_active_set_to_fail(p.lambda) {
-                warm.interior_point.take()
-            } else {
-                None
-            };
-            warm.pieces = None;
-            warm.active_set_failed_at = Some(p.lambda);
-            // A failure of this stage (e.g. its own analysis) is a reason to
-            // fall back to clarabel, not an error of the inference.
-            let ip = match interior_point::solve(
+            return Ok(sparse_interior_point(
+                factor,
                 p,
                 cone_list,
-                &unconstrained.x,
-                factor,
-                restart.as_ref(),
-                &InteriorPointSettings::default(),
-            ) {
-                Ok(mut ip) if ip.converged => {
-                    warm.interior_point = ip.restart.take();
-                    ip
-                }
-                outcome => {
-                    let failure = match outcome {
-                        Ok(ip) => format!(
-                            "{} after {} iterations",
-                            ip.reason.as_deref().unwrap_or("not converged"),
-                            ip.iterations
-                        ),
-                        Err(e) => e.to_string(),
-                    };
-                    return Ok((
-                    None,
-                    Some(format!(
-                        "active set: {why}; interior point on the sparse factorisation: {failure}; solved by the interior point instead"
-                    )),
-                ));
-                }
-            };
-            return Ok((
-            Some(ConicSolution {
-                x: ip.x,
-                status: SolveStatus::SparseInteriorPoint { polished: false },
-                iterations: ip.iterations as u32,
-                solve_time: start.elapsed().as_secs_f64(),
-                attempts: vec![format!(
-                    "active set: {why}; interior point on the sparse factorisation: {} iterations (gap {:.1e})",
-                    ip.iterations, ip.gap
-                )],
-                softened: false,
-                warnings: Vec::new(),
-            }),
-            None,
-        ));
+                unconstrained,
+                warm,
+                &why,
+                start,
+            ));
         }
     };
     *warm = WarmStart {
@@ -411,6 +366,70 @@ pub(crate) fn constrained_on_factor(
         }),
         None,
     ))
+}
+
+/// Stage 4, after the active set did not settle (`why`): the interior point
+/// on the cluster's analysis, restarted mid-path from a nearby λ's solve when
+/// there was one. Its answer, else why it failed too (clarabel follows).
+fn sparse_interior_point(
+    factor: &EqualityLeastSquares,
+    p: &LeastSquares,
+    cone_list: &[Cone],
+    unconstrained: &ConicSolution,
+    warm: &mut WarmStart,
+    why: &str,
+    start: Instant,
+) -> (Option<ConicSolution>, Option<String>) {
+    // Only a nearby λ's mid-path iterate is a good start.
+    let restart = if warm.expects_active_set_to_fail(p.lambda) {
+        warm.interior_point.take()
+    } else {
+        None
+    };
+    *warm = WarmStart {
+        active_set_failed_at: Some(p.lambda),
+        ..Default::default()
+    };
+    // A failure of this stage (e.g. its own analysis) is a reason to fall
+    // back to clarabel, not an error of the inference.
+    let outcome = interior_point::solve(
+        p,
+        cone_list,
+        &unconstrained.x,
+        factor,
+        restart.as_ref(),
+        &InteriorPointSettings::default(),
+    );
+    let mut ip = match outcome {
+        Ok(ip) if ip.converged => ip,
+        Ok(ip) => {
+            let reason = ip.reason.as_deref().unwrap_or("not converged");
+            let failure = format!("{reason} after {} iterations", ip.iterations);
+            return (None, Some(ip_failed(why, &failure)));
+        }
+        Err(e) => return (None, Some(ip_failed(why, &e.to_string()))),
+    };
+    warm.interior_point = ip.restart.take();
+    let attempt = format!(
+        "active set: {why}; interior point on the sparse factorisation: {} iterations (gap {:.1e})",
+        ip.iterations, ip.gap
+    );
+    let solution = ConicSolution {
+        x: ip.x,
+        status: SolveStatus::SparseInteriorPoint { polished: false },
+        iterations: ip.iterations as u32,
+        solve_time: start.elapsed().as_secs_f64(),
+        attempts: vec![attempt],
+        softened: false,
+        warnings: Vec::new(),
+    };
+    (Some(solution), None)
+}
+
+fn ip_failed(why: &str, failure: &str) -> String {
+    format!(
+        "active set: {why}; interior point on the sparse factorisation: {failure}; solved by the interior point instead"
+    )
 }
 
 /// Relative size of a cone violation treated as round-off of an exact answer.
