@@ -93,10 +93,8 @@ impl InteriorPointSolution {
 impl RestartPoint {
     /// Made for a problem of these sizes (unknowns, equality rows, cone rows).
     fn fits(&self, n: usize, m: usize, cone_rows: usize) -> bool {
-        self.x.len() == n
-            && self.y.len() == m
-            && self.s.len() == cone_rows
-            && self.z.len() == cone_rows
+        let it = &self.0;
+        it.x.len() == n && it.y.len() == m && it.s.len() == cone_rows && it.z.len() == cone_rows
     }
 }
 
@@ -110,12 +108,7 @@ const RESTART_GAP: f64 = 1e-3;
 /// still well inside the cones, and centred, so a nearby problem (the next
 /// λ of a search) can start there and skip the path's first half. Opaque.
 #[derive(Debug, Clone)]
-pub struct RestartPoint {
-    x: Vec<f64>,
-    y: Vec<f64>,
-    s: Vec<f64>,
-    z: Vec<f64>,
-}
+pub struct RestartPoint(Iterate);
 
 /// The cones as rows of G: half-lines s = g·x ≥ 0 first, then second-order
 /// cones s = (μ x_n, x_t1, x_t2).
@@ -492,12 +485,7 @@ pub fn solve(
     ls.set_first_regularisation(REGULARISATION);
 
     let mut it = match restart {
-        Some(r) if r.fits(n, problem.c.nrows, rows.len()) => Iterate {
-            x: r.x.clone(),
-            y: r.y.clone(),
-            s: r.s.clone(),
-            z: r.z.clone(),
-        },
+        Some(r) if r.fits(n, problem.c.nrows, rows.len()) => r.0.clone(),
         _ => Iterate::start(problem, cones, &rows, start),
     };
     let mut keep: Option<RestartPoint> = None;
@@ -511,7 +499,7 @@ pub fn solve(
     // A restart already this deep is kept as it is, so that a chain of
     // nearby problems does not drift to the end of the path.
     if measures.gap <= RESTART_GAP {
-        keep = Some(it.restart_point());
+        keep = Some(RestartPoint(it.clone()));
     }
     let mut stop = format!("{} iterations", settings.max_iterations);
     let mut iterations = settings.max_iterations;
@@ -553,7 +541,7 @@ pub fn solve(
         }
         measures = it.measures(problem, &rows);
         if keep.is_none() && measures.gap <= RESTART_GAP {
-            keep = Some(it.restart_point());
+            keep = Some(RestartPoint(it.clone()));
         }
     }
     // Stopped short of the tenfold-finer gap: the best certified point is
@@ -623,6 +611,7 @@ impl std::fmt::Display for Measures {
 }
 
 /// The primal–dual point and what is tracked along the steps.
+#[derive(Debug, Clone)]
 struct Iterate {
     x: Vec<f64>,
     /// Multipliers of C x = d.
@@ -885,15 +874,6 @@ impl Iterate {
             primal_residual: measures.primal,
             dual_residual: measures.dual,
             restart: None,
-        }
-    }
-
-    fn restart_point(&self) -> RestartPoint {
-        RestartPoint {
-            x: self.x.clone(),
-            y: self.y.clone(),
-            s: self.s.clone(),
-            z: self.z.clone(),
         }
     }
 }
