@@ -6,7 +6,9 @@
 
 mod common;
 use grainforce::bench::{perturb, Noise};
-use grainforce::infer::{infer, InferOptions, InferenceReport, LambdaSearch, Method};
+use grainforce::infer::{
+    infer, InferOptions, InferenceReport, LambdaPrecision, LambdaSearch, Method,
+};
 use grainforce::report::metrics::relative_error;
 use grainforce::scene::{Scene, Vec3};
 
@@ -89,6 +91,61 @@ fn oedometer_2d_lambda_as_good_with_at_most_six_constrained_solves() {
 #[test]
 fn oedometer_3d_lambda_as_good_with_at_most_six_constrained_solves() {
     compare("regression/oedometer3d_seed1", 1..=2);
+}
+
+/// `LambdaPrecision::Coarse`: the same unconstrained scan, then one
+/// constrained solve at its optimum. The forces stay within ~1 % of the fine
+/// search's and as close to the truth (eq. 2.16 noise: the λ precision the
+/// fine steps buy moves the forces far less than the noise does).
+#[test]
+fn coarse_precision_solves_once_at_the_unconstrained_optimum() {
+    for (fixture, seeds) in [
+        ("oedometer", 1..=2),
+        ("regression/oedometer3d_seed1", 1..=2),
+    ] {
+        let (scene, truth) = common::fixture(fixture);
+        for seed in seeds {
+            let noisy = perturb(&scene, Noise::Stress, seed);
+            let run = |precision| {
+                let search = LambdaSearch {
+                    precision,
+                    ..LambdaSearch::default()
+                };
+                let options = InferOptions {
+                    method: Method::Tikhonov,
+                    lambda_search: search,
+                    ..InferOptions::default()
+                };
+                infer(&noisy, &options).unwrap()
+            };
+            let (fine, coarse) = (run(LambdaPrecision::Fine), run(LambdaPrecision::Coarse));
+            let trace = coarse.report.lambda_trace.as_ref().unwrap();
+            let fine_trace = fine.report.lambda_trace.as_ref().unwrap();
+            let apart = relative_error(&fine.forces_or_zero(), &coarse.forces_or_zero());
+            let fine_err = relative_error(&truth, &fine.forces_or_zero());
+            let coarse_err = relative_error(&truth, &coarse.forces_or_zero());
+            eprintln!(
+                "{fixture} seed {seed}: coarse λ {:.4e} (fine {:.4e}), forces {apart:.2e} apart, \
+                 relerr {coarse_err:.5} (fine {fine_err:.5}), constrained solves 1 (fine {})",
+                coarse.report.lambda.unwrap(),
+                fine.report.lambda.unwrap(),
+                fine_trace.points.len()
+            );
+            assert_eq!(trace.points.len(), 1);
+            assert_eq!(trace.unconstrained, fine_trace.unconstrained);
+            let best = trace
+                .unconstrained
+                .iter()
+                .min_by(|p, q| p.1.total_cmp(&q.1))
+                .unwrap();
+            assert!((trace.points[0].0 / best.0 - 1.0).abs() < 1e-12);
+            assert!(apart < 0.02, "forces {apart:.2e} apart");
+            assert!(
+                coarse_err <= fine_err + 2e-3,
+                "relerr {coarse_err} against fine's {fine_err}"
+            );
+        }
+    }
 }
 
 /// Exact stresses: the mismatch is smallest, and flat, at the low end, so the

@@ -354,7 +354,7 @@ def infer(
     raises on collapsed forces unless accept_degenerate=True. Every other
     option of ``grainforce infer`` is a keyword with its flag's name (``-``
     becomes ``_``, and ``lambda`` is ``lambda_``): stress_noise, mu, lambda_,
-    lambda_range=(min, max), gravity=(gx, gy), grains=[ids],
+    lambda_range=(min, max), lambda_precision, gravity=(gx, gy), grains=[ids],
     region=(xmin, xmax, ymin, ymax), cone, solver, ordering, tolerance,
     allow_infeasible=True, accept_degenerate=True, wall_weight, lambda_rule,
     stress_sd, accel_sd, sweep, sweep_points, frames=(a, b), fps,

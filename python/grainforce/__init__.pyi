@@ -83,6 +83,7 @@ def infer(
     mu: Optional[float] = None,
     lambda_: Optional[float] = None,
     lambda_range: Optional[Tuple[float, float]] = None,
+    lambda_precision: Optional[Literal["fine", "coarse"]] = None,
     gravity: Optional[Sequence[float]] = None,
     grains: Optional[Sequence[Union[str, int]]] = None,
     region: Optional[Sequence[float]] = None,

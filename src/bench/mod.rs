@@ -13,7 +13,7 @@ pub use generate::{generate, Packing, PackingSpec};
 pub use noise::{perturb, Noise};
 
 use crate::error::{Error, Result};
-use crate::infer::{infer, ConeModel, ConstrainedSolver, InferOptions, Method};
+use crate::infer::{infer, ConeModel, ConstrainedSolver, InferOptions, LambdaPrecision, Method};
 use crate::report::chart::{Chart, Scale};
 use crate::report::metrics::relative_error;
 use crate::scene::{Scene, Vec3};
@@ -31,15 +31,16 @@ pub struct MethodSpec {
 }
 
 /// Names accepted by [`method_spec`]: `ls`, `qs`, `qs-ip`, `qs-relaxed`,
-/// `tikhonov`, `tikhonov-ip`, `tikhonov-relaxed`, `tikhonov-search`, `scaled`,
-/// and in 3D `qs-pyr4`, `qs-pyr8`, `qs-pyr16` (any `qs-pyrK`, `K` ≥ 3). `qs`
+/// `tikhonov`, `tikhonov-ip`, `tikhonov-relaxed`, `tikhonov-search` (λ
+/// matched to the walls), `tikhonov-coarse` (the same at
+/// [`LambdaPrecision::Coarse`]), `scaled`, and in 3D `qs-pyr4`, `qs-pyr8`, `qs-pyr16` (any `qs-pyrK`, `K` ≥ 3). `qs`
 /// and `tikhonov` use the active-set solver, `-ip` the interior point (clarabel,
 /// tolerance 1e-8), `-relaxed` the interior point at tolerance 1e-4; any name
 /// may end in `-nocheck` to skip the identifiability (uniqueness) check, and
 /// (before that) in `-relative` to weight the stress rows by the relative
 /// noise model (`--stress-noise relative`); `soft` is momentum as a penalty.
 pub const METHOD_NAMES: &str =
-    "ls, qs, qs-ip, qs-relaxed, tikhonov, tikhonov-ip, tikhonov-relaxed, tikhonov-search, scaled, qs-pyrK (3D: K facets, e.g. qs-pyr8), soft, each optionally with -relative and then -nocheck";
+    "ls, qs, qs-ip, qs-relaxed, tikhonov, tikhonov-ip, tikhonov-relaxed, tikhonov-search, tikhonov-coarse, scaled, qs-pyrK (3D: K facets, e.g. qs-pyr8), soft, each optionally with -relative and then -nocheck";
 
 /// The default matrix: the floor, the constrained formulations by active set
 /// and by interior point at both tolerances and, in 3D, pyramids of 4, 8 and 16 facets.
@@ -92,6 +93,10 @@ pub fn method_spec(name: &str, lambda: f64) -> Result<MethodSpec> {
             o.lambda = Some(lambda);
         }
         "tikhonov-search" if base == name_rest => o.method = Method::Tikhonov,
+        "tikhonov-coarse" if base == name_rest => {
+            o.method = Method::Tikhonov;
+            o.lambda_search.precision = LambdaPrecision::Coarse;
+        }
         "scaled" if base == name_rest => o.method = Method::Scaled,
         "soft" if base == name_rest => o.method = Method::Soft,
         _ => {

@@ -12,7 +12,8 @@
 //! solves around the unconstrained optimum, warm-started from one another,
 //! then up to three Brent steps from them (the first at the vertex of the
 //! parabola through their squared mismatches). The answer is the best
-//! constrained solve. The grid is scanned from the largest
+//! constrained solve. At [`LambdaPrecision::Coarse`] the constrained solve
+//! at the unconstrained optimum is the answer. The grid is scanned from the largest
 //! λ down and stops once the mismatch no longer changes: below that it varies
 //! as λ², so it stays flat. `constrained_scan` keeps the former search (a
 //! constrained solve at every grid point and golden-section step).
@@ -41,6 +42,26 @@ pub struct LambdaSearch {
     /// constrained solves at its defaults), rather than with the unconstrained
     /// least squares and at most 6 constrained solves).
     pub constrained_scan: bool,
+    /// How finely the constrained answer's mismatch is minimised after the
+    /// unconstrained scan.
+    pub precision: LambdaPrecision,
+}
+
+/// Speed against precision of λ after the unconstrained scan.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
+pub enum LambdaPrecision {
+    /// The constrained answer's mismatch minimised to 10⁻⁴ decades of λ:
+    /// three constrained solves around the unconstrained optimum and up to
+    /// three of Brent's steps.
+    #[default]
+    Fine,
+    /// One constrained solve, at the unconstrained least squares' optimum.
+    /// On the DEM fixtures with eq. 2.16 noise its forces lay 0.04–0.9 %
+    /// from the fine search's, their error against the truth within ±0.001
+    /// of it (as often better as worse), for 0.28 (sheared 10³ spheres,
+    /// interior point) to 0.58 (2 197 sliding spheres, active set) of the
+    /// time (docs/bench.md).
+    Coarse,
 }
 
 impl Default for LambdaSearch {
@@ -51,6 +72,7 @@ impl Default for LambdaSearch {
             grid: 7,
             refine: 12,
             constrained_scan: false,
+            precision: LambdaPrecision::Fine,
         }
     }
 }
@@ -74,7 +96,8 @@ impl LambdaSearch {
     }
 
     /// The constrained solves of the unconstrained scan when its mismatch
-    /// follows the constrained one (no fallback), at most.
+    /// follows the constrained one (no fallback), at most, at
+    /// [`LambdaPrecision::Fine`] (one at `Coarse`).
     pub const GUIDED_SOLVES: usize = 3 + CONSTRAINED_STEPS;
 
     /// The search before issue 20: 19 constrained solves on the grid and 16
@@ -86,6 +109,7 @@ impl LambdaSearch {
             grid: 19,
             refine: 16,
             constrained_scan: true,
+            precision: LambdaPrecision::Fine,
         }
     }
 }
@@ -303,7 +327,7 @@ pub(crate) fn search(
             cheap = false;
             continue;
         }
-        if plateau {
+        if plateau || s.precision == LambdaPrecision::Coarse {
             break at_edge;
         }
         // ... then its two neighbours (warm), then Brent's steps from the

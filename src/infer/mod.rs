@@ -25,7 +25,7 @@ pub mod uncertainty;
 pub use crate::solver::active_set::ActiveSetSettings;
 pub use collapse::{Collapse, OnCollapse};
 pub use dynamic::{DynamicOptions, Front, LambdaRule};
-pub use lambda::{LambdaSearch, LambdaTrace};
+pub use lambda::{LambdaPrecision, LambdaSearch, LambdaTrace};
 pub use noise::StressNoise;
 pub use report::InferenceReport;
 pub use sequence::{infer_frames, infer_sequence, Progress};
