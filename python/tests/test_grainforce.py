@@ -61,6 +61,7 @@ def assert_same_forces(got, expected, tolerance=1e-12):
     [
         ("qs", {}, []),
         ("tikhonov", {"lambda_": 2e-4, "mu": 0.4}, ["--lambda", "2e-4", "--mu", "0.4"]),
+        ("tikhonov", {"lambda_precision": "coarse"}, ["--lambda-precision", "coarse"]),
         ("ls", {}, []),
         ("scaled", {"solver": "interior_point"}, ["--solver", "interior-point"]),
     ],
