@@ -33,9 +33,10 @@ pub struct MethodSpec {
 /// Names accepted by [`method_spec`]: `ls`, `qs`, `qs-ip`, `qs-relaxed`,
 /// `tikhonov`, `tikhonov-ip`, `tikhonov-relaxed`, `tikhonov-search` (λ
 /// matched to the walls), `tikhonov-coarse` (the same at
-/// [`LambdaPrecision::Coarse`]), `scaled`, and in 3D `qs-pyr4`, `qs-pyr8`, `qs-pyr16` (any `qs-pyrK`, `K` ≥ 3). `qs`
-/// and `tikhonov` use the active-set solver, `-ip` the interior point (clarabel,
-/// tolerance 1e-8), `-relaxed` the interior point at tolerance 1e-4; any name
+/// [`LambdaPrecision::Coarse`]), `scaled`, and in 3D `qs-pyr4`, `qs-pyr8`,
+/// `qs-pyr16` (any `qs-pyrK`, `K` ≥ 3). `qs` and `tikhonov` use the
+/// active-set solver, `-ip` the interior point (clarabel, tolerance 1e-8),
+/// `-relaxed` the interior point at tolerance 1e-4; any name
 /// may end in `-nocheck` to skip the identifiability (uniqueness) check, and
 /// (before that) in `-relative` to weight the stress rows by the relative
 /// noise model (`--stress-noise relative`); `soft` is momentum as a penalty.

@@ -30,8 +30,8 @@ pub struct Args {
     /// Methods, comma-separated: ls, qs, qs-ip, qs-relaxed, tikhonov,
     /// tikhonov-ip, tikhonov-relaxed, tikhonov-search (automatic λ),
     /// tikhonov-coarse (automatic λ, --lambda-precision coarse), scaled,
-    /// qs-pyr4 / qs-pyr8 / qs-pyr16 (3D). Default: all but the automatic λ and scaled,
-    /// plus the pyramids in 3D. Plain names use the active-set solver; -ip the
+    /// qs-pyr4 / qs-pyr8 / qs-pyr16 (3D). Default: all but the automatic λ
+    /// and scaled, plus the pyramids in 3D. Plain names use the active-set solver; -ip the
     /// interior point (clarabel, tolerance 1e-8); -relaxed the interior point at
     /// tolerance 1e-4; a -nocheck suffix (e.g. ls-nocheck) skips the uniqueness check.
     #[arg(long, value_delimiter = ',')]
