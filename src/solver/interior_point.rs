@@ -503,9 +503,10 @@ pub fn solve(
     if measures.gap <= RESTART_GAP {
         keep = Some(RestartPoint(it.clone()));
     }
-    // The first iterate certified within the tolerance, while one more
-    // step tries to sharpen it.
-    let mut converged: Option<(Iterate, Measures)> = None;
+    // The forces first certified within the tolerance, while one more step
+    // tries to sharpen them, with their certificate (like `kept`, only x:
+    // `finish` reads nothing else).
+    let mut converged: Option<(Vec<f64>, Measures)> = None;
     let mut stop = format!("{} iterations", settings.max_iterations);
     let mut iterations = settings.max_iterations;
     for iteration in 0..settings.max_iterations {
@@ -515,12 +516,13 @@ pub fn solve(
         // clarabel's optimum), and near the end the solves' multipliers lose
         // accuracy faster than the forces do.
         let certificate = it.certificate(problem, cones);
-        if let Some((first, first_cert)) = converged.take() {
+        if let Some((first_x, first_cert)) = converged.take() {
             // One step past convergence: the better certified of the two.
-            let (it, cert) = if certificate.worst() < first_cert.worst() {
-                (it, certificate)
+            let cert = if certificate.worst() < first_cert.worst() {
+                certificate
             } else {
-                (first, first_cert)
+                it.x = first_x;
+                first_cert
             };
             return Ok(it.finish(cones, iteration, None, cert).with_restart(keep));
         }
@@ -530,7 +532,7 @@ pub fn solve(
                     .finish(cones, iteration, None, certificate)
                     .with_restart(keep));
             }
-            converged = Some((it.clone(), certificate));
+            converged = Some((it.x.clone(), certificate));
         }
         if certificate.weighted() < kept.as_ref().map_or(f64::INFINITY, |k| k.1.weighted()) {
             kept = Some((it.x.clone(), certificate));
@@ -561,10 +563,9 @@ pub fn solve(
             keep = Some(RestartPoint(it.clone()));
         }
     }
-    if let Some((first, cert)) = converged {
-        return Ok(first
-            .finish(cones, iterations, None, cert)
-            .with_restart(keep));
+    if let Some((first_x, cert)) = converged {
+        it.x = first_x;
+        return Ok(it.finish(cones, iterations, None, cert).with_restart(keep));
     }
     // Stopped short of the tenfold-finer gap: the best certified point is
     // still the answer when its gap meets the tolerance itself.

@@ -2,6 +2,18 @@
 //! Gram-matrix (BᵀB) pattern/values used by both the KKT system and the
 //! identifiability test.
 
+use crate::solver::Triplets;
+
+/// The entries (rows, columns) of `top` with `below` stacked under it:
+/// [top; below], for compressing the stacked pattern.
+pub(crate) fn stacked_entries(top: &Triplets, below: &Triplets) -> (Vec<usize>, Vec<usize>) {
+    let rows = (top.rows.iter().copied())
+        .chain(below.rows.iter().map(|r| r + top.nrows))
+        .collect();
+    let cols = top.cols.iter().chain(&below.cols).copied().collect();
+    (rows, cols)
+}
+
 /// A matrix compressed along its "major" index (rows for CSR, columns for CSC).
 /// Minor indices are sorted and unique within each major slice.
 #[derive(Debug, Clone)]

@@ -18,7 +18,7 @@ use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
 
 use super::compressed::{
-    gram_upper_pattern, gram_upper_values, mul_scaled, mul_t_scaled, Compressed,
+    gram_upper_pattern, gram_upper_values, mul_scaled, mul_t_scaled, stacked_entries, Compressed,
 };
 use super::{check_finite, check_pair, norm2, Ordering, SpdFactor};
 use crate::solver::Triplets;
@@ -72,13 +72,7 @@ pub fn identifiability_with(
     }
     // B = [A; C].
     let m = a.nrows + c.nrows;
-    let rows: Vec<usize> = a
-        .rows
-        .iter()
-        .copied()
-        .chain(c.rows.iter().map(|r| r + a.nrows))
-        .collect();
-    let cols: Vec<usize> = a.cols.iter().chain(&c.cols).copied().collect();
+    let (rows, cols) = stacked_entries(a, c);
     let vals: Vec<f64> = a.vals.iter().chain(&c.vals).copied().collect();
     let mut csr = Compressed::from_entries(m, n, &rows, &cols);
     let mut csc = Compressed::from_entries(n, m, &cols, &rows);

@@ -1,7 +1,7 @@
 //! Forming the KKT system: its upper pattern (A's Gram matrix, widened by the
 //! coupling, then the rows of C) and its values in equilibrated variables.
 
-use super::compressed::{gram_upper_pattern, gram_upper_values, Compressed};
+use super::compressed::{gram_upper_pattern, gram_upper_values, stacked_entries, Compressed};
 use super::symbolic::symbolic_analysis;
 use super::{
     check_pair, check_triplets, Bordering, EqualityLeastSquares, Ordering, EQUILIBRATION_PASSES,
@@ -53,13 +53,7 @@ impl Patterns {
         let a_csr = Compressed::from_entries(a.nrows, n, &a.rows, &a.cols);
         let a_csc = Compressed::from_entries(n, a.nrows, &a.cols, &a.rows);
         let c_csr = Compressed::from_entries(c.nrows, n, &c.rows, &c.cols);
-        let stacked_rows: Vec<usize> = a
-            .rows
-            .iter()
-            .copied()
-            .chain(coupling.rows.iter().map(|r| r + a.nrows))
-            .collect();
-        let stacked_cols: Vec<usize> = a.cols.iter().chain(&coupling.cols).copied().collect();
+        let (stacked_rows, stacked_cols) = stacked_entries(a, coupling);
         let stacked_m = a.nrows + coupling.nrows;
         let (mut col_ptr, mut row_idx) = if coupling.nrows == 0 {
             gram_upper_pattern(&a_csr, &a_csc)
