@@ -482,34 +482,55 @@ fn local_wedge(mu: f64, block: &[f64; 3], h: &[f64; 2]) -> Option<(Piece, [f64; 
     Some((best.0, best.1))
 }
 
-/// Angles of the first scan of the cone's boundary, and golden-section
-/// steps refining the best one (the ray's angle to ~2π/24 · 0.618¹⁶ ≈ 1e-4).
+/// Angles of the first scan of the cone's boundary (a fixed table: no
+/// trigonometry per contact), and safeguarded Newton steps refining the best
+/// one. Newton on the ray value's stationarity settles in a few steps where
+/// golden-section search took 18 evaluations, each with a sine and cosine
+/// (with the scan's, ~60 % of the guess's time at 10⁴ spheres; the guess
+/// now takes ~0.7 of its time, `qs` end to end 0.96–0.975).
 const CONE_SCAN: usize = 24;
-const CONE_REFINE: usize = 16;
+const CONE_NEWTON: usize = 30;
+/// Golden sections where Newton has no bracket (rare): the angle to
+/// 2π/24 · 0.618⁴⁰ ≈ 1e-9.
+const CONE_GOLDEN: usize = 40;
+/// The ray's angle is settled to this (radians): far below what the pieces
+/// the guess hands on need.
+const CONE_ANGLE_TOL: f64 = 1e-10;
 
-/// Minimises ½ zᵀHz + hᵀz over the circular cone ‖z_t‖ ≤ μ z_n (3×3 H):
-/// the unconstrained minimum when inside, else the best point on a ray
-/// s (1, μ cos θ, μ sin θ), s ≥ 0, of the boundary (for a ray the best s and
-/// the value are closed-form; θ by a scan and golden-section search), or the
-/// apex when no ray goes downhill.
-fn local_cone(mu: f64, m: &[[f64; 3]; 3], h: &[f64; 3]) -> Option<(Piece, [f64; 3])> {
-    if let Some(z) = solve3(m, h) {
-        let z = [-z[0], -z[1], -z[2]];
-        if z[1].hypot(z[2]) <= mu * z[0] {
-            return Some((Piece::Interior, z));
-        }
-    } else {
-        return None;
+/// (θ, cos θ, sin θ) of the scanned angles θ = 2πi / CONE_SCAN.
+fn scan_angles() -> &'static [(f64, f64, f64); CONE_SCAN] {
+    static TABLE: std::sync::OnceLock<[(f64, f64, f64); CONE_SCAN]> = std::sync::OnceLock::new();
+    TABLE.get_or_init(|| {
+        std::array::from_fn(|i| {
+            let theta = i as f64 * std::f64::consts::TAU / CONE_SCAN as f64;
+            (theta, theta.cos(), theta.sin())
+        })
+    })
+}
+
+/// The quadratic ½ zᵀMz + hᵀz along the boundary rays z = s e(θ),
+/// e(θ) = (1, μ cos θ, μ sin θ), s ≥ 0: slope p(θ) = hᵀe, curvature
+/// k(θ) = eᵀMe, best s = −p/k and value −p²/(2k) when p < 0 < k.
+struct BoundaryRays<'a> {
+    mu: f64,
+    m: &'a [[f64; 3]; 3],
+    h: &'a [f64; 3],
+}
+
+impl BoundaryRays<'_> {
+    fn direction(&self, cos: f64, sin: f64) -> [f64; 3] {
+        [1.0, self.mu * cos, self.mu * sin]
     }
-    // Value and s of the best point on the ray at angle θ.
-    let ray = |theta: f64| -> (f64, f64, [f64; 3]) {
-        let e = [1.0, mu * theta.cos(), mu * theta.sin()];
-        let mut curvature = 0.0;
-        let mut slope = 0.0;
+
+    /// (value, s, e) of the best point on the ray; (0, 0, e) when the ray
+    /// does not go downhill.
+    fn best(&self, cos: f64, sin: f64) -> (f64, f64, [f64; 3]) {
+        let e = self.direction(cos, sin);
+        let (mut curvature, mut slope) = (0.0, 0.0);
         for i in 0..3 {
-            slope += h[i] * e[i];
+            slope += self.h[i] * e[i];
             for j in 0..3 {
-                curvature += e[i] * m[i][j] * e[j];
+                curvature += e[i] * self.m[i][j] * e[j];
             }
         }
         if curvature.is_nan() || curvature <= 0.0 || slope >= 0.0 {
@@ -517,50 +538,134 @@ fn local_cone(mu: f64, m: &[[f64; 3]; 3], h: &[f64; 3]) -> Option<(Piece, [f64; 
         }
         let s = -slope / curvature;
         (0.5 * slope * s, s, e)
-    };
-    let step = std::f64::consts::TAU / CONE_SCAN as f64;
-    let (mut best_theta, mut best) = (0.0, f64::INFINITY);
-    for i in 0..CONE_SCAN {
-        let theta = i as f64 * step;
-        let (q, _, _) = ray(theta);
+    }
+
+    /// g(θ) = 2p′k − pk′ and g′(θ). The value's derivative is −p g/(2k²),
+    /// so where the ray goes downhill (p < 0) it has g's sign.
+    fn stationarity(&self, cos: f64, sin: f64) -> (f64, f64) {
+        let (mu, m, h) = (self.mu, self.m, self.h);
+        let e = self.direction(cos, sin);
+        // e′ = (0, −μ sin, μ cos), e″ = (0, −μ cos, −μ sin).
+        let d1 = [0.0, -mu * sin, mu * cos];
+        let d2 = [0.0, -mu * cos, -mu * sin];
+        let dot = |a: &[f64; 3], b: &[f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+        let mul = |v: &[f64; 3]| -> [f64; 3] { std::array::from_fn(|i| dot(&m[i], v)) };
+        let (me, md1) = (mul(&e), mul(&d1));
+        let (p, p1, p2) = (dot(h, &e), dot(h, &d1), dot(h, &d2));
+        let k = dot(&e, &me);
+        let k1 = 2.0 * dot(&d1, &me);
+        let k2 = 2.0 * (dot(&d2, &me) + dot(&d1, &md1));
+        (2.0 * p1 * k - p * k1, 2.0 * p2 * k + p1 * k1 - p * k2)
+    }
+
+    /// The angle in [lo, hi] where g changes sign (g(lo) < 0 < g(hi)), by
+    /// Newton steps kept inside the bracket (bisection when a step leaves it).
+    fn settle(&self, mut lo: f64, mut hi: f64, start: f64) -> f64 {
+        let mut theta = start;
+        for _ in 0..CONE_NEWTON {
+            let (g, dg) = self.stationarity(theta.cos(), theta.sin());
+            if g < 0.0 {
+                lo = theta;
+            } else {
+                hi = theta;
+            }
+            let newton = theta - g / dg;
+            let next = if dg > 0.0 && newton > lo && newton < hi {
+                newton
+            } else {
+                0.5 * (lo + hi)
+            };
+            let moved = (next - theta).abs();
+            theta = next;
+            if moved <= CONE_ANGLE_TOL || hi - lo <= CONE_ANGLE_TOL {
+                break;
+            }
+        }
+        theta
+    }
+
+    /// The angle of the least value in [lo, hi] by golden sections
+    /// (unimodal near the best scanned angle).
+    fn golden(&self, mut lo: f64, mut hi: f64) -> f64 {
+        let value = |t: f64| self.best(t.cos(), t.sin()).0;
+        let ratio = 0.5 * (5f64.sqrt() - 1.0);
+        let mut t1 = hi - ratio * (hi - lo);
+        let mut t2 = lo + ratio * (hi - lo);
+        let (mut q1, mut q2) = (value(t1), value(t2));
+        for _ in 0..CONE_GOLDEN {
+            if q1 < q2 {
+                hi = t2;
+                (t2, q2) = (t1, q1);
+                t1 = hi - ratio * (hi - lo);
+                q1 = value(t1);
+            } else {
+                lo = t1;
+                (t1, q1) = (t2, q2);
+                t2 = lo + ratio * (hi - lo);
+                q2 = value(t2);
+            }
+        }
+        if q1 < q2 {
+            t1
+        } else {
+            t2
+        }
+    }
+}
+
+/// Minimises ½ zᵀHz + hᵀz over the circular cone ‖z_t‖ ≤ μ z_n (3×3 H):
+/// the unconstrained minimum when inside, else the best point on a ray
+/// s (1, μ cos θ, μ sin θ), s ≥ 0, of the boundary (for a ray the best s and
+/// the value are closed-form; θ by a scan and safeguarded Newton steps), or
+/// the apex when no ray goes downhill.
+fn local_cone(mu: f64, m: &[[f64; 3]; 3], h: &[f64; 3]) -> Option<(Piece, [f64; 3])> {
+    if let Some(z) = solve3(m, h) {
+        let z = [-z[0], -z[1], -z[2]];
+        if z[1] * z[1] + z[2] * z[2] <= (mu * z[0]).powi(2) && z[0] >= 0.0 {
+            return Some((Piece::Interior, z));
+        }
+    } else {
+        return None;
+    }
+    let rays = BoundaryRays { mu, m, h };
+    let table = scan_angles();
+    let (mut best_at, mut best) = (0, f64::INFINITY);
+    for (i, &(_, cos, sin)) in table.iter().enumerate() {
+        let (q, _, _) = rays.best(cos, sin);
         if q < best {
-            (best_theta, best) = (theta, q);
+            (best_at, best) = (i, q);
         }
     }
     if best >= 0.0 {
         return Some((Piece::Apex, [0.0; 3]));
     }
-    // Golden-section search on [θ − step, θ + step] (unimodal near the best
-    // scanned angle for a smooth ray value).
-    let golden = 0.5 * (5f64.sqrt() - 1.0);
-    let (mut lo, mut hi) = (best_theta - step, best_theta + step);
-    let mut t1 = hi - golden * (hi - lo);
-    let mut t2 = lo + golden * (hi - lo);
-    let (mut q1, mut q2) = (ray(t1).0, ray(t2).0);
-    for _ in 0..CONE_REFINE {
-        if q1 < q2 {
-            hi = t2;
-            (t2, q2) = (t1, q1);
-            t1 = hi - golden * (hi - lo);
-            q1 = ray(t1).0;
-        } else {
-            lo = t1;
-            (t1, q1) = (t2, q2);
-            t2 = lo + golden * (hi - lo);
-            q2 = ray(t2).0;
-        }
-    }
-    let theta = if q1 < q2 { t1 } else { t2 };
-    let (q, s, e) = ray(theta);
-    let (theta, s, e) = if q <= best {
-        (theta, s, e)
+    let step = std::f64::consts::TAU / CONE_SCAN as f64;
+    let scanned = table[best_at].0;
+    let (lo, hi) = (scanned - step, scanned + step);
+    // The minimum lies within a scan step of the best scanned angle. Where
+    // both neighbours go downhill with the value's slope pointing inwards,
+    // Newton settles it; otherwise (a narrow downhill fan) golden sections.
+    let (_, lo_cos, lo_sin) = table[(best_at + CONE_SCAN - 1) % CONE_SCAN];
+    let (_, hi_cos, hi_sin) = table[(best_at + 1) % CONE_SCAN];
+    let bracketed = rays.best(lo_cos, lo_sin).0 < 0.0
+        && rays.best(hi_cos, hi_sin).0 < 0.0
+        && rays.stationarity(lo_cos, lo_sin).0 < 0.0
+        && rays.stationarity(hi_cos, hi_sin).0 > 0.0;
+    let refined = if bracketed {
+        rays.settle(lo, hi, scanned)
     } else {
-        let (_, s, e) = ray(best_theta);
-        (best_theta, s, e)
+        rays.golden(lo, hi)
     };
+    let theta = if rays.best(refined.cos(), refined.sin()).0 <= best {
+        refined
+    } else {
+        scanned
+    };
+    let (cos, sin) = (theta.cos(), theta.sin());
+    let (_, s, e) = rays.best(cos, sin);
     Some((
         Piece::Boundary {
-            dir: [theta.cos(), theta.sin()],
+            dir: [cos, sin],
             kappa: 1.0,
         },
         [s * e[0], s * e[1], s * e[2]],
@@ -696,6 +801,98 @@ mod cone_tests {
                 assert!(value(&m, &h, &y) >= best - 1e-7, "{y:?} beats {z:?}");
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod boundary_tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    /// The least value over the boundary rays by a dense scan of θ.
+    fn scanned_minimum(mu: f64, m: &[[f64; 3]; 3], h: &[f64; 3]) -> f64 {
+        let rays = BoundaryRays { mu, m, h };
+        (0..200_000)
+            .map(|i| {
+                let t = i as f64 * std::f64::consts::TAU / 200_000.0;
+                rays.best(t.cos(), t.sin()).0
+            })
+            .fold(0.0, f64::min)
+    }
+
+    fn value(m: &[[f64; 3]; 3], h: &[f64; 3], z: &[f64; 3]) -> f64 {
+        (0..3)
+            .map(|i| h[i] * z[i] + (0..3).map(|j| 0.5 * z[i] * m[i][j] * z[j]).sum::<f64>())
+            .sum()
+    }
+
+    fn check(mu: f64, m: &[[f64; 3]; 3], h: &[f64; 3]) {
+        let Some((Piece::Boundary { dir, .. }, z)) = local_cone(mu, m, h) else {
+            return;
+        };
+        let (found, dense) = (value(m, h, &z), scanned_minimum(mu, m, h));
+        // The dense scan is 3e-5 rad from the best angle at worst: the value
+        // found must be at least as good, up to round-off.
+        assert!(
+            found <= dense + 1e-12 * dense.abs(),
+            "{found} against {dense}"
+        );
+        assert!((dir[0].hypot(dir[1]) - 1.0).abs() < 1e-12);
+        assert!((z[1].hypot(z[2]) - mu * z[0]).abs() <= 1e-12 * z[0]);
+    }
+
+    /// Newton on the angle reaches the best boundary ray (no worse than a
+    /// scan of 2·10⁵ angles) on random convex quadratics, μ from 0.01 to 10.
+    #[test]
+    fn settled_angle_beats_a_dense_scan() {
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        let mut boundary = 0;
+        for _ in 0..400 {
+            let mu = 10f64.powf(rng.gen_range(-2.0..1.0));
+            let l: [[f64; 3]; 3] =
+                std::array::from_fn(|_| std::array::from_fn(|_| rng.gen_range(-1.0..1.0)));
+            let mut m = [[0.0; 3]; 3];
+            for i in 0..3 {
+                for j in 0..3 {
+                    m[i][j] = (0..3).map(|k| l[i][k] * l[j][k]).sum::<f64>()
+                        + if i == j { 0.05 } else { 0.0 };
+                }
+            }
+            let h: [f64; 3] = std::array::from_fn(|_| rng.gen_range(-1.0..1.0));
+            boundary += usize::from(matches!(
+                local_cone(mu, &m, &h),
+                Some((Piece::Boundary { .. }, _))
+            ));
+            check(mu, &m, &h);
+        }
+        assert!(boundary > 100, "only {boundary} cases on the boundary");
+    }
+
+    /// A narrow fan of downhill rays (only within 0.1 rad of θ = 0.3, less
+    /// than a scan step): no Newton bracket, golden sections settle it.
+    #[test]
+    fn narrow_downhill_fan_is_settled_without_a_bracket() {
+        let (mu, theta) = (0.5, 0.3f64);
+        let m = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+        // h·e = a + μ b cos(θ − 0.3) < 0 only where cos(θ − 0.3) > 0.995.
+        let (a, b) = (0.995 * mu, -1.0);
+        let h = [a, b * theta.cos(), b * theta.sin()];
+        let rays = BoundaryRays { mu, m: &m, h: &h };
+        let table = scan_angles();
+        let downhill = table
+            .iter()
+            .filter(|&&(_, c, s)| rays.best(c, s).0 < 0.0)
+            .count();
+        assert!(downhill <= 1, "{downhill} scanned rays go downhill");
+        let (piece, z) = local_cone(mu, &m, &h).unwrap();
+        let Piece::Boundary { dir, .. } = piece else {
+            panic!("{piece:?}");
+        };
+        // A search on values resolves a minimum to about √ε.
+        assert!((dir[1].atan2(dir[0]) - theta).abs() < 1e-7, "{dir:?}");
+        check(mu, &m, &h);
+        assert!(z[0] > 0.0);
     }
 }
 
