@@ -460,42 +460,6 @@ fn relax(
                 servo_error: sys.servo_error(),
                 seconds: started.elapsed().as_secs_f64(),
             });
-            // A developer's view of the walls and the worst grains.
-            if std::env::var_os("GRAINFORCE_DEM_DEBUG").is_some() {
-                for (k, w) in sys.walls.iter().enumerate() {
-                    eprintln!(
-                        "    {} at {:?} v {:?} load {:.3e} target {:.3e} K {:.3e}",
-                        w.name,
-                        w.position,
-                        w.velocity,
-                        sys.wall_normal_force(k),
-                        c.pressure * sys.wall_area(k),
-                        w.stiffness
-                    );
-                }
-                eprintln!(
-                    "    KE {:.3e} contacts {}",
-                    sys.kinetic_energy(),
-                    sys.contact_count
-                );
-                let mut idx: Vec<usize> = (0..sys.len()).collect();
-                let net = |i: usize| {
-                    (0..3)
-                        .map(|k| (sys.f[i][k] + sys.mass[i] * sys.gravity[k]).powi(2))
-                        .sum::<f64>()
-                        .sqrt()
-                };
-                idx.sort_by(|&a, &b| net(b).total_cmp(&net(a)));
-                for &i in &idx[..3] {
-                    eprintln!(
-                        "    grain {i}: net {:.3e} torque {:?} v {:?} w {:?}",
-                        net(i),
-                        sys.t[i],
-                        sys.v[i],
-                        sys.w[i]
-                    );
-                }
-            }
             *next = sys.steps + 20_000;
         }
     };
