@@ -235,7 +235,14 @@ fn sparse_route(
             ordering(system, opts.ordering),
         )?),
     };
-    let sol = factor.solve(p.a, p.c, p.b, p.d, p.lambda)?;
+    // The scan's answers (stage 1 alone) only rank λ by their wall mismatch:
+    // the accuracy at which a solve counts as converged serves, not round-off.
+    if !constrained {
+        factor.set_refinement_target(sparse_ls::CONVERGED_TOL);
+    }
+    let sol = factor.solve(p.a, p.c, p.b, p.d, p.lambda);
+    factor.set_refinement_target(0.0);
+    let sol = sol?;
     let mut warnings = Vec::new();
     if !sol.converged {
         warnings.push(format!(
