@@ -56,7 +56,7 @@ pub struct Args {
     pub lambda_range: Option<String>,
     /// Precision of the automatic λ: fine (the friction-constrained wall
     /// mismatch minimised, up to 6 constrained solves) or coarse (one
-    /// constrained solve at the unconstrained least squares' optimum: 1.7–3.6×
+    /// constrained solve at the unconstrained least squares' optimum: 1.9–3.6×
     /// faster measured in 3D, forces within 1 % of fine's; see the README).
     #[arg(long, value_enum, default_value_t = LambdaPrecisionArg::Fine)]
     pub lambda_precision: LambdaPrecisionArg,

@@ -59,7 +59,7 @@ pub enum LambdaPrecision {
     /// On the DEM fixtures with eq. 2.16 noise its forces lay 0.04–0.9 %
     /// from the fine search's, their error against the truth within ±0.001
     /// of it (as often better as worse), for 0.28 (sheared 10³ spheres,
-    /// interior point) to 0.58 (2 197 sliding spheres, active set) of the
+    /// interior point) to 0.52 (10⁴ sliding spheres, active set) of the
     /// time (docs/bench.md). When the cones move the mismatch too much for
     /// the unconstrained scan to guide (the constrained fallback), the
     /// search is the fine one.
