@@ -767,6 +767,17 @@ mod cone_tests {
         q
     }
 
+    /// L Lᵀ + shift·I for a random 3×3 L: symmetric positive definite.
+    fn random_quadratic(rng: &mut ChaCha8Rng, shift: f64) -> [[f64; 3]; 3] {
+        let l: [[f64; 3]; 3] =
+            std::array::from_fn(|_| std::array::from_fn(|_| rng.gen_range(-1.0..1.0)));
+        std::array::from_fn(|i| {
+            std::array::from_fn(|j| {
+                (0..3).map(|k| l[i][k] * l[j][k]).sum::<f64>() + if i == j { shift } else { 0.0 }
+            })
+        })
+    }
+
     /// The local cone minimum is no worse than any of many admissible points
     /// and itself admissible; its piece matches where it lies.
     #[test]
@@ -774,15 +785,7 @@ mod cone_tests {
         let mut rng = ChaCha8Rng::seed_from_u64(3);
         for _ in 0..300 {
             let mu = rng.gen_range(0.1..1.0);
-            let l: [[f64; 3]; 3] =
-                std::array::from_fn(|_| std::array::from_fn(|_| rng.gen_range(-1.0..1.0)));
-            let mut m = [[0.0; 3]; 3];
-            for i in 0..3 {
-                for j in 0..3 {
-                    m[i][j] = (0..3).map(|k| l[i][k] * l[j][k]).sum::<f64>()
-                        + if i == j { 0.1 } else { 0.0 };
-                }
-            }
+            let m = random_quadratic(&mut rng, 0.1);
             let h: [f64; 3] = std::array::from_fn(|_| rng.gen_range(-1.0..1.0));
             let (piece, z) = local_cone(mu, &m, &h).unwrap();
             let tau = z[1].hypot(z[2]);
@@ -802,13 +805,6 @@ mod cone_tests {
             }
         }
     }
-}
-
-#[cfg(test)]
-mod boundary_tests {
-    use super::*;
-    use rand::{Rng, SeedableRng};
-    use rand_chacha::ChaCha8Rng;
 
     /// The least value over the boundary rays by a dense scan of θ.
     fn scanned_minimum(mu: f64, m: &[[f64; 3]; 3], h: &[f64; 3]) -> f64 {
@@ -819,12 +815,6 @@ mod boundary_tests {
                 rays.best(t.cos(), t.sin()).0
             })
             .fold(0.0, f64::min)
-    }
-
-    fn value(m: &[[f64; 3]; 3], h: &[f64; 3], z: &[f64; 3]) -> f64 {
-        (0..3)
-            .map(|i| h[i] * z[i] + (0..3).map(|j| 0.5 * z[i] * m[i][j] * z[j]).sum::<f64>())
-            .sum()
     }
 
     fn check(mu: f64, m: &[[f64; 3]; 3], h: &[f64; 3]) {
@@ -850,15 +840,7 @@ mod boundary_tests {
         let mut boundary = 0;
         for _ in 0..400 {
             let mu = 10f64.powf(rng.gen_range(-2.0..1.0));
-            let l: [[f64; 3]; 3] =
-                std::array::from_fn(|_| std::array::from_fn(|_| rng.gen_range(-1.0..1.0)));
-            let mut m = [[0.0; 3]; 3];
-            for i in 0..3 {
-                for j in 0..3 {
-                    m[i][j] = (0..3).map(|k| l[i][k] * l[j][k]).sum::<f64>()
-                        + if i == j { 0.05 } else { 0.0 };
-                }
-            }
+            let m = random_quadratic(&mut rng, 0.05);
             let h: [f64; 3] = std::array::from_fn(|_| rng.gen_range(-1.0..1.0));
             boundary += usize::from(matches!(
                 local_cone(mu, &m, &h),
