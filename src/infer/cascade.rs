@@ -235,14 +235,20 @@ fn sparse_route(
             ordering(system, opts.ordering),
         )?),
     };
-    // The scan's answers (stage 1 alone) only rank λ by their wall mismatch:
-    // the accuracy at which a solve counts as converged serves, not round-off.
-    if !constrained {
+    // The scan's answers (stage 1 alone) only rank λ by their wall mismatch,
+    // and an answer that violates the cones is only the active set's start:
+    // the accuracy at which a solve counts as converged serves, not
+    // round-off. One that nearly meets them (exact data) is refined on.
+    let start_only = constrained && use_active_set;
+    if !constrained || start_only {
         factor.set_refinement_target(sparse_ls::CONVERGED_TOL);
     }
     let sol = factor.solve(p.a, p.c, p.b, p.d, p.lambda);
     factor.set_refinement_target(0.0);
-    let sol = sol?;
+    let mut sol = sol?;
+    if start_only && nearly_feasible(&sol.x, cone_list) {
+        sol = factor.solve(p.a, p.c, p.b, p.d, p.lambda)?;
+    }
     let mut warnings = Vec::new();
     if !sol.converged {
         warnings.push(format!(
@@ -444,6 +450,18 @@ const ROUND_OFF: f64 = 1e-9;
 
 /// The unconstrained optimum, when it already satisfies every cone (up to
 /// round-off, then projected): it is then the constrained optimum too.
+/// Every cone violated by at most this much of the largest force: a least
+/// squares answer refined to the converged tolerance may still be
+/// admissible at round-off.
+const NEARLY_FEASIBLE: f64 = 1e-6;
+
+fn nearly_feasible(x: &[f64], cones: &[Cone]) -> bool {
+    let scale = x.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    cones
+        .iter()
+        .all(|c| c.violation(x) <= NEARLY_FEASIBLE * scale)
+}
+
 pub(crate) fn feasible_as_is(x: &[f64], cones: &[Cone]) -> Option<Vec<f64>> {
     let scale = x
         .iter()
