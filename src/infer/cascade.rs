@@ -246,7 +246,7 @@ fn sparse_route(
     let sol = factor.solve(p.a, p.c, p.b, p.d, p.lambda);
     factor.set_refinement_target(0.0);
     let mut sol = sol?;
-    if start_only && nearly_feasible(&sol.x, cone_list) {
+    if start_only && within_cones(&sol.x, cone_list, NEARLY_FEASIBLE) {
         sol = factor.solve(p.a, p.c, p.b, p.d, p.lambda)?;
     }
     let mut warnings = Vec::new();
@@ -448,26 +448,24 @@ fn ip_failed(why: &str, failure: &str) -> String {
 /// Relative size of a cone violation treated as round-off of an exact answer.
 const ROUND_OFF: f64 = 1e-9;
 
-/// The unconstrained optimum, when it already satisfies every cone (up to
-/// round-off, then projected): it is then the constrained optimum too.
 /// Every cone violated by at most this much of the largest force: a least
 /// squares answer refined to the converged tolerance may still be
 /// admissible at round-off.
 const NEARLY_FEASIBLE: f64 = 1e-6;
 
-fn nearly_feasible(x: &[f64], cones: &[Cone]) -> bool {
-    let scale = x.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-    cones
-        .iter()
-        .all(|c| c.violation(x) <= NEARLY_FEASIBLE * scale)
-}
-
-pub(crate) fn feasible_as_is(x: &[f64], cones: &[Cone]) -> Option<Vec<f64>> {
+/// Whether every cone's violation is at most `relative` × the largest entry of x.
+fn within_cones(x: &[f64], cones: &[Cone], relative: f64) -> bool {
     let scale = x
         .iter()
         .fold(0.0f64, |m, v| m.max(v.abs()))
         .max(f64::MIN_POSITIVE);
-    if cones.iter().any(|c| c.violation(x) > ROUND_OFF * scale) {
+    cones.iter().all(|c| c.violation(x) <= relative * scale)
+}
+
+/// The unconstrained optimum, when it already satisfies every cone (up to
+/// round-off, then projected): it is then the constrained optimum too.
+pub(crate) fn feasible_as_is(x: &[f64], cones: &[Cone]) -> Option<Vec<f64>> {
+    if !within_cones(x, cones, ROUND_OFF) {
         return None;
     }
     let mut x = x.to_vec();

@@ -225,12 +225,12 @@ impl EqualityLeastSquares {
         };
 
         // λ² s², in the factor's scaling, of the system solved.
-        let lambda2_s2: Vec<f64> = if other_lambda {
+        let lambda2_s2: std::borrow::Cow<[f64]> = if other_lambda {
             (num.base.col_scale.iter())
                 .map(|s| lambda * lambda * s * s)
                 .collect()
         } else {
-            num.base.lambda2_s2.clone()
+            std::borrow::Cow::Borrowed(&num.base.lambda2_s2)
         };
         let ones_a = vec![1.0; a.nrows];
         let d_hat: Vec<f64> = d
