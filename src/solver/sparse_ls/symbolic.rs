@@ -27,14 +27,15 @@ pub(super) fn symbolic_analysis(
     let pattern = SymbolicSparseColMatRef::new_checked(size, size, col_ptr, None, row_idx);
     let perm = match ordering {
         Ordering::Amd => None,
-        Ordering::NestedDissection => {
-            let fwd = ordering::nested_dissection(size, col_ptr, row_idx, blocks);
-            let mut inv = vec![0usize; size];
-            for (new, &old) in fwd.iter().enumerate() {
-                inv[old] = new;
-            }
-            Some((fwd, inv))
-        }
+        // METIS failing (a graph beyond its 32-bit indices): AMD instead.
+        Ordering::NestedDissection => ordering::nested_dissection(size, col_ptr, row_idx, blocks)
+            .map(|fwd| {
+                let mut inv = vec![0usize; size];
+                for (new, &old) in fwd.iter().enumerate() {
+                    inv[old] = new;
+                }
+                (fwd, inv)
+            }),
     };
     let method = match &perm {
         None => SymmetricOrdering::Amd,
