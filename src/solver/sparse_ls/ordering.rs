@@ -266,8 +266,9 @@ fn quotient<'g>(
 
 /// Fill-reducing ordering of the symmetric pattern (CSC, upper or full; the
 /// diagonal is ignored). Returns `perm` with `perm[new] = old`, or None
-/// when METIS cannot take the graph (more than 2³¹ − 1 vertices or edges
-/// of its quotient, or METIS out of memory): the caller orders by AMD then.
+/// when METIS gives no valid order (its quotient beyond 2³¹ − 1 vertices or
+/// edges, METIS out of memory, or a permutation that fails the check): the
+/// caller orders by AMD then, which changes the cost, not the forces.
 ///
 /// `blocks`, if given, labels vertices the caller knows belong together (a
 /// contact's unknowns): they are ordered as one, which also makes the rows

@@ -27,7 +27,7 @@ pub(super) fn symbolic_analysis(
     let pattern = SymbolicSparseColMatRef::new_checked(size, size, col_ptr, None, row_idx);
     let perm = match ordering {
         Ordering::Amd => None,
-        // METIS failing (a graph beyond its 32-bit indices): AMD instead.
+        // No valid METIS order (see `nested_dissection`): AMD instead.
         Ordering::NestedDissection => ordering::nested_dissection(size, col_ptr, row_idx, blocks)
             .map(|fwd| {
                 let mut inv = vec![0usize; size];
