@@ -250,6 +250,15 @@ fn sparse_route(
         sol = factor.solve(p.a, p.c, p.b, p.d, p.lambda)?;
     }
     let mut warnings = Vec::new();
+    let asked = ordering(system, opts.ordering);
+    let ordering_note = (factor.ordering() != asked).then(|| {
+        format!(
+            "ordering: {asked:?} could not order this {}-unknown system (METIS failed); {:?} used instead: the same forces, at more fill and time",
+            p.a.ncols,
+            factor.ordering()
+        )
+    });
+    warnings.extend(ordering_note.clone());
     if !sol.converged {
         warnings.push(format!(
             "least squares: refinement stopped at KKT residual {:.1e} (momentum rows inconsistent or the forces not unique)",
@@ -273,7 +282,7 @@ fn sparse_route(
         feasible_as_is: converged && opts.exact_first,
         active_set: use_active_set,
     };
-    let (constrained, note) = constrained_on_factor(
+    let (mut constrained, note) = constrained_on_factor(
         factor,
         &p,
         cone_list,
@@ -283,6 +292,9 @@ fn sparse_route(
         &opts.active_set,
         start,
     )?;
+    if let (Some(solution), Some(w)) = (constrained.as_mut(), ordering_note) {
+        solution.warnings.push(w);
+    }
     Ok(SparseRoute {
         unconstrained,
         constrained,

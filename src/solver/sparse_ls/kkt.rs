@@ -118,16 +118,18 @@ impl EqualityLeastSquares {
     ) -> Result<Self> {
         let patterns = Patterns::new(a, c, coupling)?;
         let blocks = kkt_blocks(a.ncols, c.nrows, coupling);
-        let symbolic = symbolic_analysis(
+        let (symbolic, used) = match symbolic_analysis(
             a.ncols + c.nrows,
             &patterns.kkt.0,
             &patterns.kkt.1,
             ordering,
             Some(&blocks),
-        )?
-        .map(Arc::new);
+        )? {
+            Some((symbolic, used)) => (Some(Arc::new(symbolic)), used),
+            None => (None, ordering),
+        };
         Ok(Self::on_analysis(
-            a, c, coupling, patterns, symbolic, par, ordering,
+            a, c, coupling, patterns, symbolic, par, used,
         ))
     }
 

@@ -244,15 +244,15 @@ impl EqualityLeastSquares {
     /// it when a new pattern is analysed); drops the cached factorisation.
     pub fn set_ordering(&mut self, ordering: Ordering) -> Result<()> {
         let blocks = kkt::kkt_blocks(self.n, self.c_pattern.0, &self.coupling);
-        self.symbolic = symbolic_analysis(
+        let analysed = symbolic_analysis(
             self.n + self.c_pattern.0,
             &self.kkt_col_ptr,
             &self.kkt_row_idx,
             ordering,
             Some(&blocks),
-        )?
-        .map(std::sync::Arc::new);
-        self.ordering = ordering;
+        )?;
+        self.ordering = analysed.as_ref().map_or(ordering, |(_, used)| *used);
+        self.symbolic = analysed.map(|(symbolic, _)| std::sync::Arc::new(symbolic));
         self.numeric = None;
         Ok(())
     }
@@ -262,7 +262,9 @@ impl EqualityLeastSquares {
         &self.coupling
     }
 
-    /// The fill-reducing ordering of the symbolic analysis.
+    /// The fill-reducing ordering of the symbolic analysis: AMD when nested
+    /// dissection was asked for but METIS could not order this pattern (the
+    /// same forces, at more fill and time). A new pattern keeps it.
     pub fn ordering(&self) -> Ordering {
         self.ordering
     }

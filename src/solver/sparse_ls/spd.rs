@@ -48,7 +48,8 @@ impl SpdFactor {
             )));
         }
         let par = default_parallelism(size);
-        let symbolic = symbolic_analysis(size, col_ptr, row_idx, ordering, None)?;
+        let symbolic = symbolic_analysis(size, col_ptr, row_idx, ordering, None)?
+            .map(|(symbolic, _)| symbolic);
         let Some(sym) = &symbolic else {
             return Ok(SpdFactor {
                 symbolic,
