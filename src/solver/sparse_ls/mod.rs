@@ -240,8 +240,9 @@ impl EqualityLeastSquares {
         )
     }
 
-    /// Redoes the symbolic analysis with this fill-reducing ordering (and keeps
-    /// it when a new pattern is analysed); drops the cached factorisation.
+    /// Redoes the symbolic analysis with this fill-reducing ordering, or AMD
+    /// when METIS cannot give one (see [`ordering`](Self::ordering)), and keeps
+    /// the one used for new patterns; drops the cached factorisation.
     pub fn set_ordering(&mut self, ordering: Ordering) -> Result<()> {
         let blocks = kkt::kkt_blocks(self.n, self.c_pattern.0, &self.coupling);
         let analysed = symbolic_analysis(

@@ -90,9 +90,15 @@ mod tests {
         assert_eq!(used, Ordering::Amd);
         // A path has no fill under AMD: its factor holds the pattern's entries.
         assert_eq!(amd.len_val(), row_idx.len());
-        let reversed: Vec<usize> = (0..50).rev().collect();
-        let (_, used) = analyse_in_order(50, &col_ptr, &row_idx, Some(reversed)).expect("order");
+        // A given order is the one used: eliminating an inner vertex first
+        // joins its two neighbours, one entry of fill that AMD avoids.
+        let inner_first: Vec<usize> = std::iter::once(25)
+            .chain((0..50).filter(|&v| v != 25))
+            .collect();
+        let (given, used) =
+            analyse_in_order(50, &col_ptr, &row_idx, Some(inner_first)).expect("order");
         assert_eq!(used, Ordering::NestedDissection);
+        assert_eq!(given.len_val(), row_idx.len() + 1);
     }
 
     #[test]
