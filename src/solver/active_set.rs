@@ -66,6 +66,11 @@ pub struct ActiveSetSettings {
     /// Guess the first active set by Gauss–Seidel sweeps on the relaxed
     /// correction (see `predict`) instead of projecting the start.
     pub predict: bool,
+    /// Guess the pieces again after the first solve, by the same sweeps
+    /// around its forces and cone forces, instead of reading them off the
+    /// Newton step (3D, 30 % sliding, stress noise: 2 197 spheres 3 solves
+    /// instead of 5, 10⁴ spheres 3 instead of 5, one factorisation fewer).
+    pub reguess: bool,
 }
 
 impl Default for ActiveSetSettings {
@@ -74,6 +79,7 @@ impl Default for ActiveSetSettings {
             max_iterations: 40,
             tolerance: 1e-10,
             predict: true,
+            reguess: true,
         }
     }
 }
@@ -355,11 +361,11 @@ pub fn solve_from(
     ls.set_refinement_target(CONVERGED_TOL);
     let initial = match warm.filter(|w| w.0.len() == contacts.len()) {
         Some(w) => Some(w.0.clone()),
-        None if settings.predict => predict::pieces(problem, &contacts, start, &diag, &rho),
+        None if settings.predict => predict::pieces(problem, &contacts, start, None, &diag, &rho),
         None => None,
     };
     let outcome = iterate(
-        ls, problem, cones, &contacts, &rho, start, initial, settings,
+        ls, problem, cones, &contacts, &diag, &rho, start, initial, settings,
     );
     ls.set_refinement_target(0.0);
     outcome
@@ -411,6 +417,7 @@ fn iterate(
     problem: &LeastSquares,
     cones: &[Cone],
     contacts: &[Contact],
+    diag: &[f64],
     rho: &[f64],
     start: &[f64],
     initial: Option<Vec<Piece>>,
@@ -557,6 +564,9 @@ fn iterate(
             .fold(0.0f64, |m, v| m.max(v.abs()))
             .max(f64::MIN_POSITIVE);
         let tol = settings.tolerance * scale;
+        // The pieces of this solve, when a re-guess may replace the next ones.
+        let reguess = iteration == 1 && settings.reguess;
+        let solved_on = reguess.then(|| pieces.clone());
         let mut worst = 0.0f64;
         let mut changed = 0;
         for k in 0..contacts.len() {
@@ -574,6 +584,19 @@ fn iterate(
                 // sliding: 1e-10 at the end instead of 2e-13), and the last
                 // step was no longer Newton's.
                 pieces[k] = piece;
+            }
+        }
+        // The first solve's cone forces are the first exact ones: the
+        // sweeps around its answer place the contacts better than the
+        // Newton step's projection, whose sliding directions turned too
+        // far for the next factor to hold them (10⁴ spheres: 294 rows to
+        // border, 262 of them turned directions).
+        if let (Some(solved_on), true) = (solved_on, worst > tol) {
+            if let Some(guess) = predict::pieces(problem, contacts, &x, Some(&v), diag, rho) {
+                changed = (guess.iter().zip(&solved_on))
+                    .filter(|(next, last)| next != last)
+                    .count();
+                pieces = guess;
             }
         }
         let residual = worst / scale;

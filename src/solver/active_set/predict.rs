@@ -21,6 +21,11 @@
 //! contact's local problem is a 3×3 quadratic over its circular cone: the
 //! unconstrained minimum when inside, else the best ray of the boundary (a
 //! one-dimensional search over the sliding direction) or the apex.
+//!
+//! After the active set's first solve the same sweeps run around its answer
+//! x₁: there the cones balance the gradient with their forces v (exact now,
+//! from the solve's multipliers), so the correction's objective gains the
+//! linear term vᵀδ.
 
 use super::{Contact, Piece};
 use crate::solver::{LeastSquares, Triplets};
@@ -167,20 +172,24 @@ impl<const K: usize> Stencils<K> {
     }
 }
 
-/// The pieces the relaxed correction lands on. `diag` is diag(AᵀA + λ²I),
-/// `rho` each contact's ρ of the Newton iteration (for the 3D springs).
-/// `None` when the stencils do not fit (more than 2³² rows).
+/// The pieces the relaxed correction lands on. `start` is the unconstrained
+/// optimum, or an active-set iterate with `cone_forces` v (per contact,
+/// normal then tangential): the correction's objective then gains vᵀδ, the
+/// gradient the cones balance there. `diag` is diag(AᵀA + λ²I), `rho` each
+/// contact's ρ of the Newton iteration (for the 3D springs). `None` when
+/// the stencils do not fit (more than 2³² rows).
 pub(super) fn pieces(
     problem: &LeastSquares,
     contacts: &[Contact],
     start: &[f64],
+    cone_forces: Option<&[(f64, [f64; 2])]>,
     diag: &[f64],
     rho: &[f64],
 ) -> Option<Vec<Piece>> {
     if contacts.iter().any(|ct| ct.tangents.len() > 1) {
-        pieces_in::<3>(problem, contacts, start, diag, rho)
+        pieces_in::<3>(problem, contacts, start, cone_forces, diag, rho)
     } else {
-        pieces_in::<2>(problem, contacts, start, diag, rho)
+        pieces_in::<2>(problem, contacts, start, cone_forces, diag, rho)
     }
 }
 
@@ -188,6 +197,7 @@ fn pieces_in<const K: usize>(
     problem: &LeastSquares,
     contacts: &[Contact],
     start: &[f64],
+    cone_forces: Option<&[(f64, [f64; 2])]>,
     diag: &[f64],
     rho: &[f64],
 ) -> Option<Vec<Piece>> {
@@ -268,7 +278,19 @@ fn pieces_in<const K: usize>(
     // plus the multiplier's shift of the penalty's centre, and the residual
     // alone: [√w (r + s), √w r]. Contacts of one colour write disjoint rows;
     // atomics (plain loads and stores on x86) let them share the vector.
+    // The gradient at δ = 0, per contact in colour order.
+    let gradient_at_start: Vec<[f64; K]> = (order.iter())
+        .map(|&k| {
+            let mut g = [0.0; K];
+            if let Some(&(normal, tangential)) = cone_forces.and_then(|v| v.get(k)) {
+                g[0] = normal;
+                g[1..].copy_from_slice(&tangential[..K - 1]);
+            }
+            g
+        })
+        .collect();
     let sweep = Sweep {
+        gradient_at_start: &gradient_at_start,
         locals: &locals,
         blocks: &blocks,
         stencils: &stencils,
@@ -346,6 +368,7 @@ fn pieces_in<const K: usize>(
 /// What a sweep reads (contacts in colour order) and the row states it
 /// updates.
 struct Sweep<'a, const K: usize> {
+    gradient_at_start: &'a [[f64; K]],
     locals: &'a [Local<K>],
     blocks: &'a [[[f64; K]; K]],
     stencils: &'a Stencils<K>,
@@ -367,7 +390,7 @@ impl<const K: usize> Sweep<'_, K> {
     fn gradient(&self, k: usize, delta: &[f64; K]) -> [f64; K] {
         let mut grad = [0.0; K];
         for i in 0..K {
-            grad[i] = self.lambda2 * delta[i];
+            grad[i] = self.lambda2 * delta[i] + self.gradient_at_start[k][i];
         }
         for (r, v) in self.stencils.of_contact(k) {
             let with_shift = f64::from_bits(self.rows[r][0].load(Relaxed));
@@ -930,7 +953,7 @@ mod spring_tests {
 
         let contacts: Vec<Contact> = cone_list.iter().map(|c| Contact::of(c).unwrap()).collect();
         let (diag, rho) = diagonal_and_rho(&problem, &contacts);
-        let guess = super::pieces(&problem, &contacts, &start.x, &diag, &rho).unwrap();
+        let guess = super::pieces(&problem, &contacts, &start.x, None, &diag, &rho).unwrap();
         // Guessed/optimal stiffness where both slide.
         let ratios: Vec<f64> = (0..contacts.len())
             .filter_map(|k| {
