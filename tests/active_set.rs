@@ -822,36 +822,49 @@ fn active_set_reaches_the_interior_point_optimum_on_a_sliding_3d_packing() {
     );
 }
 
+/// The active set on the sliding 3D packing under two settings: both
+/// converge, with friction binding, to the same optimum (within 1e-9).
+fn same_optimum_two_ways(
+    before: grainforce::solver::active_set::ActiveSetSettings,
+    after: grainforce::solver::active_set::ActiveSetSettings,
+) -> [grainforce::solver::active_set::ActiveSetSolution; 2] {
+    let (scene, _) = sliding_packing_3d();
+    let (system, cones) = largest_system(&scene);
+    let run = |settings| {
+        let mut ls = factor_for(&system);
+        active_set_after_least_squares(&mut ls, &system, &cones, 0.0, None, &settings)
+    };
+    let solved = [run(before), run(after)];
+    let [a, b] = &solved;
+    assert!(a.converged && b.converged, "{:?} {:?}", a.reason, b.reason);
+    let as_forces = |x: &[f64]| -> Vec<Vec3> { x.chunks(3).map(|c| [c[0], c[1], c[2]]).collect() };
+    let gap = relative_error(&as_forces(&a.x), &as_forces(&b.x));
+    let factorised = |s: &grainforce::solver::active_set::ActiveSetSolution| {
+        s.history.iter().filter(|step| !step.reused_factor).count()
+    };
+    eprintln!(
+        "{} solves ({} factorised) against {} ({}), {} sliding, gap {gap:.1e}",
+        a.iterations,
+        factorised(a),
+        b.iterations,
+        factorised(b),
+        b.sliding
+    );
+    assert!(b.sliding > 50, "friction must bind here");
+    assert!(gap < 1e-9, "optima differ by {gap:.2e}");
+    solved
+}
+
 /// The 3D guess of the first active set (Gauss–Seidel on each contact's
 /// circular cone) changes the route, not the answer, and saves solves.
 #[test]
 fn predicted_first_active_set_in_3d_reaches_the_same_optimum_in_fewer_solves() {
-    use grainforce::solver::active_set;
-    let (scene, _) = sliding_packing_3d();
-    let (system, cones) = largest_system(&scene);
-    let run = |predict: bool| {
-        let settings = active_set::ActiveSetSettings {
-            predict,
-            ..Default::default()
-        };
-        let mut ls = factor_for(&system);
-        active_set_after_least_squares(&mut ls, &system, &cones, 0.0, None, &settings)
+    use grainforce::solver::active_set::ActiveSetSettings;
+    let projection = ActiveSetSettings {
+        predict: false,
+        ..Default::default()
     };
-    let (projected, predicted) = (run(false), run(true));
-    assert!(
-        projected.converged && predicted.converged,
-        "{:?} {:?}",
-        projected.reason,
-        predicted.reason
-    );
-    let as_forces = |x: &[f64]| -> Vec<Vec3> { x.chunks(3).map(|c| [c[0], c[1], c[2]]).collect() };
-    let gap = relative_error(&as_forces(&projected.x), &as_forces(&predicted.x));
-    eprintln!(
-        "projected {} solves, predicted {} solves, {} sliding, gap {gap:.1e}",
-        projected.iterations, predicted.iterations, predicted.sliding
-    );
-    assert!(predicted.sliding > 50, "friction must bind here");
-    assert!(gap < 1e-9, "optima differ by {gap:.2e}");
+    let [projected, predicted] = same_optimum_two_ways(projection, ActiveSetSettings::default());
     assert!(
         predicted.iterations < projected.iterations,
         "predicted {} solves, projected {}",
@@ -866,39 +879,14 @@ fn predicted_first_active_set_in_3d_reaches_the_same_optimum_in_fewer_solves() {
 /// pieces (3D, 30 % sliding, stress noise).
 #[test]
 fn pieces_guessed_again_after_the_first_solve_save_factorisations_in_3d() {
-    use grainforce::solver::active_set;
-    let (scene, _) = sliding_packing_3d();
-    let (system, cones) = largest_system(&scene);
-    let run = |reguess: bool| {
-        let settings = active_set::ActiveSetSettings {
-            reguess,
-            ..Default::default()
-        };
-        let mut ls = factor_for(&system);
-        active_set_after_least_squares(&mut ls, &system, &cones, 0.0, None, &settings)
+    use grainforce::solver::active_set::{ActiveSetSettings, ActiveSetSolution};
+    let newton_pieces = ActiveSetSettings {
+        reguess: false,
+        ..Default::default()
     };
-    let (newton, reguessed) = (run(false), run(true));
-    assert!(
-        newton.converged && reguessed.converged,
-        "{:?} {:?}",
-        newton.reason,
-        reguessed.reason
-    );
-    let as_forces = |x: &[f64]| -> Vec<Vec3> { x.chunks(3).map(|c| [c[0], c[1], c[2]]).collect() };
-    let gap = relative_error(&as_forces(&newton.x), &as_forces(&reguessed.x));
-    let factorised = |s: &active_set::ActiveSetSolution| {
-        s.history.iter().filter(|step| !step.reused_factor).count()
-    };
-    eprintln!(
-        "Newton's pieces: {} solves ({} factorised); guessed again: {} ({}); {} sliding, gap {gap:.1e}",
-        newton.iterations,
-        factorised(&newton),
-        reguessed.iterations,
-        factorised(&reguessed),
-        reguessed.sliding
-    );
-    assert!(reguessed.sliding > 50, "friction must bind here");
-    assert!(gap < 1e-9, "optima differ by {gap:.2e}");
+    let [newton, reguessed] = same_optimum_two_ways(newton_pieces, ActiveSetSettings::default());
+    let factorised =
+        |s: &ActiveSetSolution| s.history.iter().filter(|step| !step.reused_factor).count();
     assert!(
         reguessed.iterations < newton.iterations,
         "guessed again {} solves, Newton's pieces {}",
