@@ -839,15 +839,12 @@ fn same_optimum_two_ways(
     assert!(a.converged && b.converged, "{:?} {:?}", a.reason, b.reason);
     let as_forces = |x: &[f64]| -> Vec<Vec3> { x.chunks(3).map(|c| [c[0], c[1], c[2]]).collect() };
     let gap = relative_error(&as_forces(&a.x), &as_forces(&b.x));
-    let factorised = |s: &grainforce::solver::active_set::ActiveSetSolution| {
-        s.history.iter().filter(|step| !step.reused_factor).count()
-    };
     eprintln!(
         "{} solves ({} factorised) against {} ({}), {} sliding, gap {gap:.1e}",
         a.iterations,
-        factorised(a),
+        a.factorisations(),
         b.iterations,
-        factorised(b),
+        b.factorisations(),
         b.sliding
     );
     assert!(b.sliding > 50, "friction must bind here");
@@ -879,14 +876,12 @@ fn predicted_first_active_set_in_3d_reaches_the_same_optimum_in_fewer_solves() {
 /// pieces (3D, 30 % sliding, stress noise).
 #[test]
 fn pieces_guessed_again_after_the_first_solve_save_factorisations_in_3d() {
-    use grainforce::solver::active_set::{ActiveSetSettings, ActiveSetSolution};
+    use grainforce::solver::active_set::ActiveSetSettings;
     let newton_pieces = ActiveSetSettings {
         reguess: false,
         ..Default::default()
     };
     let [newton, reguessed] = same_optimum_two_ways(newton_pieces, ActiveSetSettings::default());
-    let factorised =
-        |s: &ActiveSetSolution| s.history.iter().filter(|step| !step.reused_factor).count();
     assert!(
         reguessed.iterations < newton.iterations,
         "guessed again {} solves, Newton's pieces {}",
@@ -894,10 +889,10 @@ fn pieces_guessed_again_after_the_first_solve_save_factorisations_in_3d() {
         newton.iterations
     );
     assert!(
-        factorised(&reguessed) < factorised(&newton),
+        reguessed.factorisations() < newton.factorisations(),
         "guessed again {} factorisations, Newton's pieces {}",
-        factorised(&reguessed),
-        factorised(&newton)
+        reguessed.factorisations(),
+        newton.factorisations()
     );
 }
 

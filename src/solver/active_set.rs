@@ -110,6 +110,17 @@ pub struct ActiveSetSolution {
     pub pieces: ActivePieces,
 }
 
+impl ActiveSetSolution {
+    /// Solves that needed a new numeric factorisation (the others were
+    /// bordered around, or held stale in, the last one).
+    pub fn factorisations(&self) -> usize {
+        self.history
+            .iter()
+            .filter(|step| !step.reused_factor)
+            .count()
+    }
+}
+
 /// Which piece of its cone each contact was on — an opaque warm start.
 #[derive(Debug, Clone, Default)]
 pub struct ActivePieces(Vec<Piece>);
@@ -601,8 +612,8 @@ fn iterate(
         // The first solve's cone forces are the first exact ones: the
         // sweeps around its answer place the contacts better than the
         // Newton step's projection, whose sliding directions turned too
-        // far for the next factor to hold them (10⁴ spheres: 294 rows to
-        // border, 262 of them turned directions).
+        // far for the next factor to hold them (10⁴ spheres: 294 rows and
+        // springs to border after it, past the 256 a border takes).
         if let (Some(solved_on), true) = (solved_on, worst > tol) {
             if let Some(guess) = predict::pieces(problem, contacts, &x, Some(&v), diag, rho) {
                 changed = (guess.iter().zip(&solved_on))

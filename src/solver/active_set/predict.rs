@@ -274,11 +274,8 @@ fn pieces_in<const K: usize>(
         })
         .collect();
 
-    // δ per contact and, per row of [A; C] (scaled by √w), the residual
-    // plus the multiplier's shift of the penalty's centre, and the residual
-    // alone: [√w (r + s), √w r]. Contacts of one colour write disjoint rows;
-    // atomics (plain loads and stores on x86) let them share the vector.
-    // The gradient at δ = 0, per contact in colour order.
+    // The correction's gradient at δ = 0 (the cone forces at the start),
+    // per contact in colour order.
     let gradient_at_start: Vec<[f64; K]> = (order.iter())
         .map(|&k| {
             let mut g = [0.0; K];
@@ -289,6 +286,11 @@ fn pieces_in<const K: usize>(
             g
         })
         .collect();
+
+    // δ per contact and, per row of [A; C] (scaled by √w), the residual
+    // plus the multiplier's shift of the penalty's centre, and the residual
+    // alone: [√w (r + s), √w r]. Contacts of one colour write disjoint rows;
+    // atomics (plain loads and stores on x86) let them share the vector.
     let sweep = Sweep {
         gradient_at_start: &gradient_at_start,
         locals: &locals,
