@@ -91,7 +91,9 @@ pub struct Args {
     /// only; the forces are the same.
     #[arg(long, value_enum, default_value_t = OrderingArg::Auto)]
     pub ordering: OrderingArg,
-    /// Interior-point tolerance (gap and feasibility) of the first attempt.
+    /// Interior-point tolerance (gap and feasibility): of the interior point on
+    /// the sparse factorisation (when the active set does not settle) and of
+    /// clarabel's first attempt. Looser is faster and less exact.
     #[arg(long, default_value_t = 1e-8)]
     pub tolerance: f64,
     /// On infeasible data, return the least-violation answer (momentum softened)

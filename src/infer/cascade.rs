@@ -290,6 +290,7 @@ fn sparse_route(
         warm,
         stages,
         &opts.active_set,
+        &interior_point_settings(opts),
         start,
     )?;
     if let (Some(solution), Some(w)) = (constrained.as_mut(), ordering_note) {
@@ -323,6 +324,7 @@ pub(crate) fn constrained_on_factor(
     warm: &mut WarmStart,
     stages: Stages,
     settings: &ActiveSetSettings,
+    ip_settings: &InteriorPointSettings,
     start: Instant,
 ) -> Result<(Option<ConicSolution>, Option<String>)> {
     if stages.feasible_as_is {
@@ -368,6 +370,7 @@ pub(crate) fn constrained_on_factor(
                 unconstrained,
                 warm,
                 &why,
+                ip_settings,
                 start,
             ));
         }
@@ -396,6 +399,7 @@ pub(crate) fn constrained_on_factor(
 /// Stage 4, after the active set did not settle (`why`): the interior point
 /// on the cluster's analysis, restarted mid-path from a nearby λ's solve when
 /// there was one. Its answer, else why it failed too (clarabel follows).
+#[allow(clippy::too_many_arguments)]
 fn sparse_interior_point(
     factor: &EqualityLeastSquares,
     p: &LeastSquares,
@@ -403,6 +407,7 @@ fn sparse_interior_point(
     unconstrained: &ConicSolution,
     warm: &mut WarmStart,
     why: &str,
+    settings: &InteriorPointSettings,
     start: Instant,
 ) -> (Option<ConicSolution>, Option<String>) {
     // Only a nearby λ's mid-path iterate is a good start.
@@ -423,7 +428,7 @@ fn sparse_interior_point(
         &unconstrained.x,
         factor,
         restart.as_ref(),
-        &InteriorPointSettings::default(),
+        settings,
     );
     let mut ip = match outcome {
         Ok(ip) if ip.converged => ip,
@@ -449,6 +454,15 @@ fn sparse_interior_point(
         warnings: Vec::new(),
     };
     (Some(solution), None)
+}
+
+/// The sparse interior point to the user's interior-point tolerance
+/// (`--tolerance`), as clarabel after it.
+pub(crate) fn interior_point_settings(opts: &InferOptions) -> InteriorPointSettings {
+    InteriorPointSettings {
+        tolerance: opts.conic.tolerance,
+        ..Default::default()
+    }
 }
 
 fn ip_failed(why: &str, failure: &str) -> String {

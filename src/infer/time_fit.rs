@@ -629,6 +629,7 @@ pub fn infer_time_fit(
         &mut Default::default(),
         stages,
         &opts.active_set,
+        &cascade::interior_point_settings(opts),
         Instant::now(),
     )?;
     let (x, solver) = match constrained {
