@@ -157,6 +157,11 @@ const FLAT: f64 = 1e-5;
 /// (docs/bench.md, issue 20), and close points keep the warm starts short.
 const SPREAD: f64 = 0.01;
 
+/// Interior-point tolerance of the constrained solves that only rank λ
+/// (when the user's is finer): on a sheared 2 000-sphere packing the same λ
+/// to four digits as at 1e-8, in 34 iterations instead of 58.
+const SEARCH_TOLERANCE: f64 = 1e-4;
+
 /// Precision (decades of λ) of the unconstrained refinement: well inside
 /// [`SPREAD`], so the constrained steps start around their optimum.
 const TOLERANCE: f64 = 2e-3;
@@ -219,6 +224,14 @@ pub(crate) fn search(
             / norm
     };
     let length = assembly.scales.length;
+    // Several constrained solves only rank λ: where an interior point answers
+    // them, to a looser tolerance, and the chosen λ once more to the user's.
+    let several = s.constrained_scan || s.precision == LambdaPrecision::Fine;
+    let loosened = several && opts.conic.tolerance < SEARCH_TOLERANCE;
+    let mut ranking_opts = opts.clone();
+    if loosened {
+        ranking_opts.conic.tolerance = SEARCH_TOLERANCE;
+    }
     let mut search = Search {
         points: Vec::new(),
         unconstrained: Vec::new(),
@@ -228,7 +241,7 @@ pub(crate) fn search(
         |log_lambda: f64, constrained: bool, report: &mut InferenceReport| -> Result<f64> {
             let lambda = 10f64.powf(log_lambda);
             if constrained {
-                let xs = solve_all(assembly, opts, lambda, factors, report)?;
+                let xs = solve_all(assembly, &ranking_opts, lambda, factors, report)?;
                 let j = mismatch(&xs);
                 search.points.push((lambda * length, j.sqrt()));
                 if search.best.as_ref().is_none_or(|b| j < b.1) {
@@ -364,8 +377,17 @@ pub(crate) fn search(
         unconstrained,
         best,
     } = search;
-    let (best_log, _, xs) =
+    let (best_log, _, mut xs) =
         best.ok_or_else(|| Error::Invalid("λ search made no constrained solve".into()))?;
+    // Active-set answers are exact whatever the tolerance; an interior
+    // point's is sharpened (restarted mid-path from the last λ's iterate).
+    if loosened && report.solver_status.is_interior_point() {
+        xs = solve_all(assembly, opts, 10f64.powf(best_log), factors, report)?;
+        report.solver_attempts.push(format!(
+            "λ search: λ ranked with the interior point at tolerance {SEARCH_TOLERANCE:.0e}, the chosen λ solved again at {:.0e}",
+            opts.conic.tolerance
+        ));
+    }
     Ok((
         10f64.powf(best_log),
         LambdaTrace {
