@@ -954,6 +954,17 @@ fn the_route_and_the_answer_are_the_same_on_every_run() {
     }
 }
 
+/// `fixtures/regression/box3d_sheared` with eq. 2.16 stress noise.
+fn sheared_packing(seed: u64) -> Scene {
+    let dir =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/regression/box3d_sheared");
+    perturb(
+        &grainforce::scene::read_scene(&dir).unwrap(),
+        Noise::Stress,
+        seed,
+    )
+}
+
 /// A sheared 3D DEM packing with friction at its limit
 /// (fixtures/regression/box3d_sheared, 197 contacts sliding in the truth)
 /// with eq. 2.16 stress noise. The active set stops at its first Newton step
@@ -964,11 +975,8 @@ fn the_route_and_the_answer_are_the_same_on_every_run() {
 /// and the report says why the active set did not.
 #[test]
 fn sheared_dem_packing_is_solved_on_the_sparse_factorisation() {
-    let dir =
-        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/regression/box3d_sheared");
-    let scene = grainforce::scene::read_scene(&dir).unwrap();
     for seed in [18, 3] {
-        let scene = perturb(&scene, Noise::Stress, seed);
+        let scene = sheared_packing(seed);
         let fast = infer(
             &scene,
             &with_solver(Method::Qs, ConstrainedSolver::ActiveSet),
@@ -1022,13 +1030,7 @@ fn sheared_dem_packing_is_solved_on_the_sparse_factorisation() {
 /// 4.0e-5 apart), still meeting friction exactly.
 #[test]
 fn interior_point_tolerance_trades_iterations_for_accuracy_on_a_sheared_packing() {
-    let dir =
-        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/regression/box3d_sheared");
-    let scene = perturb(
-        &grainforce::scene::read_scene(&dir).unwrap(),
-        Noise::Stress,
-        18,
-    );
+    let scene = sheared_packing(18);
     let at = |tolerance: f64| {
         let mut opts = with_solver(Method::Qs, ConstrainedSolver::ActiveSet);
         opts.conic.tolerance = tolerance;
