@@ -18,6 +18,8 @@
 //! as λ², so it stays flat. `constrained_scan` keeps the former search (a
 //! constrained solve at every grid point and golden-section step).
 
+use std::cell::Cell;
+
 use super::{
     collect_forces, solve_all, solve_all_least_squares, wall_totals, FactorCache, InferOptions,
     InferenceReport,
@@ -226,12 +228,11 @@ pub(crate) fn search(
     let length = assembly.scales.length;
     // Several constrained solves only rank λ: where an interior point answers
     // them, to a looser tolerance, and the chosen λ once more to the user's.
+    // (Not when one solve is all: coarse precision, or a flat low end.)
     let several = s.constrained_scan || s.precision == LambdaPrecision::Fine;
-    let loosened = several && opts.conic.tolerance < SEARCH_TOLERANCE;
+    let loosened = Cell::new(several && opts.conic.tolerance < SEARCH_TOLERANCE);
     let mut ranking_opts = opts.clone();
-    if loosened {
-        ranking_opts.conic.tolerance = SEARCH_TOLERANCE;
-    }
+    ranking_opts.conic.tolerance = SEARCH_TOLERANCE;
     let mut search = Search {
         points: Vec::new(),
         unconstrained: Vec::new(),
@@ -241,7 +242,8 @@ pub(crate) fn search(
         |log_lambda: f64, constrained: bool, report: &mut InferenceReport| -> Result<f64> {
             let lambda = 10f64.powf(log_lambda);
             if constrained {
-                let xs = solve_all(assembly, &ranking_opts, lambda, factors, report)?;
+                let solve_opts = if loosened.get() { &ranking_opts } else { opts };
+                let xs = solve_all(assembly, solve_opts, lambda, factors, report)?;
                 let j = mismatch(&xs);
                 search.points.push((lambda * length, j.sqrt()));
                 if search.best.as_ref().is_none_or(|b| j < b.1) {
@@ -329,6 +331,9 @@ pub(crate) fn search(
             )?
         };
         // Constrained: the unconstrained optimum first (cold) ...
+        if plateau {
+            loosened.set(false);
+        }
         let centre = probe(optimum, true, report)?;
         let gap = (centre.sqrt() - unconstrained.sqrt()).abs();
         if gap > PROXY {
@@ -381,7 +386,7 @@ pub(crate) fn search(
         best.ok_or_else(|| Error::Invalid("λ search made no constrained solve".into()))?;
     // Active-set answers are exact whatever the tolerance; an interior
     // point's is sharpened (restarted mid-path from the last λ's iterate).
-    if loosened && report.solver_status.is_interior_point() {
+    if loosened.get() && report.solver_status.is_interior_point() {
         xs = solve_all(assembly, opts, 10f64.powf(best_log), factors, report)?;
         report.solver_attempts.push(format!(
             "λ search: λ ranked with the interior point at tolerance {SEARCH_TOLERANCE:.0e}, the chosen λ solved again at {:.0e}",
