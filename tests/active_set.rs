@@ -823,8 +823,9 @@ fn active_set_reaches_the_interior_point_optimum_on_a_sliding_3d_packing() {
 }
 
 /// The active set on the sliding 3D packing under two settings: both
-/// converge, with friction binding, to the same optimum (within 1e-9).
-fn same_optimum_two_ways(
+/// converge, with friction binding, to the same optimum (within 1e-9), the
+/// second in fewer solves.
+fn same_optimum_in_fewer_solves(
     before: grainforce::solver::active_set::ActiveSetSettings,
     after: grainforce::solver::active_set::ActiveSetSettings,
 ) -> [grainforce::solver::active_set::ActiveSetSolution; 2] {
@@ -849,6 +850,12 @@ fn same_optimum_two_ways(
     );
     assert!(b.sliding > 50, "friction must bind here");
     assert!(gap < 1e-9, "optima differ by {gap:.2e}");
+    assert!(
+        b.iterations < a.iterations,
+        "{} solves against {}",
+        b.iterations,
+        a.iterations
+    );
     solved
 }
 
@@ -861,13 +868,7 @@ fn predicted_first_active_set_in_3d_reaches_the_same_optimum_in_fewer_solves() {
         predict: false,
         ..Default::default()
     };
-    let [projected, predicted] = same_optimum_two_ways(projection, ActiveSetSettings::default());
-    assert!(
-        predicted.iterations < projected.iterations,
-        "predicted {} solves, projected {}",
-        predicted.iterations,
-        projected.iterations
-    );
+    same_optimum_in_fewer_solves(projection, ActiveSetSettings::default());
 }
 
 /// The pieces guessed again after the first solve (sweeps around its answer
@@ -881,13 +882,8 @@ fn pieces_guessed_again_after_the_first_solve_save_factorisations_in_3d() {
         reguess: false,
         ..Default::default()
     };
-    let [newton, reguessed] = same_optimum_two_ways(newton_pieces, ActiveSetSettings::default());
-    assert!(
-        reguessed.iterations < newton.iterations,
-        "guessed again {} solves, Newton's pieces {}",
-        reguessed.iterations,
-        newton.iterations
-    );
+    let [newton, reguessed] =
+        same_optimum_in_fewer_solves(newton_pieces, ActiveSetSettings::default());
     assert!(
         reguessed.factorisations() < newton.factorisations(),
         "guessed again {} factorisations, Newton's pieces {}",
@@ -1056,4 +1052,25 @@ fn interior_point_tolerance_trades_iterations_for_accuracy_on_a_sheared_packing(
     );
     let gap = relative_error(&fine.forces_or_zero(), &loose.forces_or_zero());
     assert!(gap < 1e-3, "forces {gap:.2e} apart");
+}
+
+/// An interior-point tolerance outside (0, 1) from the library (the CLI
+/// checks its flag) is refused up front with an error that names it, on the
+/// route where the sparse interior point answers as on any other.
+#[test]
+fn an_interior_point_tolerance_outside_zero_to_one_is_refused() {
+    let scene = sheared_packing(18);
+    for tolerance in [0.0, -1e-8, 1.0, 2.0, f64::NAN, f64::INFINITY] {
+        let mut opts = with_solver(Method::Qs, ConstrainedSolver::ActiveSet);
+        opts.conic.tolerance = tolerance;
+        match infer(&scene, &opts) {
+            Err(Error::Invalid(message)) => {
+                assert!(message.contains("tolerance"), "{message}")
+            }
+            other => panic!(
+                "tolerance {tolerance}: {:?}",
+                other.map(|r| r.report.solver_attempts)
+            ),
+        }
+    }
 }

@@ -166,6 +166,8 @@ impl Inference {
 /// Infers one scene. A hard-balance answer that collapses (data out of
 /// balance) is never returned silently: see [`InferOptions::on_collapse`].
 pub fn infer(scene: &Scene, opts: &InferOptions) -> Result<Inference> {
+    // Before any work: the active set may answer without reading it.
+    opts.conic.check()?;
     let hard = matches!(
         opts.method,
         Method::Qs | Method::Tikhonov | Method::Ls | Method::Scaled

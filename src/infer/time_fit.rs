@@ -258,6 +258,7 @@ pub fn infer_time_fit(
     fit: &TimeFitOptions,
     frame_by_frame: Option<&[Vec<Option<Vec3>>]>,
 ) -> Result<TimeFit> {
+    opts.conic.check()?;
     let start = Instant::now();
     let nf = frames.len();
     if nf < 3 {

@@ -614,7 +614,7 @@ fn iterate(
         // Newton step's projection, whose sliding directions turned too
         // far for the next factor to hold them (10⁴ spheres: 294 rows and
         // springs to border after it, past the 256 a border takes).
-        if let (Some(solved_on), true) = (solved_on, worst > tol) {
+        if let Some(solved_on) = solved_on.filter(|_| worst > tol) {
             if let Some(guess) = predict::pieces(problem, contacts, &x, Some(&v), diag, rho) {
                 changed = (guess.iter().zip(&solved_on))
                     .filter(|(next, last)| next != last)

@@ -297,6 +297,21 @@ impl Default for ConicSettings {
     }
 }
 
+impl ConicSettings {
+    /// An error unless the tolerance lies in (0, 1) and one iteration at
+    /// least is allowed (clarabel takes any value and answers "almost
+    /// solved" at a tolerance of 0).
+    pub fn check(&self) -> Result<()> {
+        if !(self.tolerance > 0.0 && self.tolerance < 1.0) || self.max_iter == 0 {
+            return Err(Error::Invalid(format!(
+                "interior point: the tolerance must lie in (0, 1) and at least one iteration be allowed, got {} and {}",
+                self.tolerance, self.max_iter
+            )));
+        }
+        Ok(())
+    }
+}
+
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct ConicSolution {
     pub x: Vec<f64>,
@@ -315,6 +330,7 @@ pub struct ConicSolution {
 const SOFTENED_WEIGHT: f64 = 1e6;
 
 pub fn solve(problem: &ConicProblem, settings: &ConicSettings) -> Result<ConicSolution> {
+    settings.check()?;
     validate(problem)?;
     let mut attempts = Vec::new();
     let first = attempt(problem, settings.tolerance, settings.max_iter)?;
