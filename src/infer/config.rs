@@ -108,6 +108,10 @@ pub struct InferConfig {
     /// scene.json). Without any μ only f_n ≥ 0 is imposed.
     #[cfg_attr(feature = "cli", arg(long, allow_negative_numbers = true))]
     pub mu: Option<f64>,
+    /// Friction coefficient of grain–wall contacts without a `mu` column
+    /// value (overrides `mu` and scene.json there), e.g. 0 for lubricated walls.
+    #[cfg_attr(feature = "cli", arg(long, allow_negative_numbers = true))]
+    pub wall_mu: Option<f64>,
     /// Tikhonov λ in the units of the equation (a length, e.g. metres); without
     /// it `tikhonov` chooses λ so inferred wall forces match walls.csv.
     #[cfg_attr(feature = "cli", arg(long, allow_negative_numbers = true))]
@@ -307,6 +311,7 @@ impl Default for InferConfig {
             stress_noise: StressNoise::Absolute,
             accept_degenerate: false,
             mu: None,
+            wall_mu: None,
             lambda: None,
             lambda_range: None,
             lambda_precision: LambdaPrecision::Fine,
@@ -391,6 +396,7 @@ pub const FIELDS: &[&str] = &[
     "stress_noise",
     "accept_degenerate",
     "mu",
+    "wall_mu",
     "lambda",
     "lambda_range",
     "lambda_precision",
@@ -633,7 +639,7 @@ impl InferConfig {
             OrderingChoice::Amd => Some(Ordering::Amd),
             OrderingChoice::NestedDissection => Some(Ordering::NestedDissection),
         };
-        for (field, mu) in [("mu", self.mu)] {
+        for (field, mu) in [("mu", self.mu), ("wall_mu", self.wall_mu)] {
             if let Some(mu) = mu.filter(|mu| !(*mu >= 0.0 && mu.is_finite())) {
                 return Err(ConfigError::new(
                     field,
@@ -642,6 +648,7 @@ impl InferConfig {
             }
         }
         opts.assemble.mu = self.mu;
+        opts.assemble.wall_mu = self.wall_mu;
         if let Some(g) = &self.gravity {
             if !(2..=3).contains(&g.len()) {
                 return Err(ConfigError::new(
