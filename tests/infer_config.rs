@@ -2,8 +2,6 @@
 //! CLI's flags and `infer::run` give the same files; errors name the field
 //! (the CLI spells it as its flag); `wall_mu` sets the walls' friction.
 
-mod common;
-
 use grainforce::infer::run::{self, Source};
 use grainforce::infer::{InferConfig, Method};
 use grainforce::scene::{self, Body};
