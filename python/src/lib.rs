@@ -266,7 +266,9 @@ impl Run {
         }
         if let Some(path) = pareto {
             let text = self.pareto_csv()?.ok_or_else(|| {
-                PyValueError::new_err("no Pareto front: infer with method dynamic or soft and pareto=True")
+                PyValueError::new_err(
+                    "no Pareto front: infer with method dynamic or soft and pareto=True",
+                )
             })?;
             pending.push((path, text.into_bytes()));
         }
