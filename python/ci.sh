@@ -17,6 +17,8 @@ python3 -m venv "$venv"
 (cd "$repo" && cargo build --quiet --bin grainforce)
 export GRAINFORCE_BIN="$CARGO_TARGET_DIR/debug/grainforce"
 
-(cd "$here" && VIRTUAL_ENV="$venv" PATH="$venv/bin:$PATH" maturin develop --quiet)
+# --locked: python/Cargo.lock must already name every crate (no silent
+# rewrite of the lock file during a build).
+(cd "$here" && VIRTUAL_ENV="$venv" PATH="$venv/bin:$PATH" maturin develop --quiet --locked)
 # pytest's status is the script's (5, no tests collected, fails too).
 cd "$here" && "$venv/bin/python" -m pytest tests -q

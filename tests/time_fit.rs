@@ -347,7 +347,7 @@ fn bad_requests_are_clear_errors() {
             ..fit
         },
     );
-    assert!(e.contains("stress-sd"), "{e}");
+    assert!(e.contains("`stress_sd`"), "{e}");
     let e = err(
         &run.frames,
         &dynamic(),
@@ -356,7 +356,7 @@ fn bad_requests_are_clear_errors() {
             ..fit
         },
     );
-    assert!(e.contains("--roughness"), "{e}");
+    assert!(e.contains("`roughness`"), "{e}");
     let e = err(
         &run.frames,
         &dynamic(),

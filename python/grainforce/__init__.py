@@ -5,10 +5,10 @@ stresses (the Granular Element Method), 2D and 3D, static and dynamic.
 >>> scene = gf.read_scene("fixtures/oedometer")
 >>> result = gf.infer(scene, method="qs")
 >>> result.forces.head()          # contact, f_x, f_y: as forces.csv
->>> result.report["stress_residual"]
+>>> result.report["frames"][0]["stress_residual"]
 
-Tables come and go as pandas DataFrames (dicts of NumPy arrays when pandas is
-not installed) with the columns of the scene format (docs/scene-format.md).
+Tables come back as pandas DataFrames (and go in as DataFrames or dicts of
+NumPy arrays) with the columns of the scene format (docs/scene-format.md).
 The solves run in Rust with the GIL released, so Python threads and Dask
 workers infer in parallel.
 """
@@ -16,6 +16,7 @@ workers infer in parallel.
 from __future__ import annotations
 
 import csv
+import io
 import json
 import math
 import os
@@ -30,10 +31,7 @@ import numpy as np
 from . import _native
 from ._native import InfeasibleError, SolverError
 
-try:
-    import pandas as _pd
-except ImportError:  # pandas is optional: tables are then dicts of arrays
-    _pd = None
+import pandas as _pd
 
 __all__ = [
     "Scene",
@@ -55,7 +53,7 @@ class FrameFailureWarning(UserWarning):
     """Some frames of a sequence failed; the result holds the others."""
 
 
-Table = Any  # a pandas DataFrame, or a dict of column name -> array
+Table = Any  # a pandas DataFrame (or, going in, a dict of column name -> array)
 Progress = Union[None, bool, Callable[[int, int], Any]]
 
 # Columns holding ids or names: kept as text whatever they look like.
@@ -63,11 +61,8 @@ _TEXT_COLUMNS = {"id", "a", "b", "wall", "contact"}
 
 
 def _table(columns: Mapping[str, Any]) -> Table:
-    """A DataFrame when pandas is installed, else the dict of arrays."""
-    columns = {k: np.asarray(v) for k, v in columns.items()}
-    if _pd is not None:
-        return _pd.DataFrame(columns)
-    return columns
+    """The columns as a DataFrame."""
+    return _pd.DataFrame({k: np.asarray(v) for k, v in columns.items()})
 
 
 def _column(name: str, values: Any) -> Any:
@@ -86,11 +81,11 @@ def _column(name: str, values: Any) -> Any:
 def _missing(value: Any) -> bool:
     if value is None or (isinstance(value, float) and math.isnan(value)):
         return True
-    return _pd is not None and value is _pd.NA
+    return value is _pd.NA
 
 
 def _write_table(path: str, name: str, table: Table) -> None:
-    if _pd is not None and isinstance(table, _pd.DataFrame):
+    if isinstance(table, _pd.DataFrame):
         if table.index.name is not None and table.index.name not in table.columns:
             table = table.reset_index()  # e.g. grains indexed by id
         columns = {str(k): table[k].to_numpy() for k in table.columns}
@@ -107,20 +102,16 @@ def _write_table(path: str, name: str, table: Table) -> None:
 
 
 def _read_table(path: str) -> Table:
-    if _pd is not None:
-        header = _pd.read_csv(path, nrows=0).columns
-        return _pd.read_csv(path, dtype={c: str for c in header if c in _TEXT_COLUMNS})
-    with open(path, newline="") as f:
-        rows = list(csv.reader(f))
-    header, body = rows[0], rows[1:]
-    columns = {}
-    for k, name in enumerate(header):
-        cells = [r[k] for r in body]
-        if name in _TEXT_COLUMNS:
-            columns[name] = np.array(cells, dtype=str)
-        else:
-            columns[name] = np.array([float(c) if c else math.nan for c in cells])
-    return columns
+    header = _pd.read_csv(path, nrows=0).columns
+    return _pd.read_csv(path, dtype={c: str for c in header if c in _TEXT_COLUMNS})
+
+
+def _csv_table(text: Optional[str]) -> Optional[Table]:
+    """A CSV text the library wrote, as a DataFrame (None stays None)."""
+    if text is None:
+        return None
+    header = next(csv.reader(io.StringIO(text)))
+    return _pd.read_csv(io.StringIO(text), dtype={c: str for c in header if c in {"grain"}})
 
 
 class Scene:
@@ -226,89 +217,95 @@ def read_scene(path: Union[str, os.PathLike]) -> Scene:
 
 
 class Inference:
-    """What :func:`infer` found.
+    """What :func:`infer` found: one type for a scene or a sequence.
 
-    forces: the columns of forces.csv (frame for sequences, contact, f_x, f_y
-    [, f_z]; force on grain ``a`` by ``b``), a DataFrame or a dict of arrays.
-    report: the CLI's JSON report as a dict (a list of dicts, one per frame,
-    for a sequence; a failed frame's is ``{"frame": k, "error": message}``).
+    forces: forces.csv as a DataFrame (frame for sequences, contact, f_x,
+    f_y[, f_z]: force on grain ``a`` by ``b``; sd_x, sd_y[, sd_z] with
+    ``uncertainty``).
+    report: a dict of one shape for one frame or many: ``frames`` (a list,
+    one report per frame; a failed frame's is ``{"frame": k, "error":
+    message}``), ``time_fit``, ``uncertainty``, ``impulse`` and
+    ``accelerations`` (what deriving them from the tracks found), each None
+    when not run.
     failed_frames: ``(frame, error message)`` of each frame of a sequence
     whose inference failed (its forces are absent), in frame order.
+    impulse: the impulse check (``impulse=True``) as a DataFrame, else None.
+    pareto: the Pareto front (``pareto=True`` or the knee rule) as a
+    DataFrame, else None.
     """
 
-    __slots__ = ("forces", "report", "failed_frames")
+    __slots__ = ("forces", "report", "failed_frames", "impulse", "pareto", "_native")
 
-    def __init__(self, forces: Table, report: Any, failed_frames: Sequence = ()):
-        self.forces = forces
-        self.report = report
-        self.failed_frames = list(failed_frames)
+    def __init__(self, native: "_native.Run"):
+        self._native = native
+        self.forces = _table(native.forces())
+        self.report = json.loads(native.report())
+        self.failed_frames = native.failed_frames()
+        self.impulse = _csv_table(native.impulse_csv())
+        self.pareto = _csv_table(native.pareto_csv())
+
+    def save(
+        self,
+        forces: Union[None, str, os.PathLike] = None,
+        *,
+        report: Union[None, str, os.PathLike] = None,
+        impulse: Union[None, str, os.PathLike] = None,
+        pareto: Union[None, str, os.PathLike] = None,
+    ) -> None:
+        """Writes the files ``grainforce infer -o FORCES --report REPORT
+        --impulse IMPULSE --pareto PARETO`` writes, byte for byte."""
+        path = lambda p: None if p is None else os.fspath(p)
+        self._native.save(path(forces), path(report), path(impulse), path(pareto))
 
     def __repr__(self) -> str:
-        n = len(self.forces["contact"])
+        n = len(self.forces)
         failed = f", {len(self.failed_frames)} frames failed" if self.failed_frames else ""
         return f"Inference({n} forces{failed})"
 
 
-_FLAGS: Optional[dict] = None
+_DEFAULTS: Optional[dict] = None
 
 
-def _flags() -> dict:
-    global _FLAGS
-    if _FLAGS is None:
-        _FLAGS = {
-            flag.replace("-", "_"): (flag, takes_value, value_name, choices)
-            for flag, takes_value, value_name, choices, _help in _native.infer_flags()
-        }
-    return _FLAGS
+def _defaults() -> dict:
+    """The library's configuration fields and their defaults."""
+    global _DEFAULTS
+    if _DEFAULTS is None:
+        _DEFAULTS = json.loads(_native.infer_defaults())
+    return _DEFAULTS
 
 
-def _number(value: Any) -> str:
-    if isinstance(value, (bool, np.bool_)):
-        raise TypeError("expected a number, got a bool")
-    if isinstance(value, (int, np.integer)):
-        return str(int(value))
-    return repr(float(value))
-
-
-def _flag_value(key: str, value: Any, value_name: Optional[str], choices: list) -> str:
-    if isinstance(value, str):
-        return value.replace("_", "-") if choices else value
+def _plain(key: str, value: Any) -> Any:
+    """A keyword's value as JSON takes it (tuples and arrays as lists)."""
+    if isinstance(value, (np.bool_, bool)):
+        return bool(value)
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, np.floating):
+        return float(value)
+    if isinstance(value, (str, int, float)):
+        return value
     if isinstance(value, (Sequence, np.ndarray)):
-        items = list(value)
-        if value_name and ".." in value_name:
-            if len(items) != 2:
-                raise ValueError(f"{key}: expected (min, max), got {value!r}")
-            return f"{_number(items[0])}..{_number(items[1])}"
+        items = [_plain(key, v) for v in list(value)]
         if key == "grains":
-            return ",".join(str(v) for v in items)
-        return ",".join(_number(v) for v in items)
-    try:
-        return _number(value)
-    except (TypeError, ValueError):
-        raise TypeError(f"{key}: unsupported value {value!r}") from None
+            return [str(v) for v in items]
+        return items
+    raise TypeError(f"{key}: unsupported value {value!r}")
 
 
-def _argv(options: Mapping[str, Any]) -> list:
-    flags = _flags()
-    argv = []
+def _config(options: Mapping[str, Any]) -> str:
+    """The keywords as the library's configuration (JSON); the library checks it."""
+    fields = _defaults()
+    config = {}
     for key, value in options.items():
-        if value is None:
-            continue
         name = key[:-1] if key.endswith("_") else key  # lambda_ -> lambda
-        if name not in flags:
+        if name not in fields:
             raise TypeError(
                 f"infer() got an unexpected keyword argument '{key}'; "
-                f"options: {', '.join(sorted(flags))}"
+                f"options: {', '.join(sorted(fields))}"
             )
-        flag, takes_value, value_name, choices = flags[name]
-        if not takes_value:
-            if not isinstance(value, (bool, np.bool_)):
-                raise TypeError(f"{key} is a switch: pass True or False")
-            if value:
-                argv.append(f"--{flag}")
-            continue
-        argv.append(f"--{flag}={_flag_value(key, value, value_name, choices)}")
-    return argv
+        if value is not None:
+            config[name] = _plain(key, value)
+    return json.dumps(config)
 
 
 def _progress_callback(progress: Progress, total: Optional[int]):
@@ -352,14 +349,18 @@ def infer(
     stresses, hard equilibrium, friction), tikhonov, scaled, ls, dynamic or
     soft (momentum as a weighted penalty). An explicit hard-balance method
     raises on collapsed forces unless accept_degenerate=True. Every other
-    option of ``grainforce infer`` is a keyword with its flag's name (``-``
-    becomes ``_``, and ``lambda`` is ``lambda_``): stress_noise, mu, lambda_,
-    lambda_range=(min, max), lambda_precision, gravity=(gx, gy), grains=[ids],
-    region=(xmin, xmax, ymin, ymax), cone, solver, ordering, tolerance,
-    allow_infeasible=True, accept_degenerate=True, wall_weight, lambda_rule,
-    stress_sd, accel_sd, sweep, sweep_points, frames=(a, b), fps,
-    derive_accelerations, smoother, fir_order, cutoff, savgol_window,
-    savgol_degree, position_sd, stop_on_failure. Defaults are the CLI's.
+    option is a field of the library's configuration (``grainforce infer``'s
+    flag with ``_`` for ``-``; ``lambda`` is ``lambda_``), its values in
+    snake_case: stress_noise, mu, lambda_, lambda_range=(min, max),
+    lambda_precision, gravity=(gx, gy), grains=[ids], region=(xmin, xmax,
+    ymin, ymax), cone, solver ('active_set', 'interior_point'), ordering,
+    tolerance, allow_infeasible, accept_degenerate, wall_weight,
+    lambda_rule, stress_sd, accel_sd, sweep, sweep_points, pareto=True,
+    frames=(a, b), fps, derive_accelerations, smoother, fir_order, cutoff,
+    savgol_window, savgol_degree, time_fit ('frames', 'joint'), roughness,
+    impulse=True, impulse_window, position_sd, uncertainty=draws,
+    noise_level, uncertainty_seed, stop_on_failure. Defaults are the CLI's;
+    the library checks every value (ValueError naming the option).
 
     progress: for sequences, True for a tqdm bar (a line on stderr without
     tqdm) or a callable ``progress(done, total)`` called after each frame.
@@ -381,13 +382,14 @@ def infer(
         raise TypeError(
             f"infer() needs a grainforce.Scene or a folder path, got {type(scene).__name__}"
         )
-    argv = _argv({"method": method, **options})
+    config = _config({"method": method, **options})
     callback, bar = _progress_callback(progress, frames)
     try:
-        columns, report, failed = _native.infer(source, argv, callback)
+        result = Inference(_native.infer(source, config, callback))
     finally:
         if bar is not None:
             bar.close()
+    failed = result.failed_frames
     if failed:
         listed = "; ".join(message for _, message in failed[:3])
         more = f" (and {len(failed) - 3} more)" if len(failed) > 3 else ""
@@ -397,7 +399,7 @@ def infer(
             FrameFailureWarning,
             stacklevel=2,
         )
-    return Inference(_table(columns), json.loads(report), failed)
+    return result
 
 
 class DemRun:

@@ -56,12 +56,25 @@ class Scene:
         """The tables (grains, contacts, walls or None)."""
 
 class Inference:
-    """forces: forces.csv's columns; report: the CLI's JSON report (a list per
-    frame for sequences); failed_frames: (frame, error) of each failed frame."""
+    """forces: forces.csv as a DataFrame; report: one dict shape for one frame
+    or many (frames, time_fit, uncertainty, impulse, accelerations);
+    failed_frames: (frame, error) of each failed frame; impulse and pareto:
+    DataFrames when run."""
 
     forces: Table
-    report: Union[dict[str, Any], list[dict[str, Any]]]
+    report: dict[str, Any]
     failed_frames: list[Tuple[int, str]]
+    impulse: Optional[Table]
+    pareto: Optional[Table]
+    def save(
+        self,
+        forces: Optional[PathLike] = None,
+        *,
+        report: Optional[PathLike] = None,
+        impulse: Optional[PathLike] = None,
+        pareto: Optional[PathLike] = None,
+    ) -> None:
+        """Writes the files `grainforce infer` writes, byte for byte."""
 
 class DemRun:
     """scene, its exact forces (forces.csv columns) and dem_report.json as a dict."""
@@ -81,6 +94,7 @@ def infer(
     stress_noise: Optional[Literal["absolute", "relative", "columns"]] = None,
     accept_degenerate: bool = False,
     mu: Optional[float] = None,
+    wall_mu: Optional[float] = None,
     lambda_: Optional[float] = None,
     lambda_range: Optional[Tuple[float, float]] = None,
     lambda_precision: Optional[Literal["fine", "coarse"]] = None,
@@ -88,8 +102,8 @@ def infer(
     grains: Optional[Sequence[Union[str, int]]] = None,
     region: Optional[Sequence[float]] = None,
     cone: Optional[Literal["exact", "pyramid4", "pyramid8", "pyramid16"]] = None,
-    solver: Optional[Literal["active-set", "interior-point"]] = None,
-    ordering: Optional[Literal["auto", "amd", "nested-dissection"]] = None,
+    solver: Optional[Literal["active_set", "interior_point"]] = None,
+    ordering: Optional[Literal["auto", "amd", "nested_dissection"]] = None,
     tolerance: Optional[float] = None,
     allow_infeasible: bool = False,
     wall_weight: Optional[float] = None,
@@ -98,6 +112,7 @@ def infer(
     accel_sd: Optional[float] = None,
     sweep: Optional[Tuple[float, float]] = None,
     sweep_points: Optional[int] = None,
+    pareto: bool = False,
     frames: Optional[Tuple[int, int]] = None,
     stop_on_failure: bool = False,
     fps: Optional[float] = None,
@@ -107,9 +122,16 @@ def infer(
     cutoff: Optional[float] = None,
     savgol_window: Optional[int] = None,
     savgol_degree: Optional[int] = None,
+    time_fit: Optional[Literal["frames", "joint"]] = None,
+    roughness: Optional[float] = None,
+    impulse: bool = False,
+    impulse_window: Optional[int] = None,
     position_sd: Optional[float] = None,
+    uncertainty: Optional[int] = None,
+    noise_level: Optional[float] = None,
+    uncertainty_seed: Optional[int] = None,
 ) -> Inference:
-    """Infers the contact forces of a scene (``grainforce infer``); options are the CLI's flags."""
+    """Infers the contact forces of a scene (``grainforce infer``); options are the library's configuration."""
 
 def dem(
     preset: Literal["oedometer", "box", "impact", "bed_impact"],

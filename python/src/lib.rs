@@ -3,11 +3,10 @@
 //! half holds scenes, runs the library with the GIL released and turns the
 //! library's errors into Python exceptions.
 
-use clap::{CommandFactory, Parser};
 use grainforce::error::Error;
-use grainforce::infer::sequence::{FrameOutcome, OnFrameFailure};
-use grainforce::infer::{self, InferOptions};
-use grainforce::scene::{self, ForceRow, Forces, Selection};
+use grainforce::infer::run::{self, Event, Source};
+use grainforce::infer::InferConfig;
+use grainforce::scene::{self, ForceRow, Forces};
 use numpy::{PyArray1, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::create_exception;
 use pyo3::exceptions::{PyFileNotFoundError, PyOSError, PyRuntimeError, PyValueError};
@@ -15,15 +14,6 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use std::path::PathBuf;
 use std::sync::Mutex;
-
-// The CLI's own flags and their checks, so `infer(**options)` takes exactly
-// the options `grainforce infer` takes, with the same defaults and messages.
-// Its `run` (which writes files) is not used here.
-#[allow(dead_code)]
-#[path = "../../src/cli/infer.rs"]
-mod cli_infer;
-
-use cli_infer::TimeFitArg;
 
 create_exception!(
     _native,
@@ -170,109 +160,206 @@ fn write_table(path: PathBuf, names: Vec<String>, columns: Vec<Column<'_>>) -> P
         .map_err(|e| PyOSError::new_err(format!("{}: {e}", path.display())))
 }
 
-/// `grainforce infer`'s arguments, without a program name.
-#[derive(Parser)]
-#[command(name = "infer", no_binary_name = true)]
-struct InferCall {
-    #[command(flatten)]
-    args: cli_infer::Args,
+/// The rows of forces.csv as columns: frame (when framed), contact, f_x,
+/// f_y[, f_z] and, after the bootstrap, sd_x, sd_y[, sd_z].
+fn forces_table<'py>(py: Python<'py>, forces: &Forces) -> PyResult<Bound<'py, PyDict>> {
+    let rows: &[ForceRow] = &forces.rows;
+    let table = PyDict::new(py);
+    if rows.iter().any(|r| r.frame.is_some()) {
+        let frames: Vec<i64> = rows.iter().map(|r| r.frame.unwrap_or(0)).collect();
+        table.set_item("frame", PyArray1::from_vec(py, frames))?;
+    }
+    let contacts: Vec<&str> = rows.iter().map(|r| r.contact.as_str()).collect();
+    table.set_item("contact", contacts)?;
+    for (k, name) in ["f_x", "f_y", "f_z"][..forces.dim].iter().enumerate() {
+        let column: Vec<f64> = rows.iter().map(|r| r.force[k]).collect();
+        table.set_item(*name, PyArray1::from_vec(py, column))?;
+    }
+    if rows.iter().any(|r| r.sd.is_some()) {
+        for (k, name) in ["sd_x", "sd_y", "sd_z"][..forces.dim].iter().enumerate() {
+            let column: Vec<f64> = rows.iter().map(|r| r.sd.unwrap_or([0.0; 3])[k]).collect();
+            table.set_item(*name, PyArray1::from_vec(py, column))?;
+        }
+    }
+    Ok(table)
 }
 
-/// Flags that write files or need steps this binding does not run.
-const NOT_OFFERED: &[&str] = &[
-    "scene",
-    "output",
-    "plot",
-    "report",
-    "pareto",
-    "impulse",
-    "impulse-window",
-    "quiet",
-    "uncertainty",
-    "noise-level",
-    "uncertainty-seed",
-    "time-fit",
-    "roughness",
-    "help",
-];
-
-/// One option of `infer`: flag, takes a value, value name, choices, help.
-type Flag = (String, bool, Option<String>, Vec<String>, String);
-
-/// The options `infer` takes, read from the CLI's own definition.
-#[pyfunction]
-fn infer_flags() -> Vec<Flag> {
-    let command = InferCall::command();
-    command
-        .get_arguments()
-        .filter_map(|a| {
-            let long = a.get_long()?;
-            if NOT_OFFERED.contains(&long) {
-                return None;
-            }
-            Some((
-                long.to_owned(),
-                a.get_action().takes_values(),
-                a.get_value_names()
-                    .and_then(|v| v.first())
-                    .map(|v| v.to_string()),
-                a.get_possible_values()
-                    .iter()
-                    .map(|p| p.get_name().to_owned())
-                    .collect(),
-                a.get_help().map(|h| h.to_string()).unwrap_or_default(),
-            ))
-        })
-        .collect()
+fn to_json<T: serde::Serialize + ?Sized>(value: &T) -> PyResult<String> {
+    serde_json::to_string(value).map_err(|e| PyValueError::new_err(e.to_string()))
 }
 
-/// What `infer` infers: a scene in memory, or a folder read as the CLI does.
-enum Source {
-    Frames(Vec<scene::Scene>),
+/// A scene object, or the path of a scene folder.
+#[derive(FromPyObject)]
+enum SceneOrFolder<'py> {
+    Scene(PyRef<'py, Scene>),
     Folder(PathBuf),
 }
 
-/// Frames to infer, each with its options: the library's sequence steps
-/// (frame range, accelerations from the tracks, per-frame momentum weights)
-/// as the CLI's flags ask for them.
-fn prepare(
-    args: &cli_infer::Args,
-    opts: &InferOptions,
-    selection: &Selection,
-    source: &Source,
-) -> Result<(Vec<scene::Scene>, Vec<InferOptions>), Error> {
-    let plan = cli_infer::sequence_plan(args, selection.clone())?;
-    let frames = match source {
-        Source::Frames(frames) => frames.clone(),
-        // Only the frames the plan needs, as the CLI reads them.
-        Source::Folder(dir) => infer::sequence::read(dir, opts, &plan)?.0,
-    };
-    let prepared = infer::sequence::prepare(frames, opts, &plan)?;
-    Ok((prepared.frames, prepared.options))
+/// One run of the library's inference (`grainforce::infer::run`): its
+/// tables, report and the files `grainforce infer` writes, byte for byte.
+#[pyclass(frozen, module = "grainforce._native")]
+struct Run {
+    run: run::Run,
 }
 
-/// Infers the frames in parallel (the library's `solve_frames`), calling
-/// `progress(done, total)` with the GIL taken after each frame. The first
-/// exception the callback raises is kept and raised once the solves end.
-fn solve(
-    frames: &[scene::Scene],
-    per_frame: &[InferOptions],
-    on_failure: OnFrameFailure,
-    progress: Option<&Py<PyAny>>,
-    callback_error: &Mutex<Option<PyErr>>,
-) -> Result<Vec<FrameOutcome>, Error> {
-    if frames.len() == 1 {
-        let result = infer::infer(&frames[0], &per_frame[0]);
-        report_progress(progress, 1, 1, callback_error);
-        return Ok(vec![FrameOutcome::Inferred(Box::new(result?))]);
+#[pymethods]
+impl Run {
+    /// forces.csv's columns.
+    fn forces<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        forces_table(py, &self.run.forces())
     }
-    let report = |p: infer::Progress| report_progress(progress, p.done, p.total, callback_error);
-    infer::sequence::solve_frames(
-        frames,
-        per_frame,
-        on_failure,
-        progress.map(|_| &report as _),
-    )
+
+    /// The report as JSON, one shape for one frame or many: `frames`,
+    /// `time_fit`, `uncertainty`, `impulse`, `accelerations`.
+    fn report(&self) -> PyResult<String> {
+        to_json(&self.run.report_uniform())
+    }
+
+    /// Frame number and error of each failed frame.
+    fn failed_frames(&self) -> Vec<(i64, String)> {
+        let spell = |m: &str| grainforce::infer::config::spell_fields(m, keyword);
+        self.run
+            .failures
+            .iter()
+            .map(|(k, m)| (*k, spell(m)))
+            .collect()
+    }
+
+    /// The impulse check's CSV text (`infer --impulse`), when it ran.
+    fn impulse_csv(&self) -> Option<String> {
+        let dim = self.run.frames.first().map_or(2, |f| f.dim);
+        self.run.impulse.as_ref().map(|c| run::impulse_csv(c, dim))
+    }
+
+    /// The Pareto front's CSV text (`infer --pareto`), when swept.
+    fn pareto_csv(&self) -> PyResult<Option<String>> {
+        self.run
+            .pareto()
+            .map(|f| grainforce::report::pareto::pareto_csv(&f.points, f.knee))
+            .transpose()
+            .map_err(to_py)
+    }
+
+    /// Writes the files `grainforce infer` writes for this run (each
+    /// atomically; `None` skips one): forces.csv, the JSON report, the
+    /// impulse check and the Pareto front.
+    #[pyo3(signature = (forces=None, report=None, impulse=None, pareto=None))]
+    fn save(
+        &self,
+        py: Python<'_>,
+        forces: Option<PathBuf>,
+        report: Option<PathBuf>,
+        impulse: Option<PathBuf>,
+        pareto: Option<PathBuf>,
+    ) -> PyResult<()> {
+        let mut pending: Vec<(PathBuf, Vec<u8>)> = Vec::new();
+        if let Some(path) = report {
+            let json = serde_json::to_string_pretty(&self.run.report_json())
+                .map_err(|e| PyValueError::new_err(e.to_string()))?;
+            pending.push((path, json.into_bytes()));
+        }
+        if let Some(path) = impulse {
+            let text = self.impulse_csv().ok_or_else(|| {
+                PyValueError::new_err("no impulse check ran: infer with impulse=True (and fps)")
+            })?;
+            pending.push((path, text.into_bytes()));
+        }
+        if let Some(path) = pareto {
+            let text = self.pareto_csv()?.ok_or_else(|| {
+                PyValueError::new_err(
+                    "no Pareto front: infer with method dynamic or soft and pareto=True",
+                )
+            })?;
+            pending.push((path, text.into_bytes()));
+        }
+        py.detach(|| {
+            if let Some(path) = &forces {
+                scene::write_forces(path, &self.run.forces())?;
+            }
+            for (path, bytes) in &pending {
+                scene::write_file_atomically(path, bytes)?;
+            }
+            Ok::<_, Error>(())
+        })
+        .map_err(to_py)
+    }
+}
+
+/// The options as the library's configuration: JSON of the keyword
+/// arguments, unknown keys refused, every field checked.
+fn config_from_json(options: &str) -> PyResult<InferConfig> {
+    let config: InferConfig = serde_json::from_str(options)
+        .map_err(|e| PyValueError::new_err(format!("infer options: {e}")))?;
+    config
+        .validate()
+        .map_err(|e| PyValueError::new_err(e.spelled(keyword)))?;
+    Ok(config)
+}
+
+/// The error with the configuration's fields written as keyword arguments.
+fn spelled(error: Error) -> Error {
+    let spell = |m: &str| grainforce::infer::config::spell_fields(m, keyword);
+    match error {
+        Error::Invalid(m) => Error::Invalid(spell(&m)),
+        Error::Infeasible(m) => Error::Infeasible(spell(&m)),
+        Error::Solver(m) => Error::Solver(spell(&m)),
+        e => e,
+    }
+}
+
+/// A configuration field as a keyword argument: `time_fit='joint'`.
+fn keyword(field: &str, value: Option<&str>) -> String {
+    match value {
+        Some(v) => format!("{field}='{v}'"),
+        None => field.to_owned(),
+    }
+}
+
+/// The library's configuration fields and their defaults, as JSON.
+#[pyfunction]
+fn infer_defaults() -> PyResult<String> {
+    to_json(&InferConfig::default())
+}
+
+/// Infers the contact forces of a scene, or of a scene folder (reading only
+/// the frames the options need), with `options` the JSON of the library's
+/// configuration. `progress(done, total)` is called with the GIL taken
+/// after each frame; the first exception it raises is raised once the
+/// solves end.
+#[pyfunction]
+#[pyo3(name = "infer", signature = (scene, options, progress=None))]
+fn infer_forces(
+    py: Python<'_>,
+    scene: SceneOrFolder<'_>,
+    options: &str,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<Run> {
+    let config = config_from_json(options)?;
+    let source = match &scene {
+        SceneOrFolder::Scene(s) => Source::Frames(&s.frames),
+        SceneOrFolder::Folder(dir) => Source::Folder(dir),
+    };
+    let callback_error = Mutex::new(None);
+    let events = |event: Event<'_>| {
+        if let Event::Frame(p) = event {
+            report_progress(progress.as_ref(), p.done, p.total, &callback_error);
+        }
+    };
+    let outcome = py.detach(|| {
+        let ran = run::run(source, &config, Some(&events));
+        // One frame reports no frame events: its end is the run's.
+        if let Ok(r) = &ran {
+            if r.single_frame {
+                report_progress(progress.as_ref(), 1, 1, &callback_error);
+            }
+        }
+        ran
+    });
+    if let Some(e) = callback_error.into_inner().ok().flatten() {
+        return Err(e);
+    }
+    let run = outcome.map_err(|e| to_py(spelled(e)))?;
+    Ok(Run { run })
 }
 
 fn report_progress(
@@ -290,126 +377,6 @@ fn report_progress(
             }
         }
     });
-}
-
-/// The rows of forces.csv as columns: frame (when framed), contact, f_x, f_y[, f_z].
-fn forces_table<'py>(py: Python<'py>, forces: &Forces) -> PyResult<Bound<'py, PyDict>> {
-    let rows: &[ForceRow] = &forces.rows;
-    let table = PyDict::new(py);
-    if rows.iter().any(|r| r.frame.is_some()) {
-        let frames: Vec<i64> = rows.iter().map(|r| r.frame.unwrap_or(0)).collect();
-        table.set_item("frame", PyArray1::from_vec(py, frames))?;
-    }
-    let contacts: Vec<&str> = rows.iter().map(|r| r.contact.as_str()).collect();
-    table.set_item("contact", contacts)?;
-    for (k, name) in ["f_x", "f_y", "f_z"][..forces.dim].iter().enumerate() {
-        let column: Vec<f64> = rows.iter().map(|r| r.force[k]).collect();
-        table.set_item(*name, PyArray1::from_vec(py, column))?;
-    }
-    Ok(table)
-}
-
-fn to_json<T: serde::Serialize + ?Sized>(value: &T) -> PyResult<String> {
-    serde_json::to_string(value).map_err(|e| PyValueError::new_err(e.to_string()))
-}
-
-/// A scene object, or the path of a scene folder.
-#[derive(FromPyObject)]
-enum SceneOrFolder<'py> {
-    Scene(PyRef<'py, Scene>),
-    Folder(PathBuf),
-}
-
-/// Infers the contact forces of a scene (or of a scene folder, reading only
-/// the frames the options need). `argv` holds `grainforce infer`'s
-/// flags (the Python layer builds them from keyword options). Returns the
-/// forces.csv columns, the JSON report (one object, or a list per frame) and
-/// the failed frames (number, error; the others go on unless
-/// stop_on_failure).
-#[pyfunction]
-#[pyo3(name = "infer", signature = (scene, argv, progress=None))]
-fn infer_forces<'py>(
-    py: Python<'py>,
-    scene: SceneOrFolder<'py>,
-    argv: Vec<String>,
-    progress: Option<Py<PyAny>>,
-) -> PyResult<(Bound<'py, PyDict>, String, Vec<(i64, String)>)> {
-    let mut full = vec!["<scene>".to_owned(), "--output".into(), "<memory>".into()];
-    full.extend(argv);
-    let call = InferCall::try_parse_from(full)
-        .map_err(|e| PyValueError::new_err(e.render().to_string().trim().to_owned()))?;
-    let args = call.args;
-    if args.time_fit != TimeFitArg::Frames {
-        return Err(PyValueError::new_err(
-            "time_fit='joint' is offered by the CLI only (grainforce infer --time-fit joint)",
-        ));
-    }
-    let on_failure = if args.stop_on_failure {
-        OnFrameFailure::Stop
-    } else {
-        OnFrameFailure::Continue
-    };
-    let source = match scene {
-        SceneOrFolder::Scene(s) => Source::Frames(s.frames.clone()),
-        SceneOrFolder::Folder(dir) => Source::Folder(dir),
-    };
-    let callback_error = Mutex::new(None);
-    let outcome = py.detach(|| {
-        let (opts, selection) = cli_infer::options(&args)?;
-        let (frames, per_frame) = prepare(&args, &opts, &selection, &source)?;
-        let single_frame = frames.len() == 1;
-        let outcomes = solve(
-            &frames,
-            &per_frame,
-            on_failure,
-            progress.as_ref(),
-            &callback_error,
-        )?;
-        let solved = grainforce::infer::sequence::split_outcomes(
-            args.stop_on_failure,
-            frames,
-            per_frame,
-            outcomes,
-        )?;
-        Ok::<_, Error>((single_frame, solved))
-    });
-    if let Some(e) = callback_error.into_inner().ok().flatten() {
-        return Err(e);
-    }
-    let (single_frame, solved) = outcome.map_err(to_py)?;
-    let grainforce::infer::sequence::Solved {
-        frames,
-        results,
-        failures,
-        entries,
-        ..
-    } = solved;
-    let mut rows = Vec::new();
-    for (frame, result) in frames.iter().zip(&results) {
-        for (c, f) in result.forces.iter().enumerate() {
-            if let Some(f) = f {
-                rows.push(ForceRow {
-                    contact: frame.contacts[c].id.clone(),
-                    frame: frame.frame,
-                    force: *f,
-                    sd: None,
-                });
-            }
-        }
-    }
-    let forces = Forces {
-        dim: frames[0].dim,
-        rows,
-    };
-    let reports: Vec<&infer::InferenceReport> = results.iter().map(|r| &r.report).collect();
-    let report = if single_frame {
-        to_json(reports[0])?
-    } else {
-        to_json(&grainforce::infer::sequence::sequence_report(
-            &entries, &reports,
-        ))?
-    };
-    Ok((forces_table(py, &forces)?, report, failures))
 }
 
 /// Runs a DEM preset. Returns the scene, its exact forces as forces.csv
@@ -568,7 +535,8 @@ fn detect<'py>(
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Scene>()?;
     m.add_function(wrap_pyfunction!(read_scene, m)?)?;
-    m.add_function(wrap_pyfunction!(infer_flags, m)?)?;
+    m.add_class::<Run>()?;
+    m.add_function(wrap_pyfunction!(infer_defaults, m)?)?;
     m.add_function(wrap_pyfunction!(infer_forces, m)?)?;
     m.add_function(wrap_pyfunction!(dem, m)?)?;
     m.add_function(wrap_pyfunction!(detect, m)?)?;

@@ -144,6 +144,9 @@ pub(crate) fn momentum_rows(dim: usize) -> usize {
 pub struct AssembleOptions {
     /// Friction coefficient for contacts without their own `mu` (overrides scene.json).
     pub mu: Option<f64>,
+    /// Friction coefficient for grain–wall contacts without their own `mu`
+    /// (overrides `mu` and scene.json there): lubricated or rough walls.
+    pub wall_mu: Option<f64>,
     /// Gravity (overrides scene.json).
     pub gravity: Option<Vec3>,
     /// Grains whose equations are kept (local inference); `None` = all.
@@ -172,7 +175,8 @@ pub struct Assembly {
 }
 
 fn friction_of(scene: &Scene, c: &scene::Contact, opts: &AssembleOptions) -> Friction {
-    match c.mu.or(opts.mu).or(scene.settings.mu) {
+    let wall_mu = opts.wall_mu.filter(|_| matches!(c.b, Body::Wall(_)));
+    match c.mu.or(wall_mu).or(opts.mu).or(scene.settings.mu) {
         Some(mu) => {
             if mu == 0.0 {
                 Friction::Frictionless
@@ -195,10 +199,10 @@ pub fn assemble(scene: &Scene, opts: &AssembleOptions) -> Result<Assembly> {
         Some(mask) => mask.clone(),
         None => vec![true; ng],
     };
-    if let Some(mu) = opts.mu {
-        if !(mu >= 0.0 && mu.is_finite()) {
+    for (field, mu) in [("mu", opts.mu), ("wall_mu", opts.wall_mu)] {
+        if let Some(mu) = mu.filter(|mu| !(*mu >= 0.0 && mu.is_finite())) {
             return Err(Error::Invalid(format!(
-                "--mu must be a finite non-negative number, got {mu}"
+                "`{field}` must be a finite non-negative number, got {mu}"
             )));
         }
     }

@@ -7,7 +7,7 @@
 
 pub mod generate;
 pub mod measured;
-pub mod noise;
+pub use crate::scene::noise;
 
 pub use generate::{generate, Packing, PackingSpec};
 pub use noise::{perturb, Noise};

@@ -60,7 +60,18 @@ pub fn run(args: Args) -> grainforce::Result<()> {
         drop_contacts: args.drop_contacts,
         seed: args.seed,
     };
-    config.validate()?;
+    config.validate().map_err(|e| match e {
+        // The library names its fields; here they are flags.
+        Error::Invalid(m) => Error::Invalid(
+            m.replace("`normal_noise_deg`", "--normal-noise")
+                .replace("`stress_bias`", "--stress-bias")
+                .replace("`stress_noise`", "--stress-noise")
+                .replace("`position_noise`", "--position-noise")
+                .replace("`accel_noise`", "--accel-noise")
+                .replace("`drop_contacts`", "--drop-contacts"),
+        ),
+        e => e,
+    })?;
     if args.scene == args.output {
         return Err(Error::Invalid(
             "the output folder must differ from the scene folder".into(),

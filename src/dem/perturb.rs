@@ -44,20 +44,21 @@ impl PerturbConfig {
     /// The original study's model: b ← b + (0.15 + N(0, 0.1))·b.
     pub fn original_study(seed: u64) -> Self {
         PerturbConfig {
-            stress_bias: crate::bench::noise::STRESS_BIAS,
-            stress_noise: crate::bench::noise::STRESS_SCATTER,
+            stress_bias: crate::scene::noise::STRESS_BIAS,
+            stress_noise: crate::scene::noise::STRESS_SCATTER,
             seed,
             ..Default::default()
         }
     }
 
+    /// Checks every field; the error names it (in backticks).
     pub fn validate(&self) -> Result<()> {
         let finite = [
-            ("--stress-bias", self.stress_bias),
-            ("--stress-noise", self.stress_noise),
-            ("--position-noise", self.position_noise),
-            ("--normal-noise", self.normal_noise_deg),
-            ("--accel-noise", self.accel_noise),
+            ("`stress_bias`", self.stress_bias),
+            ("`stress_noise`", self.stress_noise),
+            ("`position_noise`", self.position_noise),
+            ("`normal_noise_deg`", self.normal_noise_deg),
+            ("`accel_noise`", self.accel_noise),
         ];
         for (name, v) in finite {
             if !v.is_finite() {
@@ -73,7 +74,7 @@ impl PerturbConfig {
         }
         if !(0.0..=1.0).contains(&self.drop_contacts) {
             return Err(Error::Invalid(format!(
-                "--drop-contacts is a probability in [0, 1] (got {})",
+                "`drop_contacts` is a probability in [0, 1] (got {})",
                 self.drop_contacts
             )));
         }

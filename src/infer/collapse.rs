@@ -204,7 +204,7 @@ pub(crate) fn diagnose(
             if ls.report.stress_residual < 0.5 * COLLAPSE_RESIDUAL && detected(scene, &ls).is_none()
             {
                 causes.push(format!(
-                    "friction too low: without the friction cones balance fits the stresses to {:.3}; check μ (--mu)",
+                    "friction too low: without the friction cones balance fits the stresses to {:.3}; check μ (`mu`)",
                     ls.report.stress_residual
                 ));
             }

@@ -50,7 +50,9 @@ pub struct LambdaSearch {
 }
 
 /// Speed against precision of λ after the unconstrained scan.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
+#[serde(rename_all = "snake_case")]
 pub enum LambdaPrecision {
     /// The constrained answer's mismatch minimised to 10⁻⁴ decades of λ:
     /// three constrained solves around the unconstrained optimum and up to
@@ -201,7 +203,7 @@ pub(crate) fn search(
     if measured.is_empty() {
         return Err(Error::Invalid(
             "λ cannot be chosen: it is matched to measured wall forces (walls.csv), and this scene has none \
-             for walls its grains touch; give --lambda"
+             for walls its grains touch; give `lambda`"
                 .into(),
         ));
     }

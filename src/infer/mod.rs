@@ -11,12 +11,14 @@
 
 mod cascade;
 pub mod collapse;
+pub mod config;
 pub mod dynamic;
 pub mod kinematics;
 mod lambda;
 pub mod noise;
 mod polish;
 mod report;
+pub mod run;
 pub mod sequence;
 pub mod shards;
 pub mod time_fit;
@@ -24,6 +26,7 @@ pub mod uncertainty;
 
 pub use crate::solver::active_set::ActiveSetSettings;
 pub use collapse::{Collapse, OnCollapse};
+pub use config::{ConfigError, InferConfig};
 pub use dynamic::{DynamicOptions, Front, LambdaRule};
 pub use lambda::{LambdaPrecision, LambdaSearch, LambdaTrace};
 pub use noise::StressNoise;
@@ -39,8 +42,9 @@ use crate::solver::{SolveStatus, Triplets};
 pub(crate) use cascade::{ordering, FactorCache, FactorSlot};
 use std::time::Instant;
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
-#[serde(rename_all = "lowercase")]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
+#[serde(rename_all = "snake_case")]
 pub enum Method {
     Qs,
     Tikhonov,
@@ -66,8 +70,9 @@ impl std::fmt::Display for Method {
 }
 
 /// How friction-constrained problems are solved.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
-#[serde(rename_all = "kebab-case")]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
+#[serde(rename_all = "snake_case")]
 pub enum ConstrainedSolver {
     /// Primal–dual active set on the sparse factorisation, warm-started from the
     /// unconstrained answer; when it does not settle, an interior point on the
@@ -77,13 +82,73 @@ pub enum ConstrainedSolver {
     InteriorPoint,
 }
 
-/// How the 3D Coulomb cone is modelled.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+/// How the 3D Coulomb cone is modelled. Written `exact` or `pyramidK`
+/// (K facets, at least 3) in a configuration; the CLI offers 4, 8 and 16.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(try_from = "String", into = "String")]
 pub enum ConeModel {
     /// The exact second-order cone (SOCP).
     Exact,
     /// An inscribed pyramid with this many facets (a linear QP).
     Pyramid(usize),
+}
+
+impl std::fmt::Display for ConeModel {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            ConeModel::Exact => f.write_str("exact"),
+            ConeModel::Pyramid(k) => write!(f, "pyramid{k}"),
+        }
+    }
+}
+
+impl std::str::FromStr for ConeModel {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        if s == "exact" {
+            return Ok(ConeModel::Exact);
+        }
+        s.strip_prefix("pyramid")
+            .and_then(|k| k.parse::<usize>().ok())
+            .filter(|&k| k >= 3)
+            .map(ConeModel::Pyramid)
+            .ok_or_else(|| format!("unknown cone `{s}`: expected exact or pyramidK (K ≥ 3 facets)"))
+    }
+}
+
+impl TryFrom<String> for ConeModel {
+    type Error = String;
+    fn try_from(s: String) -> std::result::Result<Self, String> {
+        s.parse()
+    }
+}
+
+impl From<ConeModel> for String {
+    fn from(c: ConeModel) -> String {
+        c.to_string()
+    }
+}
+
+#[cfg(feature = "cli")]
+impl clap::ValueEnum for ConeModel {
+    fn value_variants<'a>() -> &'a [Self] {
+        &[
+            ConeModel::Exact,
+            ConeModel::Pyramid(4),
+            ConeModel::Pyramid(8),
+            ConeModel::Pyramid(16),
+        ]
+    }
+
+    fn to_possible_value(&self) -> Option<clap::builder::PossibleValue> {
+        Some(clap::builder::PossibleValue::new(match self {
+            ConeModel::Exact => "exact",
+            ConeModel::Pyramid(4) => "pyramid4",
+            ConeModel::Pyramid(8) => "pyramid8",
+            ConeModel::Pyramid(16) => "pyramid16",
+            ConeModel::Pyramid(_) => return None,
+        }))
+    }
 }
 
 #[derive(Debug, Clone)]
@@ -212,9 +277,9 @@ pub fn infer(scene: &Scene, opts: &InferOptions) -> Result<Inference> {
     match (opts.on_collapse, inference) {
         (OnCollapse::Accept, Some(mut inf)) => {
             diagnosis.action =
-                "accepted (--accept-degenerate): the forces above are not an answer".into();
+                "accepted (`accept_degenerate`): the forces above are not an answer".into();
             inf.report.warnings.push(format!(
-                "the forces collapsed (stress residual {:.3}): the data do not balance; --method soft fits them",
+                "the forces collapsed (stress residual {:.3}): the data do not balance; `method` = soft fits them",
                 diagnosis.stress_residual
             ));
             inf.report.collapse = Some(diagnosis);
@@ -223,8 +288,8 @@ pub fn infer(scene: &Scene, opts: &InferOptions) -> Result<Inference> {
         (OnCollapse::Fail, _) => {
             diagnosis.action = "failed".into();
             Err(Error::Infeasible(format!(
-                "the data do not balance.\n{diagnosis}            use --method soft (momentum balance as a penalty), or \
-                 --accept-degenerate to keep the collapsed answer"
+                "the data do not balance.\n{diagnosis}            use `method` = soft (momentum balance as a penalty), or \
+                 `accept_degenerate` to keep the collapsed answer"
             )))
         }
         (_, _) => {
@@ -641,7 +706,7 @@ fn solve_system(
             "momentum balance with compressive, Coulomb-bounded contacts admits only near-zero forces for {} \
              grains (their stresses fit no better than with zero forces, while {:.1e} is possible without \
              friction) — typically a missing contact or a misplaced grain; check the contact list, or pass \
-             --allow-infeasible for the least-violation answer",
+             `allow_infeasible` for the least-violation answer",
             system.grains.len(),
             unconstrained_fit.unwrap_or(0.0).sqrt()
         )))
@@ -716,11 +781,11 @@ fn diagnose_infeasible(system: &System, opts: &InferOptions, problem: &ConicProb
         .unknowns
         .iter()
         .any(|u| u.friction != Friction::NormalOnly);
-    let hint = "or pass --allow-infeasible for the least-violation answer";
+    let hint = "or pass `allow_infeasible` for the least-violation answer";
     if friction_bound && conic::solve(&normal_only, &opts.conic).is_ok() {
         Error::Infeasible(format!(
             "the measured loads need tangential forces beyond μ·f_n at some contacts (μ too small for these stresses \
-             and accelerations); raise --mu, check the data, {hint}"
+             and accelerations); raise `mu`, check the data, {hint}"
         ))
     } else {
         Error::Infeasible(format!(
@@ -773,7 +838,7 @@ fn solve_scaled(
     }
     if wall_rhs.is_empty() {
         return Err(Error::Invalid(
-            "--method scaled needs measured wall forces (walls.csv) for walls that touch the grains".into(),
+            "`method` = scaled needs measured wall forces (walls.csv) for walls that touch the grains".into(),
         ));
     }
     let momentum = widen(&system.momentum, n + 1);

@@ -14,8 +14,9 @@ use crate::assemble::Assembly;
 use crate::error::{Error, Result};
 use crate::scene::{sym, Scene};
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
-#[serde(rename_all = "lowercase")]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
+#[serde(rename_all = "snake_case")]
 pub enum StressNoise {
     Absolute,
     Relative,
@@ -82,7 +83,7 @@ pub(crate) fn column_weights(scene: &Scene, assembly: &Assembly) -> Result<Vec<V
             let g = &scene.grains[p];
             let sd = g.stress_sd.ok_or_else(|| {
                 Error::Invalid(format!(
-                    "--stress-noise columns needs sd_s_* columns for every grain; grain {} has none",
+                    "`stress_noise` = columns needs sd_s_* columns for every grain; grain {} has none",
                     g.id
                 ))
             })?;

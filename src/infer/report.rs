@@ -84,7 +84,7 @@ impl InferenceReport {
         let mut warnings = Vec::new();
         if normal_only > 0 && opts.method != Method::Ls {
             warnings.push(format!(
-                "{normal_only} contacts have no friction coefficient (no `mu` column, --mu or scene.json mu): only f_n ≥ 0 imposed"
+                "{normal_only} contacts have no friction coefficient (no mu column in contacts.csv, no `mu`, no mu in scene.json): only f_n ≥ 0 imposed"
             ));
         }
         let loaded_rattlers: Vec<String> = assembly
@@ -115,7 +115,7 @@ impl InferenceReport {
             warnings.push(format!(
                 "{pruned} grains report stress but their contacts were all fixed to zero by pruning (a grain left with \
                  one contact and no load to balance carries no force when momentum balance is exact), so their \
-                 stresses are ignored: the data are missing contacts (detectors miss weak ones); --method soft uses them"
+                 stresses are ignored: the data are missing contacts (detectors miss weak ones); `method` = soft uses them"
             ));
         }
         InferenceReport {
@@ -255,7 +255,7 @@ impl InferenceReport {
         if let Some(t) = &trace {
             if t.at_edge {
                 self.warnings.push(
-                    "the best λ lies at an end of the search range; widen it (--lambda-range) or give --lambda".into(),
+                    "the best λ lies at an end of the search range; widen it (`lambda_range`) or give `lambda`".into(),
                 );
             }
         }

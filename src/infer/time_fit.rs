@@ -274,13 +274,13 @@ pub fn infer_time_fit(
     }
     if !(fit.stress_sd > 0.0 && fit.stress_sd.is_finite()) {
         return Err(Error::Invalid(format!(
-            "the time fit weighs the stresses by 1/σ_s: --stress-sd must be positive, got {}",
+            "the time fit weighs the stresses by 1/σ_s: `stress_sd` must be positive, got {}",
             fit.stress_sd
         )));
     }
     if let ConeModel::Pyramid(_) = opts.cone {
         return Err(Error::Invalid(
-            "the time fit solves friction with the active set, which takes exact cones only (drop --cone)"
+            "the time fit solves friction with the active set, which takes exact cones only (drop `cone`)"
                 .into(),
         ));
     }
@@ -295,13 +295,13 @@ pub fn infer_time_fit(
         None => {
             let forces = frame_by_frame.ok_or_else(|| {
                 Error::Invalid(
-                    "the time fit needs σ_r (--roughness) or a frame-by-frame answer to estimate it from"
+                    "the time fit needs σ_r (`roughness`) or a frame-by-frame answer to estimate it from"
                         .into(),
                 )
             })?;
             let r = roughness_of(&ctracks, frames, forces).ok_or_else(|| {
                 Error::Invalid(
-                    "cannot estimate the force roughness: no contact lasts three frames with a force; give --roughness"
+                    "cannot estimate the force roughness: no contact lasts three frames with a force; give `roughness`"
                         .into(),
                 )
             })?;
@@ -645,7 +645,7 @@ pub fn infer_time_fit(
             let note = note.unwrap_or_default();
             let ip = cascade::interior_point(&problem, &opts.conic, None).map_err(|e| {
                 Error::Solver(format!(
-                    "time fit: the interior point did not solve the joint problem either ({e}; {note}); infer frame by frame (--time-fit frames)"
+                    "time fit: the interior point did not solve the joint problem either ({e}; {note}); infer frame by frame (`time_fit` = frames)"
                 ))
             })?;
             if ip.softened {

@@ -173,7 +173,7 @@ pub fn force_uncertainty(
             residual_noise_level(&inference.report).ok_or_else(|| {
                 Error::Invalid(
                     "the stress residual cannot reveal the noise level here (no residual degrees of \
-                     freedom): state it with --noise-level"
+                     freedom): state it with `noise_level`"
                         .into(),
                 )
             })?,

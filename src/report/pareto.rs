@@ -17,6 +17,11 @@ pub struct ParetoPoint {
 
 /// Writes the front atomically (temporary file, then rename); `knee` indexes `points`.
 pub fn write_pareto_csv(path: &Path, points: &[ParetoPoint], knee: Option<usize>) -> Result<()> {
+    crate::scene::write_file_atomically(path, pareto_csv(points, knee)?.as_bytes())
+}
+
+/// The text [`write_pareto_csv`] writes.
+pub fn pareto_csv(points: &[ParetoPoint], knee: Option<usize>) -> Result<String> {
     if let Some(k) = knee {
         if k >= points.len() {
             return Err(Error::Invalid(format!(
@@ -35,7 +40,7 @@ pub fn write_pareto_csv(path: &Path, points: &[ParetoPoint], knee: Option<usize>
             u8::from(knee == Some(i))
         ));
     }
-    crate::scene::write_file_atomically(path, text.as_bytes())
+    Ok(text)
 }
 
 /// Reads a front written by [`write_pareto_csv`] (columns in any order, `knee`

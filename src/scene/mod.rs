@@ -3,6 +3,7 @@
 //! are `[f64; 3]` with z = 0 in 2D, and [`Scene::dim`] says which.
 
 mod io;
+pub mod noise;
 mod select;
 mod sums;
 mod validate;

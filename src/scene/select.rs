@@ -26,7 +26,7 @@ pub fn select_subassembly(scene: &Scene, selection: &Selection) -> Result<Vec<bo
                     .iter()
                     .position(|g| &g.id == id)
                     .ok_or_else(|| {
-                        Error::Invalid(format!("--grains: no grain `{id}` in the scene"))
+                        Error::Invalid(format!("`grains`: no grain `{id}` in the scene"))
                     })?;
                 mask[i] = true;
             }
@@ -35,7 +35,7 @@ pub fn select_subassembly(scene: &Scene, selection: &Selection) -> Result<Vec<bo
         Selection::Region(bounds) => {
             if bounds.len() != scene.dim {
                 return Err(Error::Invalid(format!(
-                    "--region needs {} bounds (min,max per axis) for a {}D scene",
+                    "`region` needs {} bounds (min,max per axis) for a {}D scene",
                     2 * scene.dim,
                     scene.dim
                 )));
@@ -51,7 +51,7 @@ pub fn select_subassembly(scene: &Scene, selection: &Selection) -> Result<Vec<bo
                 })
                 .collect();
             if !mask.iter().any(|&m| m) {
-                return Err(Error::Invalid("--region contains no grain centroid".into()));
+                return Err(Error::Invalid("`region` contains no grain centroid".into()));
             }
             Ok(mask)
         }

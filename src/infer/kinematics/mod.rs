@@ -49,7 +49,7 @@ fn segments(track: &[(usize, Vec3)]) -> Vec<&[(usize, Vec3)]> {
 
 fn check_frames(frames: &[Scene], fps: f64) -> Result<()> {
     if !(fps > 0.0 && fps.is_finite()) {
-        return Err(Error::Invalid(format!("--fps must be positive, got {fps}")));
+        return Err(Error::Invalid(format!("`fps` must be positive, got {fps}")));
     }
     if frames.windows(2).any(|w| w[0].frame >= w[1].frame) {
         return Err(Error::Invalid(
@@ -61,7 +61,7 @@ fn check_frames(frames: &[Scene], fps: f64) -> Result<()> {
         .any(|w| w[1].frame.unwrap_or(0) - w[0].frame.unwrap_or(0) != 1)
     {
         return Err(Error::Invalid(
-            "deriving accelerations and the impulse check need consecutive frame numbers (equal time steps); select a range with --frames".into(),
+            "deriving accelerations and the impulse check need consecutive frame numbers (equal time steps); select a range with `frames`".into(),
         ));
     }
     Ok(())

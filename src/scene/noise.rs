@@ -1,4 +1,6 @@
-//! Measurement noise for benchmark scenes.
+//! Measurement noise on scenes: eq. 2.16's stress error and the benchmark's
+//! geometry error. It sits below `dem/` (whose `perturb` uses its constants)
+//! and `bench/`, so the simulator does not depend on inference.
 
 use crate::scene::{self, Scene};
 use rand::SeedableRng;

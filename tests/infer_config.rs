@@ -1,0 +1,205 @@
+//! The library's one configuration and one run: a JSON configuration, the
+//! CLI's flags and `infer::run` give the same files; errors name the field
+//! (the CLI spells it as its flag); `wall_mu` sets the walls' friction.
+
+use grainforce::infer::run::{self, Source};
+use grainforce::infer::{InferConfig, Method};
+use grainforce::scene::{self, Body};
+use std::path::Path;
+
+const OEDOMETER: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/oedometer");
+
+fn cli(args: &[&str]) -> std::process::Output {
+    std::process::Command::new(env!("CARGO_BIN_EXE_grainforce"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+#[test]
+fn a_json_configuration_gives_the_cli_files_byte_for_byte() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = InferConfig::from_json(
+        r#"{"method": "tikhonov", "lambda_precision": "coarse", "solver": "active_set",
+            "ordering": "nested_dissection", "mu": 0.4}"#,
+    )
+    .unwrap();
+    assert_eq!(config.method, Some(Method::Tikhonov));
+    let ran = run::run(Source::Folder(Path::new(OEDOMETER)), &config, None).unwrap();
+    let mine = dir.path().join("mine.csv");
+    scene::write_forces(&mine, &ran.forces()).unwrap();
+    let theirs = dir.path().join("cli.csv");
+    let out = cli(&[
+        "-q",
+        "infer",
+        OEDOMETER,
+        "-o",
+        theirs.to_str().unwrap(),
+        "-m",
+        "tikhonov",
+        "--lambda-precision",
+        "coarse",
+        "--ordering",
+        "nested-dissection",
+        "--mu",
+        "0.4",
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert_eq!(
+        std::fs::read(&mine).unwrap(),
+        std::fs::read(&theirs).unwrap()
+    );
+    // A round trip through JSON keeps every field.
+    let text = serde_json::to_string(&config).unwrap();
+    assert_eq!(InferConfig::from_json(&text).unwrap(), config);
+}
+
+#[test]
+fn errors_name_the_field_and_the_cli_spells_it_as_its_flag() {
+    let e = InferConfig::from_json(r#"{"colour": "red"}"#).unwrap_err();
+    assert!(e.to_string().contains("unknown field `colour`"), "{e}");
+    let e = InferConfig::from_json(r#"{"solver": "active-set"}"#).unwrap_err();
+    assert!(
+        e.to_string().contains("unknown variant `active-set`"),
+        "{e}"
+    );
+    let cases: [(InferConfig, &str, &str); 5] = [
+        (
+            InferConfig {
+                tolerance: 2.0,
+                ..Default::default()
+            },
+            "tolerance",
+            "(0, 1)",
+        ),
+        (
+            InferConfig {
+                time_fit: grainforce::infer::config::TimeFitChoice::Joint,
+                ..Default::default()
+            },
+            "time_fit",
+            "`method` = dynamic",
+        ),
+        (
+            InferConfig {
+                wall_mu: Some(-0.1),
+                ..Default::default()
+            },
+            "wall_mu",
+            "non-negative",
+        ),
+        (
+            InferConfig {
+                uncertainty: Some(1),
+                ..Default::default()
+            },
+            "uncertainty",
+            "at least 2 draws",
+        ),
+        (
+            InferConfig {
+                lambda_rule: grainforce::infer::config::RuleChoice::Fixed,
+                ..Default::default()
+            },
+            "lambda",
+            "`lambda_rule` = fixed needs `lambda`",
+        ),
+    ];
+    for (config, field, text) in cases {
+        let e = config.validate().unwrap_err();
+        assert_eq!(e.field, field, "{e}");
+        assert!(e.message.contains(text), "{e}");
+        assert!(!e.message.contains("--"), "{e}");
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("f.csv");
+    let run = cli(&[
+        "infer",
+        OEDOMETER,
+        "-o",
+        out.to_str().unwrap(),
+        "--lambda-rule",
+        "fixed",
+    ]);
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(!run.status.success() && !out.exists());
+    assert!(
+        stderr.contains("--lambda-rule fixed needs --lambda"),
+        "{stderr}"
+    );
+}
+
+/// Lubricated walls: the oedometer's DEM walls are frictionless, its
+/// grains not. Without the `mu` column the scene's μ = 0.5 applies to every
+/// contact; `wall_mu` = 0 makes each grain–wall force normal, as in the
+/// truth, and leaves the grain contacts their friction.
+#[test]
+fn wall_mu_sets_the_friction_of_the_wall_contacts_only() {
+    let mut scene = scene::read_scene(Path::new(OEDOMETER)).unwrap();
+    for c in &mut scene.contacts {
+        c.mu = None;
+    }
+    let truth = scene::read_forces(&Path::new(OEDOMETER).join("forces.csv")).unwrap();
+    let frames = [scene.clone()];
+    let infer = |wall_mu: Option<f64>| {
+        let config = InferConfig {
+            method: Some(Method::Qs),
+            wall_mu,
+            ..Default::default()
+        };
+        run::run(Source::Frames(&frames), &config, None).unwrap()
+    };
+    // |f_t| / |f_n| of a 2D contact force.
+    let slip = |c: &scene::Contact, f: [f64; 3]| {
+        let n = c.normal;
+        let normal = f[0] * n[0] + f[1] * n[1];
+        let tangential = -f[0] * n[1] + f[1] * n[0];
+        tangential.abs() / normal.abs().max(1e-300)
+    };
+    let smooth = infer(Some(0.0));
+    let (mut walls, mut grains_slip) = (0, 0.0f64);
+    for (i, c) in scene.contacts.iter().enumerate() {
+        let f = smooth.results[0].forces[i].unwrap();
+        match c.b {
+            Body::Wall(_) if f != [0.0; 3] => {
+                walls += 1;
+                assert!(slip(c, f) < 1e-9, "contact {}: {f:?}", c.id);
+            }
+            Body::Grain(_) if f != [0.0; 3] => grains_slip = grains_slip.max(slip(c, f)),
+            _ => {}
+        }
+    }
+    assert!(walls >= 10, "{walls} loaded wall contacts");
+    assert!(
+        grains_slip > 0.05 && grains_slip <= 0.5 + 1e-9,
+        "{grains_slip}"
+    );
+    // Exact data: both answers recover the truth, which either model admits.
+    let scale = truth
+        .rows
+        .iter()
+        .map(|r| r.force[0].abs().max(r.force[1].abs()))
+        .fold(0.0f64, f64::max);
+    for ran in [&smooth, &infer(None)] {
+        for (c, f) in scene.contacts.iter().zip(&ran.results[0].forces) {
+            let t = truth.rows.iter().find(|r| r.contact == c.id).unwrap().force;
+            let f = f.unwrap();
+            let gap = (f[0] - t[0]).abs().max((f[1] - t[1]).abs());
+            assert!(gap <= 1e-6 * scale, "contact {}: {f:?} vs {t:?}", c.id);
+        }
+    }
+    let e = run::run(
+        Source::Frames(&frames),
+        &InferConfig {
+            wall_mu: Some(f64::NAN),
+            ..Default::default()
+        },
+        None,
+    )
+    .unwrap_err();
+    assert!(e.to_string().contains("`wall_mu`"), "{e}");
+}
