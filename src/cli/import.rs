@@ -4,6 +4,8 @@ use grainforce::import::{gff, lammps, liggghts, pegs, yade, ImportedScene};
 use grainforce::{Error, Result};
 use std::path::{Path, PathBuf};
 
+mod labels;
+
 #[derive(Clone, Copy, clap::ValueEnum)]
 pub enum Format {
     /// LAMMPS: ATOMS.dump (dump custom) PAIRS.dump (dump local of compute pair/local).
@@ -17,6 +19,9 @@ pub enum Format {
     /// PeGS/PeGS2 (photoelastic): PARTICLE.mat (`*_contacts.mat` or `*_solved.mat`)
     /// [CENTERS.txt] (particleDetect's x,y,r,edge, for the unrounded radii).
     Pegs,
+    /// Tomography: a label VOLUME (.npy, .tif/.tiff multi-page, or raw with --shape)
+    /// → grains, contacts, normals (docs/tomography.md).
+    Labels,
 }
 
 #[derive(clap::Args)]
@@ -26,7 +31,9 @@ pub enum Format {
   grainforce import yade bodies.csv interactions.csv -o scene --gravity 0,0,-9.81
   grainforce import gff grains.gff contacts.csv -o scene --stress-unit MPa --length-unit mm
   grainforce import gff strains.gff contacts.csv -o scene --stiffness quartz --errors strains_errors.gff
-  grainforce import pegs Step09-0001_solved.mat Step09-0001_centers.txt -o scene --image Step09-0001.jpg --thickness 0.00635")]
+  grainforce import pegs Step09-0001_solved.mat Step09-0001_centers.txt -o scene --image Step09-0001.jpg --thickness 0.00635
+  grainforce import labels labels.npy -o scene --voxel-size 6.5e-6 --walls bottom:z=0,top:z=0.0052
+  grainforce import labels labels.tif -o scene --voxel-size 6.5e-6 --grey ct.tif --density 2650")]
 pub struct Args {
     /// Source format.
     #[arg(value_enum)]
@@ -87,6 +94,8 @@ pub struct Args {
     /// (N/m, as 2D scenes hold them) and scene.json gets the thickness.
     #[arg(long)]
     thickness: Option<f64>,
+    #[command(flatten)]
+    labels: labels::LabelArgs,
 }
 
 fn unit(text: &str, table: &[(&str, f64)], what: &str) -> Result<f64> {
@@ -166,6 +175,9 @@ pub fn run(args: Args) -> Result<()> {
     if let Format::Pegs = args.format {
         return run_pegs(&args, gravity);
     }
+    if let Format::Labels = args.format {
+        return labels::run(&args, gravity);
+    }
     if args.inputs.len() != 2 {
         return Err(Error::Invalid(format!(
             "this format needs two input files, got {}",
@@ -236,6 +248,7 @@ pub fn run(args: Args) -> Result<()> {
             },
         )?,
         Format::Pegs => unreachable!("handled by run_pegs"),
+        Format::Labels => unreachable!("handled by labels::run"),
     };
     imported.write(&args.output)?;
     report(&args, &imported)

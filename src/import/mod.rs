@@ -13,6 +13,7 @@
 
 pub mod dump;
 pub mod gff;
+pub mod labels;
 pub mod lammps;
 pub mod liggghts;
 pub mod mat5;
