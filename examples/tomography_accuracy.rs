@@ -3,7 +3,7 @@
 //! the simulated segmentation, imported with the standard (PCA) normals and
 //! with the surface fits.
 //!
-//! cargo run --release --example tomography_accuracy -- fixtures/regression/box3d_gated [15,30,60]
+//! cargo run --release --example tomography_accuracy -- fixtures/regression/box3d_gated [15,30,60] [spheres,clumps]
 
 use grainforce::import::labels::{self, synth, Options};
 use grainforce::scene::{self, Body};
@@ -41,7 +41,8 @@ fn main() -> grainforce::Result<()> {
     );
     println!("| grains | vox/diam | volume | method | recall | precision | median ° | p90 ° | max ° | point err (vox, median) |");
     println!("|---|---|---|---|---|---|---|---|---|---|");
-    for shape in ["spheres", "clumps"] {
+    let shapes = args.get(3).map_or("spheres,clumps", String::as_str);
+    for shape in shapes.split(',') {
         for &res in &resolutions {
             let voxel = mean_d / res;
             let grains = if shape == "spheres" {

@@ -74,8 +74,11 @@ impl WallPlane {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FitSettings {
     /// Outer radius of the fitting shell around the contact point, in
-    /// equivalent radii of the grain.
+    /// equivalent radii of the grain, and at least `min_shell` voxels beyond
+    /// the inner radius (small grains need the faces; large ones a local
+    /// patch, away from other lobes and flat faces).
     pub window: f64,
+    pub min_shell: f64,
     /// Inner radius of the shell (the neck the interface and segmentation
     /// distort), in radii of the contact zone, and at least `min_exclusion`
     /// voxels.
@@ -93,7 +96,8 @@ pub struct FitSettings {
 impl Default for FitSettings {
     fn default() -> Self {
         FitSettings {
-            window: 1.0,
+            window: 0.5,
+            min_shell: 4.0,
             exclusion: 1.5,
             min_exclusion: 1.5,
             min_faces: 12,
@@ -894,7 +898,7 @@ fn surface_pass(
         for (k, z) in zones.iter().enumerate() {
             let inner = (fit.exclusion * z.radius).max(fit.min_exclusion);
             let mut add = |g: usize, side: usize| {
-                let outer = fit.window * grains[g].radius_voxels;
+                let outer = (fit.window * grains[g].radius_voxels).max(inner + fit.min_shell);
                 let before = previous.map(|p| p[k][side]);
                 // On a refit, a side without a previous fit is left out.
                 if outer > inner && before.is_none_or(|b| b.is_some()) {
