@@ -940,7 +940,16 @@ fn surface_pass(
                 if l == 0 || l == container {
                     continue;
                 }
-                let g = scan.index[l as usize] as usize - 1;
+                // A label pass 1 did not see: the file changed under us.
+                let Some(g) = scan
+                    .index
+                    .get(l as usize)
+                    .and_then(|&i| (i as usize).checked_sub(1))
+                else {
+                    return Err(Error::Invalid(format!(
+                        "label {l} at voxel z={z} y={y} x={x} appeared between two reads of the volume: was the file modified during the import?"
+                    )));
+                };
                 for &h in &hits_by_grain[g] {
                     let (_, w, towards_high) = plane_hits[h];
                     let axis = options.walls[w].axis;
