@@ -1,8 +1,10 @@
 //! `grainforce import FORMAT INPUT… -o SCENE_DIR`: other tools' output as a scene.
 
-use grainforce::import::{gff, lammps, liggghts, pegs, yade, ImportedScene};
+use grainforce::import::{gff, imaged11, lammps, liggghts, pegs, yade, ImportedScene};
 use grainforce::{Error, Result};
 use std::path::{Path, PathBuf};
+
+mod labels;
 
 #[derive(Clone, Copy, clap::ValueEnum)]
 pub enum Format {
@@ -17,6 +19,11 @@ pub enum Format {
     /// PeGS/PeGS2 (photoelastic): PARTICLE.mat (`*_contacts.mat` or `*_solved.mat`)
     /// [CENTERS.txt] (particleDetect's x,y,r,edge, for the unrounded radii).
     Pegs,
+    /// Tomography: a label VOLUME (.npy, .tif/.tiff multi-page, or raw with --shape)
+    /// → grains, contacts, normals (docs/tomography.md).
+    Labels,
+    /// ImageD11 grain map: GRAINS.map (.ubi) [CONTACTS.csv] with --cell and --stiffness.
+    Imaged11,
 }
 
 #[derive(clap::Args)]
@@ -26,12 +33,16 @@ pub enum Format {
   grainforce import yade bodies.csv interactions.csv -o scene --gravity 0,0,-9.81
   grainforce import gff grains.gff contacts.csv -o scene --stress-unit MPa --length-unit mm
   grainforce import gff strains.gff contacts.csv -o scene --stiffness quartz --errors strains_errors.gff
-  grainforce import pegs Step09-0001_solved.mat Step09-0001_centers.txt -o scene --image Step09-0001.jpg --thickness 0.00635")]
+  grainforce import pegs Step09-0001_solved.mat Step09-0001_centers.txt -o scene --image Step09-0001.jpg --thickness 0.00635
+  grainforce import labels labels.npy -o scene --voxel-size 6.5e-6 --walls bottom:z=0,top:z=0.0052
+  grainforce import labels labels.tif -o scene --voxel-size 6.5e-6 --grey ct.tif --density 2650
+  grainforce import imaged11 grains.map contacts.csv -o scene --cell 4.9134,4.9134,5.4052,90,90,120 --stiffness quartz --grain-volume 1.4e-10")]
 pub struct Args {
     /// Source format.
     #[arg(value_enum)]
     format: Format,
-    /// Input files, as the format needs them (two for every format; pegs: one or two).
+    /// Input files, as the format needs them (two for most formats; pegs and
+    /// imaged11: one or two; labels: one).
     #[arg(required = true, num_args = 1..=2)]
     inputs: Vec<PathBuf>,
     /// Scene folder to write (forces.csv too when the source has forces).
@@ -87,6 +98,14 @@ pub struct Args {
     /// (N/m, as 2D scenes hold them) and scene.json gets the thickness.
     #[arg(long)]
     thickness: Option<f64>,
+    #[command(flatten)]
+    labels: labels::LabelArgs,
+    /// imaged11: the unstrained cell a,b,c,alpha,beta,gamma (Å, degrees).
+    #[arg(long, value_delimiter = ',')]
+    cell: Option<Vec<f64>>,
+    /// imaged11: the volume given to every grain [m³] (a map has none).
+    #[arg(long)]
+    grain_volume: Option<f64>,
 }
 
 fn unit(text: &str, table: &[(&str, f64)], what: &str) -> Result<f64> {
@@ -166,6 +185,12 @@ pub fn run(args: Args) -> Result<()> {
     if let Format::Pegs = args.format {
         return run_pegs(&args, gravity);
     }
+    if let Format::Labels = args.format {
+        return labels::run(&args, gravity);
+    }
+    if let Format::Imaged11 = args.format {
+        return run_imaged11(&args, gravity);
+    }
     if args.inputs.len() != 2 {
         return Err(Error::Invalid(format!(
             "this format needs two input files, got {}",
@@ -236,9 +261,52 @@ pub fn run(args: Args) -> Result<()> {
             },
         )?,
         Format::Pegs => unreachable!("handled by run_pegs"),
+        Format::Labels => unreachable!("handled by labels::run"),
+        Format::Imaged11 => unreachable!("handled by run_imaged11"),
     };
     imported.write(&args.output)?;
     report(&args, &imported)
+}
+
+/// `import imaged11`: grains (and contacts) with stresses from the UBIs.
+fn run_imaged11(args: &Args, gravity: Option<[f64; 3]>) -> Result<()> {
+    let cell = match &args.cell {
+        Some(c) if c.len() == 6 => [c[0], c[1], c[2], c[3], c[4], c[5]],
+        Some(c) => {
+            return Err(Error::Invalid(format!(
+                "--cell needs 6 numbers a,b,c,alpha,beta,gamma, got {}",
+                c.len()
+            )))
+        }
+        None => {
+            return Err(Error::Invalid(
+                "import imaged11 needs --cell a,b,c,alpha,beta,gamma (the unstrained cell)".into(),
+            ))
+        }
+    };
+    let stiffness = match &args.stiffness {
+        Some(spec) => gff::Stiffness::parse(spec)?,
+        None => {
+            return Err(Error::Invalid(
+                "import imaged11 needs --stiffness (e.g. quartz, zirconium)".into(),
+            ))
+        }
+    };
+    let options = imaged11::Options {
+        cell,
+        stiffness,
+        grain_volume: args.grain_volume,
+    };
+    let mut imported = imaged11::import(
+        &args.inputs[0],
+        args.inputs.get(1).map(PathBuf::as_path),
+        &options,
+    )?;
+    if let Some(g) = gravity {
+        imported.frames[0].settings.gravity = Some(g.to_vec());
+    }
+    imported.write(&args.output)?;
+    report(args, &imported)
 }
 
 /// `import pegs`: the scene, PeGS's forces as forces.csv, and image-frame.json

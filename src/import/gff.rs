@@ -412,6 +412,28 @@ pub fn import(gff_path: &Path, contacts_path: &Path, options: &Options) -> Resul
         return Err(Error::data(gff_path, None, None, "no grains"));
     }
 
+    read_contacts(&mut s, &index, gff_path, contacts_path)?;
+    s.settings.description = Some(format!(
+        "3DXRD grains from {} with tomography contacts from {}",
+        gff_path.display(),
+        contacts_path.display()
+    ));
+    let warnings = notes.warnings(gff_path, options.errors.as_deref(), source);
+    Ok(ImportedScene {
+        warnings,
+        frames: vec![s],
+        forces: None,
+    })
+}
+
+/// Reads a tomography contact list (`a,b,x,y,z,n_x,n_y,n_z[,id]`, SI) into
+/// `s`, whose grains `index` names; `b` may name a wall.
+pub(crate) fn read_contacts(
+    s: &mut scene::Scene,
+    index: &HashMap<String, usize>,
+    gff_path: &Path,
+    contacts_path: &Path,
+) -> Result<()> {
     let (cols, rows) = read_csv(contacts_path)?;
     let cp = contacts_path;
     for (n, (line, r)) in rows.iter().enumerate() {
@@ -478,17 +500,7 @@ pub fn import(gff_path: &Path, contacts_path: &Path, options: &Options) -> Resul
             mu: None,
         });
     }
-    s.settings.description = Some(format!(
-        "3DXRD grains from {} with tomography contacts from {}",
-        gff_path.display(),
-        contacts_path.display()
-    ));
-    let warnings = notes.warnings(gff_path, options.errors.as_deref(), source);
-    Ok(ImportedScene {
-        warnings,
-        frames: vec![s],
-        forces: None,
-    })
+    Ok(())
 }
 
 /// Which columns give the stress (see the module documentation).

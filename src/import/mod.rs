@@ -13,6 +13,8 @@
 
 pub mod dump;
 pub mod gff;
+pub mod imaged11;
+pub mod labels;
 pub mod lammps;
 pub mod liggghts;
 pub mod mat5;

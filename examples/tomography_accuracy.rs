@@ -1,0 +1,125 @@
+//! The normal/contact table of docs/tomography.md: DEM sphere packings (and
+//! clumps made from them) voxelised at several resolutions, clean and after
+//! the simulated segmentation, imported with the standard (PCA) normals and
+//! with the surface fits.
+//!
+//! cargo run --release --example tomography_accuracy -- fixtures/regression/box3d_gated [15,30,60] [spheres,clumps]
+
+use grainforce::import::labels::{self, synth, Options};
+use grainforce::scene::{self, Body};
+use std::path::Path;
+
+fn main() -> grainforce::Result<()> {
+    let args: Vec<String> = std::env::args().collect();
+    let dir = args
+        .get(1)
+        .map_or("fixtures/regression/box3d_gated", String::as_str);
+    let resolutions: Vec<f64> = args
+        .get(2)
+        .map_or("15,30,60", String::as_str)
+        .split(',')
+        .map(|s| s.parse().expect("resolution"))
+        .collect();
+    let scene = scene::read_scene(Path::new(dir))?;
+    let (spheres, truth) = synth::spheres_of(&scene);
+    let points: Vec<(usize, [f64; 3])> = scene
+        .contacts
+        .iter()
+        .flat_map(|c| {
+            let mut v = vec![(c.a, c.point)];
+            if let Body::Grain(b) = c.b {
+                v.push((b, c.point));
+            }
+            v
+        })
+        .collect();
+    let mean_d = 2.0 * spheres.iter().map(|g| g.spheres[0].1).sum::<f64>() / spheres.len() as f64;
+    println!(
+        "{dir}: {} grains, {} grain contacts, mean diameter {mean_d:.3e} m",
+        spheres.len(),
+        truth.len()
+    );
+    println!("| grains | vox/diam | volume | method | recall | precision | median ° | p90 ° | max ° | point err (vox, median) |");
+    println!("|---|---|---|---|---|---|---|---|---|---|");
+    let shapes = args.get(3).map_or("spheres,clumps", String::as_str);
+    for shape in shapes.split(',') {
+        for &res in &resolutions {
+            let voxel = mean_d / res;
+            let grains = if shape == "spheres" {
+                spheres.clone()
+            } else {
+                synth::clumps_of(&spheres, &points, 0.75, 2.0 * voxel)
+            };
+            if shape == "clumps" {
+                let clumped = grains.iter().filter(|g| g.spheres.len() > 1).count();
+                eprintln!("{res}: {clumped} of {} grains are clumps", grains.len());
+            }
+            let grid = synth::Grid::around(&grains, voxel, 3.0);
+            let (clean, fraction) = synth::voxelise(&grains, &grid);
+            let (seg, grey) = synth::segment(&grains, &grid, &fraction, &Default::default());
+            for (volume, lab, g) in [("clean", &clean, None), ("segmented", &seg, Some(&grey))] {
+                for method in ["pca", "fit", "fit, gap ≤ 0.5", "fit, grey ≥ 0.9"] {
+                    if method.contains("grey") && g.is_none() {
+                        continue;
+                    }
+                    let options = Options {
+                        voxel_size: voxel,
+                        origin: grid.origin,
+                        normals: if method == "pca" {
+                            labels::NormalMethod::Pca
+                        } else {
+                            labels::NormalMethod::SurfaceFit
+                        },
+                        max_gap: method.contains("gap").then_some(0.5),
+                        min_grey: 0.9,
+                        ..Options::default()
+                    };
+                    let grey = if method.contains("grey") {
+                        g.map(|v| v.as_slice())
+                    } else {
+                        None
+                    };
+                    let t = std::time::Instant::now();
+                    let imported = labels::import_array(lab, grid.shape, grey, &options)?;
+                    let elapsed = t.elapsed().as_secs_f64();
+                    let s = synth::score(&imported, &truth, false);
+                    let a = &s.angles;
+                    let mut pe: Vec<f64> = s.point_errors.iter().map(|e| e / voxel).collect();
+                    pe.sort_by(f64::total_cmp);
+                    println!(
+                        "| {shape} | {res} | {volume} | {method} | {:.3} | {:.3} | {:.2} | {:.2} | {:.1} | {:.2} |",
+                        s.recall(),
+                        s.precision(),
+                        synth::quantile(a, 0.5),
+                        synth::quantile(a, 0.9),
+                        synth::quantile(a, 1.0),
+                        synth::quantile(&pe, 0.5),
+                    );
+                    eprintln!("  {} voxels, import {elapsed:.2} s", grid.len());
+                    if std::env::var("TOMO_DEBUG").is_ok() && method.contains("grey") {
+                        let true_pairs: std::collections::HashSet<(usize, usize)> = truth
+                            .iter()
+                            .map(|t| (t.a.min(t.b) + 1, t.a.max(t.b) + 1))
+                            .collect();
+                        for c in &imported.detected {
+                            if let labels::Other::Grain(b) = c.b {
+                                let t = true_pairs.contains(&(c.a as usize, b as usize));
+                                eprintln!(
+                                    "    {} {}-{} faces {} gap {:?} grey {:?} {}",
+                                    if t { "TRUE " } else { "FALSE" },
+                                    c.a,
+                                    b,
+                                    c.faces,
+                                    c.gap.map(|g| g / voxel),
+                                    c.grey,
+                                    c.method
+                                );
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,292 @@
+//! ImageD11 grain maps (`.map` / `.ubi` text files, as
+//! `ImageD11.grain.write_grain_file` writes them) to grain stresses.
+//!
+//! A file is blank-line-separated blocks: optional `#translation: x y z`
+//! (µm, sample frame), other `#key value` lines (`#npks`, `#name`, …, skipped),
+//! then `#UBI:` and three rows of three numbers: the real-space lattice
+//! vectors a, b, c (Å) as rows, in the sample frame.
+//!
+//! Conventions (each decides the answer by tens of MPa; docs/field.md):
+//! - B0 is the Busing–Levy B of the unstrained cell (`--cell`), as
+//!   `ImageD11.unitcell` builds it: crystal frame x ∥ a*, z ∥ c;
+//! - deformation gradient F = UBIᵀ B0ᵀ (`ImageD11.finite_strain`);
+//! - polar decomposition F = R S = V R; the strain is Biot's, S − I in the
+//!   crystal frame (ImageD11's `eps_grain`, Seth–Hill m = ½; its
+//!   `EpsSigSolver` defaults to Green–Lagrange, m = 1);
+//! - Hooke's law in the crystal frame with engineering shears (Voigt factor
+//!   2), then rotated to the sample frame by the polar R, not by the
+//!   Busing–Levy U (σ_sample = R σ_crystal Rᵀ);
+//! - trigonal constants given in the IEEE axes (x ∥ a) are turned 30° about c
+//!   into the x ∥ a* frame ([`Stiffness`] does this).
+
+use super::stiffness::{self, Mat3, Stiffness};
+use super::ImportedScene;
+use crate::error::{Error, Result};
+use crate::scene::{self, Sym};
+use std::collections::HashMap;
+use std::path::Path;
+
+/// One grain of a map.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MapGrain {
+    /// The block's 0-based number (ImageD11's HDF5 grain files name grains so).
+    pub index: usize,
+    /// Rows: a, b, c in the sample frame [Å].
+    pub ubi: Mat3,
+    /// µm, sample frame.
+    pub translation: Option<[f64; 3]>,
+    /// The line of `#UBI:` (for messages).
+    pub line: usize,
+}
+
+/// Reads a `.map`/`.ubi` grain file.
+pub fn read_map(path: &Path) -> Result<Vec<MapGrain>> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let mut grains = Vec::new();
+    let mut translation = None;
+    let mut rows: Vec<[f64; 3]> = Vec::new();
+    let mut ubi_line = None;
+    for (i, line) in text.lines().enumerate() {
+        let n = i + 1;
+        let t = line.trim();
+        if t.is_empty() {
+            continue;
+        }
+        if let Some(rest) = t.strip_prefix("#translation:") {
+            let v: Vec<f64> = rest
+                .split_whitespace()
+                .map(|x| x.parse::<f64>())
+                .collect::<std::result::Result<_, _>>()
+                .ok()
+                .filter(|v: &Vec<f64>| v.len() == 3 && v.iter().all(|x| x.is_finite()))
+                .ok_or_else(|| {
+                    Error::data(
+                        path,
+                        Some(n),
+                        Some("#translation"),
+                        "expected three numbers (µm)",
+                    )
+                })?;
+            translation = Some([v[0], v[1], v[2]]);
+            continue;
+        }
+        if t.starts_with("#UBI") {
+            ubi_line = Some(n);
+            rows.clear();
+            continue;
+        }
+        if t.starts_with('#') {
+            continue;
+        }
+        let Some(start) = ubi_line else {
+            return Err(Error::data(
+                path,
+                Some(n),
+                None,
+                "numbers before a `#UBI:` line",
+            ));
+        };
+        let v: Vec<f64> = t
+            .split_whitespace()
+            .map(|x| x.parse::<f64>())
+            .collect::<std::result::Result<_, _>>()
+            .ok()
+            .filter(|v: &Vec<f64>| v.len() == 3 && v.iter().all(|x| x.is_finite()))
+            .ok_or_else(|| {
+                Error::data(
+                    path,
+                    Some(n),
+                    Some("UBI"),
+                    "a UBI row is three finite numbers",
+                )
+            })?;
+        rows.push([v[0], v[1], v[2]]);
+        if rows.len() == 3 {
+            grains.push(MapGrain {
+                index: grains.len(),
+                ubi: [rows[0], rows[1], rows[2]],
+                translation: translation.take(),
+                line: start,
+            });
+            rows.clear();
+            ubi_line = None;
+        }
+    }
+    if let Some(start) = ubi_line {
+        return Err(Error::data(
+            path,
+            Some(start),
+            Some("UBI"),
+            format!("the UBI has {} rows, not 3", rows.len()),
+        ));
+    }
+    if grains.is_empty() {
+        return Err(Error::data(path, None, None, "no `#UBI:` block"));
+    }
+    Ok(grains)
+}
+
+/// Busing–Levy B of a cell a, b, c [Å], α, β, γ [degrees] (x ∥ a*, z ∥ c), as
+/// `ImageD11.unitcell.unitcell(cell).B`.
+pub fn b_matrix(cell: [f64; 6]) -> Result<Mat3> {
+    let [a, b, c, al, be, ga] = cell;
+    if !(cell.iter().all(|x| x.is_finite()) && a > 0.0 && b > 0.0 && c > 0.0) {
+        return Err(Error::Invalid(format!(
+            "--cell {cell:?}: lengths must be positive"
+        )));
+    }
+    let (ca, cb, cg) = (
+        al.to_radians().cos(),
+        be.to_radians().cos(),
+        ga.to_radians().cos(),
+    );
+    let g = nalgebra::Matrix3::new(
+        a * a,
+        a * b * cg,
+        a * c * cb,
+        a * b * cg,
+        b * b,
+        b * c * ca,
+        a * c * cb,
+        b * c * ca,
+        c * c,
+    );
+    let gi = g
+        .try_inverse()
+        .filter(|m| m.iter().all(|x| x.is_finite()))
+        .ok_or_else(|| Error::Invalid(format!("--cell {cell:?} is degenerate")))?;
+    let (astar, bstar, cstar) = (gi[(0, 0)].sqrt(), gi[(1, 1)].sqrt(), gi[(2, 2)].sqrt());
+    let cos_gs = gi[(0, 1)] / astar / bstar;
+    let cos_bs = gi[(0, 2)] / astar / cstar;
+    let sin = |c: f64| (1.0 - c * c).max(0.0).sqrt();
+    Ok([
+        [astar, bstar * cos_gs, cstar * cos_bs],
+        [0.0, bstar * sin(cos_gs), -cstar * sin(cos_bs) * ca],
+        [0.0, 0.0, 1.0 / c],
+    ])
+}
+
+fn to_na(m: &Mat3) -> nalgebra::Matrix3<f64> {
+    nalgebra::Matrix3::from_fn(|i, j| m[i][j])
+}
+
+fn from_na(m: &nalgebra::Matrix3<f64>) -> Mat3 {
+    let mut out = [[0.0; 3]; 3];
+    for i in 0..3 {
+        for j in 0..3 {
+            out[i][j] = m[(i, j)];
+        }
+    }
+    out
+}
+
+/// What a grain's UBI gives: the polar rotation R (crystal → sample) and the
+/// Biot strain in the sample frame, V − I (= R (S − I) Rᵀ).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GrainStrain {
+    pub rotation: Mat3,
+    pub strain_sample: Sym,
+}
+
+/// The polar decomposition of F = UBIᵀ B0ᵀ; `None` when F is singular or
+/// left-handed.
+pub fn grain_strain(ubi: &Mat3, b0: &Mat3) -> Option<GrainStrain> {
+    let f = to_na(ubi).transpose() * to_na(b0).transpose();
+    let det = f.determinant();
+    if det.is_nan() || det <= 0.0 {
+        return None;
+    }
+    let svd = f.svd(true, true);
+    let (w, vt) = (svd.u?, svd.v_t?);
+    let r = w * vt;
+    let v = w * nalgebra::Matrix3::from_diagonal(&svd.singular_values) * w.transpose();
+    let e = v - nalgebra::Matrix3::identity();
+    // Symmetrised: V is symmetric up to round-off.
+    let e = (e + e.transpose()) * 0.5;
+    Some(GrainStrain {
+        rotation: from_na(&r),
+        strain_sample: stiffness::from_tensor(&from_na(&e)),
+    })
+}
+
+#[derive(Debug, Clone)]
+pub struct Options {
+    /// Unstrained cell a, b, c [Å], α, β, γ [degrees].
+    pub cell: [f64; 6],
+    pub stiffness: Stiffness,
+    /// Volume of every grain [m³] when no tomography table gives it.
+    pub grain_volume: Option<f64>,
+}
+
+/// Sample-frame stress [Pa] of each grain of a map, in file order.
+pub fn stresses(path: &Path, grains: &[MapGrain], options: &Options) -> Result<Vec<Sym>> {
+    let b0 = b_matrix(options.cell)?;
+    grains
+        .iter()
+        .map(|g| {
+            let s = grain_strain(&g.ubi, &b0).ok_or_else(|| {
+                Error::data(
+                    path,
+                    Some(g.line),
+                    Some("UBI"),
+                    "the UBI is singular or left-handed (det ≤ 0)",
+                )
+            })?;
+            Ok(options.stiffness.stress(&s.rotation, &s.strain_sample))
+        })
+        .collect()
+}
+
+/// Imports a grain map (and optionally a tomography contact list) into a 3D
+/// scene: positions from `#translation` (µm → m), stresses from the UBIs.
+pub fn import(map: &Path, contacts: Option<&Path>, options: &Options) -> Result<ImportedScene> {
+    let grains = read_map(map)?;
+    let sigma = stresses(map, &grains, options)?;
+    let volume =
+        match options.grain_volume {
+            Some(v) if v > 0.0 && v.is_finite() => v,
+            Some(v) => {
+                return Err(Error::Invalid(format!(
+                    "--grain-volume must be positive, got {v}"
+                )))
+            }
+            None => return Err(Error::Invalid(
+                "an ImageD11 map has no grain volumes: give --grain-volume (m³), or attach the \
+                 stresses to a label volume's grains with `import labels … --stresses`"
+                    .into(),
+            )),
+        };
+    let mut s = scene::Scene::new(3);
+    let mut index = HashMap::new();
+    for (g, stress) in grains.iter().zip(sigma) {
+        let Some(t) = g.translation else {
+            return Err(Error::data(
+                map,
+                Some(g.line),
+                Some("#translation"),
+                format!(
+                    "grain {} has no #translation: its position is unknown",
+                    g.index
+                ),
+            ));
+        };
+        let id = g.index.to_string();
+        index.insert(id.clone(), s.grains.len());
+        s.grains
+            .push(scene::Grain::new(id, t.map(|x| x * 1e-6), volume, stress));
+    }
+    if let Some(c) = contacts {
+        super::gff::read_contacts(&mut s, &index, map, c)?;
+    }
+    s.settings.description = Some(format!(
+        "ImageD11 grains from {} (Biot strain, {} stiffness)",
+        map.display(),
+        options.stiffness.label
+    ));
+    s.validate()?;
+    Ok(ImportedScene {
+        frames: vec![s],
+        forces: None,
+        warnings: Vec::new(),
+    })
+}

@@ -1,0 +1,1312 @@
+//! Labelled tomography volumes (each voxel the integer id of its grain, 0 =
+//! void) to a 3D scene: grains (centroid, volume, equivalent radius, inertia),
+//! contacts (one per touching zone, with a contact point, a unit normal a → b
+//! and a confidence), walls, rattlers. See `docs/tomography.md`.
+//!
+//! The volume is read one z-slice at a time, twice:
+//! 1. per-label moments (run by run along x), bounding boxes, and the voxel
+//!    faces between two labels (the interfaces) — memory O(slice + grains +
+//!    interface faces), never O(volume);
+//! 2. for each contact side, a least-squares sphere fitted to the grain's own
+//!    surface (its faces with the void) in a shell around the contact: the
+//!    normal joins the two local centres of curvature, the contact point sits
+//!    between the two fitted surfaces, and their gap says whether the grains
+//!    really touch.
+//!
+//! Voxel `[z][y][x]` has its centre at `origin + voxel_size · (x, y, z)`.
+
+pub mod synth;
+pub mod volume;
+
+use crate::error::{Error, Result};
+use crate::scene::{self, Body, Contact, Grain, Inertia, Scene, Sym, Vec3, Wall};
+use std::collections::HashMap;
+use std::path::Path;
+pub use volume::{ArraySource, DType, FileFormat, LabelValue, SliceSource};
+
+/// How contact normals are estimated.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum NormalMethod {
+    /// Local sphere fits to each grain's surface near the contact (default).
+    SurfaceFit,
+    /// The field's standard: least-variance direction of the interface faces.
+    Pca,
+}
+
+/// A plane wall given on the command line: `NAME:AXIS=POSITION` (metres).
+#[derive(Debug, Clone, PartialEq)]
+pub struct WallPlane {
+    pub name: String,
+    /// 0, 1, 2 for x, y, z.
+    pub axis: usize,
+    pub position: f64,
+}
+
+impl WallPlane {
+    /// `bottom:z=0.0012`.
+    pub fn parse(text: &str) -> Result<WallPlane> {
+        let bad = || {
+            Error::Invalid(format!(
+                "wall `{text}`: expected NAME:AXIS=POSITION, e.g. bottom:z=0.0012 (metres)"
+            ))
+        };
+        let (name, rest) = text.split_once(':').ok_or_else(bad)?;
+        let (axis, position) = rest.split_once('=').ok_or_else(bad)?;
+        let axis = match axis.trim() {
+            "x" => 0,
+            "y" => 1,
+            "z" => 2,
+            _ => return Err(bad()),
+        };
+        let position: f64 = position.trim().parse().map_err(|_| bad())?;
+        if name.trim().is_empty() || !position.is_finite() {
+            return Err(bad());
+        }
+        Ok(WallPlane {
+            name: name.trim().to_owned(),
+            axis,
+            position,
+        })
+    }
+}
+
+/// The tunable parts of the surface fit, in multiples of the stated size.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FitSettings {
+    /// Outer radius of the fitting shell around the contact point, in
+    /// equivalent radii of the grain, and at least `min_shell` voxels beyond
+    /// the inner radius (small grains need the faces; large ones a local
+    /// patch, away from other lobes and flat faces).
+    pub window: f64,
+    pub min_shell: f64,
+    /// Inner radius of the shell (the neck the interface and segmentation
+    /// distort), in radii of the contact zone, and at least `min_exclusion`
+    /// voxels.
+    pub exclusion: f64,
+    pub min_exclusion: f64,
+    /// Fewest surface faces a fit needs.
+    pub min_faces: usize,
+    /// Refits (one more pass over the volume each) keeping only the faces
+    /// within `gate` voxels of the previous fitted sphere, so that flat
+    /// faces, edges and other lobes of a non-spherical grain drop out.
+    pub refits: usize,
+    pub gate: f64,
+}
+
+impl Default for FitSettings {
+    fn default() -> Self {
+        FitSettings {
+            window: 0.5,
+            min_shell: 4.0,
+            exclusion: 1.5,
+            min_exclusion: 1.5,
+            min_faces: 12,
+            refits: 2,
+            gate: 1.0,
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct Options {
+    /// Edge length of a voxel [m].
+    pub voxel_size: f64,
+    /// Position of the centre of voxel [0][0][0] [m].
+    pub origin: Vec3,
+    pub walls: Vec<WallPlane>,
+    /// A label that is the container, not a grain; its contacts go to wall
+    /// `container`.
+    pub container: Option<u32>,
+    pub normals: NormalMethod,
+    /// Grain density [kg/m³]: gives each grain its mass and inertia tensor.
+    pub density: Option<f64>,
+    pub fit: FitSettings,
+    /// Drop grain–grain contacts whose fitted gap exceeds the median fitted
+    /// gap of all grain–grain zones by more than this many voxels (near
+    /// misses that share faces). Relative to the median because segmentation
+    /// moves every surface alike (blur and threshold make touching grains
+    /// look overlapped by about a voxel).
+    pub max_gap: Option<f64>,
+    /// With a grey image: drop contacts whose neck is darker than this
+    /// fraction of the way from void to solid grey.
+    pub min_grey: f64,
+    /// A grain touches a plane wall when its voxels come within this many
+    /// voxels of it.
+    pub wall_tolerance: f64,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options {
+            voxel_size: 1.0,
+            origin: [0.0; 3],
+            walls: Vec::new(),
+            container: None,
+            normals: NormalMethod::SurfaceFit,
+            density: None,
+            fit: FitSettings::default(),
+            max_gap: None,
+            min_grey: 0.5,
+            wall_tolerance: 1.0,
+        }
+    }
+}
+
+/// The other body of a detected contact.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Other {
+    Grain(u32),
+    /// Index into [`Options::walls`]; the container is `walls.len()`.
+    Wall(usize),
+}
+
+/// Everything measured about one touching zone (kept or not).
+#[derive(Debug, Clone, PartialEq)]
+pub struct DetectedContact {
+    pub a: u32,
+    pub b: Other,
+    /// The zone's number among the zones of this pair (non-convex grains
+    /// may touch at several).
+    pub zone: usize,
+    /// The point and normal written to the scene.
+    pub point: Vec3,
+    pub normal: Vec3,
+    /// Which estimate gave `normal`: "fit", "fit-a", "fit-b", "pca", "faces",
+    /// "plane".
+    pub method: &'static str,
+    /// Number of voxel faces in the zone and their area [m²].
+    pub faces: usize,
+    pub area: f64,
+    /// The standard method's normal and point (centroid of the zone).
+    pub pca_normal: Vec3,
+    pub pca_point: Vec3,
+    /// Distance between the two fitted surfaces along the normal [m]
+    /// (negative: overlap); grain pairs with both fits only.
+    pub gap: Option<f64>,
+    /// Grey-level evidence of solid at the neck, 0 = void grey, 1 = solid grey.
+    pub grey: Option<f64>,
+    /// Whether the contact passed the filters and is in the scene.
+    pub kept: bool,
+}
+
+/// The result of a label import.
+#[derive(Debug, Clone)]
+pub struct LabelScene {
+    pub scene: Scene,
+    /// Grain labels in scene order.
+    pub labels: Vec<u32>,
+    /// Every zone found, in the scene's contact order first (kept ones), then
+    /// the dropped ones.
+    pub detected: Vec<DetectedContact>,
+    /// Second moment of each grain's volume about its centroid, ∫ r⊗r dV
+    /// [m⁵], in [`Sym`] order.
+    pub second_moments: Vec<Sym>,
+    /// Grains without a kept contact.
+    pub rattlers: Vec<String>,
+    /// Grains cut by the volume's edge (their volume and centroid are partial).
+    pub cut: Vec<String>,
+    pub warnings: Vec<String>,
+}
+
+/// Labels up to this value are indexed directly.
+const MAX_LABEL: u32 = 1 << 27;
+
+#[derive(Debug, Clone, Copy)]
+struct Moments {
+    reference: [i64; 3],
+    n: u64,
+    sum: [f64; 3],
+    /// xx, yy, zz, xy, xz, yz of offsets from `reference`.
+    sq: [f64; 6],
+    lo: [usize; 3],
+    hi: [usize; 3],
+    cut: bool,
+}
+
+/// A face between two voxels, centre in doubled voxel coordinates (so that
+/// it is an integer); `axis` the direction from the `a` voxel to the `b`
+/// voxel, ±1…±3.
+#[derive(Debug, Clone, Copy)]
+struct Face {
+    p: [i32; 3],
+    axis: i8,
+    grey: f32,
+}
+
+struct Scan {
+    index: Vec<u32>,
+    labels: Vec<u32>,
+    moments: Vec<Moments>,
+    /// Grain–grain faces by (lower label, higher label) grain indices.
+    pairs: HashMap<(u32, u32), Vec<Face>>,
+    /// Grain–container faces by grain index.
+    container: HashMap<u32, Vec<Face>>,
+    grey_solid: (f64, u64),
+    grey_void: (f64, u64),
+}
+
+impl Scan {
+    fn grain(&mut self, label: u32, at: [usize; 3], shape: [usize; 3]) -> Result<u32> {
+        if label >= MAX_LABEL {
+            return Err(Error::Invalid(format!(
+                "label {label} at voxel z={} y={} x={}: labels above {} are not supported; \
+                 relabel the volume sequentially",
+                at[2],
+                at[1],
+                at[0],
+                MAX_LABEL - 1
+            )));
+        }
+        let l = label as usize;
+        if l >= self.index.len() {
+            self.index.resize((l + 1).max(self.index.len() * 2), 0);
+        }
+        if self.index[l] == 0 {
+            self.labels.push(label);
+            self.moments.push(Moments {
+                reference: [at[0] as i64, at[1] as i64, at[2] as i64],
+                n: 0,
+                sum: [0.0; 3],
+                sq: [0.0; 6],
+                lo: at,
+                hi: at,
+                cut: false,
+            });
+            self.index[l] = self.labels.len() as u32;
+        }
+        let g = self.index[l] - 1;
+        let m = &mut self.moments[g as usize];
+        for k in 0..3 {
+            m.lo[k] = m.lo[k].min(at[k]);
+            m.hi[k] = m.hi[k].max(at[k]);
+        }
+        if at[1] == 0 || at[2] == 0 || at[1] + 1 == shape[1] || at[2] + 1 == shape[0] {
+            m.cut = true;
+        }
+        Ok(g)
+    }
+}
+
+/// Imports a label volume held in memory, `data[(z·ny + y)·nx + x]` with
+/// `shape = [nz, ny, nx]`, with an optional grey image of the same shape.
+pub fn import_array<T: LabelValue>(
+    data: &[T],
+    shape: [usize; 3],
+    grey: Option<&[f32]>,
+    options: &Options,
+) -> Result<LabelScene> {
+    let mut labels = ArraySource::new(data, shape)?;
+    match grey {
+        Some(g) => {
+            let mut g = ArraySource::new(g, shape).map_err(|e| match e {
+                Error::Invalid(m) => Error::Invalid(format!("grey image: {m}")),
+                e => e,
+            })?;
+            import_source(&mut labels, Some(&mut g), options)
+        }
+        None => import_source(&mut labels, None, options),
+    }
+}
+
+/// Imports a label volume file (`.npy`, `.tif`/`.tiff`, or raw), with an
+/// optional grey image file.
+pub fn import_file(
+    path: &Path,
+    format: &FileFormat,
+    grey: Option<(&Path, &FileFormat)>,
+    options: &Options,
+) -> Result<LabelScene> {
+    let mut labels = volume::open(path, format)?;
+    match grey {
+        Some((gp, gf)) => {
+            let mut g = volume::open(gp, gf)?;
+            if g.shape() != labels.shape() {
+                let (a, b) = (labels.shape(), g.shape());
+                return Err(Error::data(
+                    gp,
+                    None,
+                    None,
+                    format!(
+                        "the grey image is {}×{}×{} voxels (z×y×x), the labels {}×{}×{}",
+                        b[0], b[1], b[2], a[0], a[1], a[2]
+                    ),
+                ));
+            }
+            import_source(labels.as_mut(), Some(g.as_mut()), options)
+        }
+        None => import_source(labels.as_mut(), None, options),
+    }
+}
+
+fn check_options(options: &Options) -> Result<()> {
+    if !(options.voxel_size > 0.0 && options.voxel_size.is_finite()) {
+        return Err(Error::Invalid(format!(
+            "--voxel-size must be positive and finite, got {}",
+            options.voxel_size
+        )));
+    }
+    if options.origin.iter().any(|x| !x.is_finite()) {
+        return Err(Error::Invalid("--origin must be finite".into()));
+    }
+    if let Some(d) = options.density {
+        if !(d > 0.0 && d.is_finite()) {
+            return Err(Error::Invalid(format!(
+                "--density must be positive, got {d}"
+            )));
+        }
+    }
+    if options.container == Some(0) {
+        return Err(Error::Invalid(
+            "the container label cannot be 0 (0 is void)".into(),
+        ));
+    }
+    let f = &options.fit;
+    if !(f.window > 0.0 && f.exclusion >= 0.0 && f.min_exclusion >= 0.0) {
+        return Err(Error::Invalid(
+            "fit window and exclusion must be positive".into(),
+        ));
+    }
+    Ok(())
+}
+
+/// Imports from slice sources (the file and array entry points use this).
+pub fn import_source(
+    labels: &mut dyn SliceSource,
+    mut grey: Option<&mut dyn SliceSource>,
+    options: &Options,
+) -> Result<LabelScene> {
+    check_options(options)?;
+    let shape = labels.shape();
+    let container = options.container.unwrap_or(0);
+    let (nz, ny, nx) = (shape[0], shape[1], shape[2]);
+    let n = ny * nx;
+    let mut scan = Scan {
+        index: Vec::new(),
+        labels: Vec::new(),
+        moments: Vec::new(),
+        pairs: HashMap::new(),
+        container: HashMap::new(),
+        grey_solid: (0.0, 0),
+        grey_void: (0.0, 0),
+    };
+    let mut prev = vec![0u32; n];
+    let mut cur = vec![0u32; n];
+    let mut gprev = vec![0f32; if grey.is_some() { n } else { 0 }];
+    let mut gcur = gprev.clone();
+    // Pass 1.
+    for z in 0..nz {
+        labels.labels(z, &mut cur)?;
+        if let Some(g) = grey.as_deref_mut() {
+            g.greys(z, &mut gcur)?;
+        }
+        for y in 0..ny {
+            let row = &cur[y * nx..(y + 1) * nx];
+            let mut x = 0;
+            while x < nx {
+                let l = row[x];
+                let mut end = x + 1;
+                while end < nx && row[end] == l {
+                    end += 1;
+                }
+                if l != 0 && l != container {
+                    let g = scan.grain(l, [x, y, z], [nz, ny, nx])? as usize;
+                    let g2 = scan.grain(l, [end - 1, y, z], [nz, ny, nx])? as usize;
+                    debug_assert_eq!(g, g2);
+                    let m = &mut scan.moments[g];
+                    if z == 0 || x == 0 || end == nx {
+                        m.cut = true;
+                    }
+                    add_run(m, x, end, y, z);
+                }
+                x = end;
+            }
+            if !gcur.is_empty() {
+                for (i, &l) in row.iter().enumerate() {
+                    let v = gcur[y * nx + i] as f64;
+                    if l == 0 {
+                        scan.grey_void.0 += v;
+                        scan.grey_void.1 += 1;
+                    } else if l != container {
+                        scan.grey_solid.0 += v;
+                        scan.grey_solid.1 += 1;
+                    }
+                }
+            }
+        }
+        // Faces towards −x, −y (this slice) and −z (previous slice).
+        for y in 0..ny {
+            for x in 0..nx {
+                let i = y * nx + x;
+                let l = cur[i];
+                if x > 0 && cur[i - 1] != l {
+                    interface(
+                        &mut scan,
+                        container,
+                        cur[i - 1],
+                        l,
+                        [x - 1, y, z],
+                        1,
+                        &gcur,
+                        i - 1,
+                        &gcur,
+                        i,
+                    );
+                }
+                if y > 0 && cur[i - nx] != l {
+                    interface(
+                        &mut scan,
+                        container,
+                        cur[i - nx],
+                        l,
+                        [x, y - 1, z],
+                        2,
+                        &gcur,
+                        i - nx,
+                        &gcur,
+                        i,
+                    );
+                }
+                if z > 0 && prev[i] != l {
+                    interface(
+                        &mut scan,
+                        container,
+                        prev[i],
+                        l,
+                        [x, y, z - 1],
+                        3,
+                        &gprev,
+                        i,
+                        &gcur,
+                        i,
+                    );
+                }
+            }
+        }
+        std::mem::swap(&mut prev, &mut cur);
+        std::mem::swap(&mut gprev, &mut gcur);
+    }
+    if scan.labels.is_empty() {
+        return Err(Error::Invalid(
+            "the volume has no grain: every voxel is 0 (void) or the container".into(),
+        ));
+    }
+    let s = options.voxel_size;
+    let grains = grains_of(&scan, options);
+    // Zones and the standard estimate.
+    let grey_scale = grey_scale(&scan);
+    let mut zones = Vec::new();
+    let mut pair_keys: Vec<_> = scan.pairs.keys().copied().collect();
+    pair_keys.sort_unstable_by_key(|&(a, b)| (scan.labels[a as usize], scan.labels[b as usize]));
+    for (a, b) in pair_keys {
+        let faces = &scan.pairs[&(a, b)];
+        for (k, z) in split_zones(faces).into_iter().enumerate() {
+            zones.push(Zone::new(a, Side::Grain(b), k, &z, grey_scale));
+        }
+    }
+    let mut walls: Vec<_> = scan.container.keys().copied().collect();
+    walls.sort_unstable_by_key(|&a| scan.labels[a as usize]);
+    for a in walls {
+        for (k, z) in split_zones(&scan.container[&a]).into_iter().enumerate() {
+            zones.push(Zone::new(a, Side::Container, k, &z, grey_scale));
+        }
+    }
+    // Plane walls, from the bounding boxes.
+    let mut plane_hits = Vec::new();
+    for (w, plane) in options.walls.iter().enumerate() {
+        let at = (plane.position - options.origin[plane.axis]) / s;
+        for (g, m) in scan.moments.iter().enumerate() {
+            let (lo, hi) = (m.lo[plane.axis] as f64 - 0.5, m.hi[plane.axis] as f64 + 0.5);
+            if (at - hi).abs() <= options.wall_tolerance {
+                plane_hits.push((g, w, true));
+            } else if (lo - at).abs() <= options.wall_tolerance {
+                plane_hits.push((g, w, false));
+            }
+        }
+    }
+    // Pass 2: the surface fits and the wall contact patches; then refits.
+    let mut fits = surface_pass(labels, &scan, &grains, &zones, &plane_hits, None, options)?;
+    if options.normals == NormalMethod::SurfaceFit {
+        for _ in 0..options.fit.refits {
+            let previous: Vec<[Option<Sphere>; 2]> = fits
+                .sides
+                .iter()
+                .map(|s| s.map(|f| f.solve(options.fit.min_faces)))
+                .collect();
+            let refit = surface_pass(
+                labels,
+                &scan,
+                &grains,
+                &zones,
+                &[],
+                Some(&previous),
+                options,
+            )?;
+            // A side whose refit lost too many faces keeps its previous fit.
+            for (old, new) in fits.sides.iter_mut().zip(refit.sides) {
+                for k in 0..2 {
+                    if new[k].solve(options.fit.min_faces).is_some() {
+                        old[k] = new[k];
+                    }
+                }
+            }
+        }
+    }
+    let detected = contacts_of(&scan, &grains, &zones, &fits, &plane_hits, options);
+    Ok(build(scan, grains, detected, options))
+}
+
+#[inline]
+fn add_run(m: &mut Moments, x0: usize, x1: usize, y: usize, z: usize) {
+    let len = (x1 - x0) as f64;
+    let a = x0 as i64 - m.reference[0];
+    let b = x1 as i64 - 1 - m.reference[0];
+    // Σ dx and Σ dx² over dx = a … b.
+    let s1 = (a + b) as f64 * len / 2.0;
+    let sq = |k: i64| (k * (k + 1) * (2 * k + 1)) as f64 / 6.0;
+    let s2 = if a >= 0 {
+        sq(b) - sq(a - 1)
+    } else if b < 0 {
+        sq(-a) - sq(-b - 1)
+    } else {
+        sq(b) + sq(-a)
+    };
+    let dy = (y as i64 - m.reference[1]) as f64;
+    let dz = (z as i64 - m.reference[2]) as f64;
+    m.n += x1 as u64 - x0 as u64;
+    m.sum[0] += s1;
+    m.sum[1] += dy * len;
+    m.sum[2] += dz * len;
+    m.sq[0] += s2;
+    m.sq[1] += dy * dy * len;
+    m.sq[2] += dz * dz * len;
+    m.sq[3] += s1 * dy;
+    m.sq[4] += s1 * dz;
+    m.sq[5] += dy * dz * len;
+}
+
+/// Records the face between voxel `p` (label `lp`) and its +axis neighbour `q` (label `lq`).
+#[allow(clippy::too_many_arguments)]
+fn interface(
+    scan: &mut Scan,
+    container: u32,
+    lp: u32,
+    lq: u32,
+    p: [usize; 3],
+    axis: i8,
+    gp: &[f32],
+    ip: usize,
+    gq: &[f32],
+    iq: usize,
+) {
+    if lp == 0 || lq == 0 {
+        return;
+    }
+    let mut centre = [2 * p[0] as i32, 2 * p[1] as i32, 2 * p[2] as i32];
+    centre[axis as usize - 1] += 1;
+    let grey = if gp.is_empty() {
+        0.0
+    } else {
+        0.5 * (gp[ip] + gq[iq])
+    };
+    let idx = |l: u32| scan.index[l as usize] - 1;
+    if lp == container || lq == container {
+        let (g, dir) = if lp == container {
+            (idx(lq), -axis)
+        } else {
+            (idx(lp), axis)
+        };
+        scan.container.entry(g).or_default().push(Face {
+            p: centre,
+            axis: dir,
+            grey,
+        });
+        return;
+    }
+    let (a, b, dir) = if lp < lq {
+        (idx(lp), idx(lq), axis)
+    } else {
+        (idx(lq), idx(lp), -axis)
+    };
+    scan.pairs.entry((a, b)).or_default().push(Face {
+        p: centre,
+        axis: dir,
+        grey,
+    });
+}
+
+/// Per grain: centroid and second moments in voxel units.
+struct GrainGeometry {
+    centroid: [f64; 3],
+    volume_voxels: f64,
+    /// Σ r⊗r over voxels about the centroid, plus each voxel's own 1/12.
+    second: Sym,
+    radius_voxels: f64,
+}
+
+fn grains_of(scan: &Scan, _options: &Options) -> Vec<GrainGeometry> {
+    scan.moments
+        .iter()
+        .map(|m| {
+            let n = m.n as f64;
+            let mean = [m.sum[0] / n, m.sum[1] / n, m.sum[2] / n];
+            let mut second = [0.0; 6];
+            for (k, &(i, j)) in scene::sym::PAIRS.iter().enumerate() {
+                second[k] = m.sq[k] - n * mean[i] * mean[j];
+                if i == j {
+                    second[k] += n / 12.0;
+                }
+            }
+            GrainGeometry {
+                centroid: [
+                    m.reference[0] as f64 + mean[0],
+                    m.reference[1] as f64 + mean[1],
+                    m.reference[2] as f64 + mean[2],
+                ],
+                volume_voxels: n,
+                second,
+                radius_voxels: (3.0 * n / (4.0 * std::f64::consts::PI)).cbrt(),
+            }
+        })
+        .collect()
+}
+
+fn grey_scale(scan: &Scan) -> Option<(f64, f64)> {
+    if scan.grey_solid.1 == 0 || scan.grey_void.1 == 0 {
+        return None;
+    }
+    Some((
+        scan.grey_void.0 / scan.grey_void.1 as f64,
+        scan.grey_solid.0 / scan.grey_solid.1 as f64,
+    ))
+}
+
+/// Connected components of a pair's faces: faces within 2 voxels (4 doubled
+/// units, Chebyshev) are one touching zone.
+fn split_zones(faces: &[Face]) -> Vec<Vec<Face>> {
+    let mut order: Vec<usize> = (0..faces.len()).collect();
+    order.sort_unstable_by_key(|&i| faces[i].p[0]);
+    let mut parent: Vec<usize> = (0..faces.len()).collect();
+    fn root(parent: &mut [usize], mut i: usize) -> usize {
+        while parent[i] != i {
+            parent[i] = parent[parent[i]];
+            i = parent[i];
+        }
+        i
+    }
+    for (k, &i) in order.iter().enumerate() {
+        for &j in &order[k + 1..] {
+            let (p, q) = (faces[i].p, faces[j].p);
+            if q[0] - p[0] > 4 {
+                break;
+            }
+            if (q[1] - p[1]).abs() <= 4 && (q[2] - p[2]).abs() <= 4 {
+                let (ri, rj) = (root(&mut parent, i), root(&mut parent, j));
+                if ri != rj {
+                    parent[ri.max(rj)] = ri.min(rj);
+                }
+            }
+        }
+    }
+    let mut groups: HashMap<usize, Vec<Face>> = HashMap::new();
+    let mut first = Vec::new();
+    for i in 0..faces.len() {
+        let r = root(&mut parent, i);
+        let e = groups.entry(r).or_default();
+        if e.is_empty() {
+            first.push(r);
+        }
+        e.push(faces[i]);
+    }
+    first.sort_unstable();
+    first
+        .into_iter()
+        .map(|r| groups.remove(&r).expect("root listed"))
+        .collect()
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Side {
+    Grain(u32),
+    Container,
+}
+
+/// One touching zone in voxel units.
+struct Zone {
+    a: u32,
+    b: Side,
+    number: usize,
+    faces: usize,
+    centre: [f64; 3],
+    pca_normal: [f64; 3],
+    /// Radius of the zone (2√λ_max of the face spread, plus half a voxel).
+    radius: f64,
+    grey: Option<f64>,
+}
+
+impl Zone {
+    fn new(a: u32, b: Side, number: usize, faces: &[Face], grey: Option<(f64, f64)>) -> Zone {
+        let n = faces.len() as f64;
+        let mut centre = [0.0; 3];
+        let mut oriented = [0.0; 3];
+        for f in faces {
+            for k in 0..3 {
+                centre[k] += 0.5 * f.p[k] as f64 / n;
+            }
+            let ax = f.axis.unsigned_abs() as usize - 1;
+            oriented[ax] += f.axis.signum() as f64;
+        }
+        let mut cov = nalgebra::Matrix3::<f64>::zeros();
+        for f in faces {
+            let d = nalgebra::Vector3::from_fn(|k, _| 0.5 * f.p[k] as f64 - centre[k]);
+            cov += d * d.transpose();
+        }
+        let eig = nalgebra::SymmetricEigen::new(cov / n);
+        let mut order = [0, 1, 2];
+        order.sort_by(|&i, &j| eig.eigenvalues[i].total_cmp(&eig.eigenvalues[j]));
+        let (small, middle, large) = (
+            eig.eigenvalues[order[0]],
+            eig.eigenvalues[order[1]],
+            eig.eigenvalues[order[2]],
+        );
+        let sum_dir = unit(oriented).unwrap_or([1.0, 0.0, 0.0]);
+        // A zone spread in two directions has a plane; a line or a point
+        // has none, and the faces' own orientation is all there is.
+        let pca_normal = if middle > 1e-9 && middle > 4.0 * small.max(0.0) {
+            let v = eig.eigenvectors.column(order[0]);
+            let mut v = [v[0], v[1], v[2]];
+            if scene::dot(v, sum_dir) < 0.0 {
+                v = v.map(|x| -x);
+            }
+            v
+        } else {
+            sum_dir
+        };
+        let grey = grey.map(|(void, solid)| {
+            // The neck's peak: mean of the brightest quarter of the faces.
+            let mut g: Vec<f64> = faces.iter().map(|f| f.grey as f64).collect();
+            g.sort_by(|x, y| y.total_cmp(x));
+            let top = g.len().div_ceil(4);
+            let peak = g[..top].iter().sum::<f64>() / top as f64;
+            if solid != void {
+                (peak - void) / (solid - void)
+            } else {
+                1.0
+            }
+        });
+        Zone {
+            a,
+            b,
+            number,
+            faces: faces.len(),
+            centre,
+            pca_normal,
+            radius: 2.0 * large.max(0.0).sqrt() + 0.5,
+            grey,
+        }
+    }
+}
+
+fn unit(v: [f64; 3]) -> Option<[f64; 3]> {
+    let l = scene::norm(v);
+    (l > 0.0 && l.is_finite()).then(|| v.map(|x| x / l))
+}
+
+/// A fitted sphere (centre, radius) in voxel units.
+type Sphere = ([f64; 3], f64);
+
+/// Normal equations of the algebraic sphere fit |x|² = 2 c·x + (r² − |c|²),
+/// in coordinates relative to `origin`.
+#[derive(Debug, Clone, Copy, Default)]
+struct SphereFit {
+    origin: [f64; 3],
+    ata: [[f64; 4]; 4],
+    atb: [f64; 4],
+    n: usize,
+}
+
+impl SphereFit {
+    fn add(&mut self, p: [f64; 3]) {
+        let d = [
+            p[0] - self.origin[0],
+            p[1] - self.origin[1],
+            p[2] - self.origin[2],
+        ];
+        let row = [2.0 * d[0], 2.0 * d[1], 2.0 * d[2], 1.0];
+        let rhs = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+        for i in 0..4 {
+            for j in 0..4 {
+                self.ata[i][j] += row[i] * row[j];
+            }
+            self.atb[i] += row[i] * rhs;
+        }
+        self.n += 1;
+    }
+
+    /// Centre and radius, when well determined.
+    fn solve(&self, min_faces: usize) -> Option<([f64; 3], f64)> {
+        if self.n < min_faces.max(4) {
+            return None;
+        }
+        let a = nalgebra::Matrix4::from_fn(|i, j| self.ata[i][j]);
+        let b = nalgebra::Vector4::from_fn(|i, _| self.atb[i]);
+        let x = a.cholesky()?.solve(&b);
+        let c = [x[0], x[1], x[2]];
+        let r2 = x[3] + c[0] * c[0] + c[1] * c[1] + c[2] * c[2];
+        if !(r2 > 0.0 && r2.is_finite()) {
+            return None;
+        }
+        Some((
+            [
+                c[0] + self.origin[0],
+                c[1] + self.origin[1],
+                c[2] + self.origin[2],
+            ],
+            r2.sqrt(),
+        ))
+    }
+}
+
+struct Fits {
+    /// Per zone: the fits of side a and side b.
+    sides: Vec<[SphereFit; 2]>,
+    /// Per plane hit: Σ position and count of the grain's voxels in its
+    /// extreme layer towards the wall.
+    patches: Vec<([f64; 3], f64)>,
+}
+
+/// Pass 2: accumulate, for each contact side, the grain's void faces in the
+/// shell around the contact, and the extreme layers facing plane walls.
+fn surface_pass(
+    labels: &mut dyn SliceSource,
+    scan: &Scan,
+    grains: &[GrainGeometry],
+    zones: &[Zone],
+    plane_hits: &[(usize, usize, bool)],
+    previous: Option<&[[Option<Sphere>; 2]]>,
+    options: &Options,
+) -> Result<Fits> {
+    let [nz, ny, nx] = labels.shape();
+    let n = ny * nx;
+    let container = options.container.unwrap_or(0);
+    let mut sides = vec![[SphereFit::default(); 2]; zones.len()];
+    // Per grain: (zone, side, shell radii², previous sphere) to test its faces against.
+    type Test = (usize, usize, f64, f64, Option<Sphere>);
+    let mut by_grain: Vec<Vec<Test>> = vec![Vec::new(); grains.len()];
+    let fit = &options.fit;
+    let gate = fit.gate;
+    if options.normals == NormalMethod::SurfaceFit {
+        for (k, z) in zones.iter().enumerate() {
+            let inner = (fit.exclusion * z.radius).max(fit.min_exclusion);
+            let mut add = |g: usize, side: usize| {
+                let outer = (fit.window * grains[g].radius_voxels).max(inner + fit.min_shell);
+                let before = previous.map(|p| p[k][side]);
+                // On a refit, a side without a previous fit is left out.
+                if outer > inner && before.is_none_or(|b| b.is_some()) {
+                    by_grain[g].push((k, side, inner * inner, outer * outer, before.flatten()));
+                    sides[k][side].origin = z.centre;
+                }
+            };
+            add(z.a as usize, 0);
+            if let Side::Grain(b) = z.b {
+                add(b as usize, 1);
+            }
+        }
+    }
+    let mut patches = vec![([0.0; 3], 0.0); plane_hits.len()];
+    let mut hits_by_grain: Vec<Vec<usize>> = vec![Vec::new(); grains.len()];
+    for (h, &(g, _, _)) in plane_hits.iter().enumerate() {
+        hits_by_grain[g].push(h);
+    }
+    if by_grain.iter().all(Vec::is_empty) && plane_hits.is_empty() {
+        return Ok(Fits { sides, patches });
+    }
+    let mut slices = [vec![0u32; n], vec![0u32; n], vec![0u32; n]];
+    labels.labels(0, &mut slices[1])?;
+    if nz > 1 {
+        labels.labels(1, &mut slices[2])?;
+    }
+    for z in 0..nz {
+        if z > 0 {
+            slices.rotate_left(1);
+            if z + 1 < nz {
+                labels.labels(z + 1, &mut slices[2])?;
+            }
+        }
+        let [below, here, above] = &slices;
+        for y in 0..ny {
+            for x in 0..nx {
+                let i = y * nx + x;
+                let l = here[i];
+                if l == 0 || l == container {
+                    continue;
+                }
+                // A label pass 1 did not see: the file changed under us.
+                let Some(g) = scan
+                    .index
+                    .get(l as usize)
+                    .and_then(|&i| (i as usize).checked_sub(1))
+                else {
+                    return Err(Error::Invalid(format!(
+                        "label {l} at voxel z={z} y={y} x={x} appeared between two reads of the volume: was the file modified during the import?"
+                    )));
+                };
+                for &h in &hits_by_grain[g] {
+                    let (_, w, towards_high) = plane_hits[h];
+                    let axis = options.walls[w].axis;
+                    let m = &scan.moments[g];
+                    let at = [x, y, z][axis];
+                    let extreme = if towards_high { m.hi[axis] } else { m.lo[axis] };
+                    if at == extreme {
+                        let p = &mut patches[h];
+                        p.0[0] += x as f64;
+                        p.0[1] += y as f64;
+                        p.0[2] += z as f64;
+                        p.1 += 1.0;
+                    }
+                }
+                let tests = &by_grain[g];
+                if tests.is_empty() {
+                    continue;
+                }
+                let mut void_face = |d: [f64; 3]| {
+                    let f = [x as f64 + d[0], y as f64 + d[1], z as f64 + d[2]];
+                    for &(k, side, inner2, outer2, before) in tests {
+                        let c = zones[k].centre;
+                        let r2 =
+                            (f[0] - c[0]).powi(2) + (f[1] - c[1]).powi(2) + (f[2] - c[2]).powi(2);
+                        if r2 < inner2 || r2 > outer2 {
+                            continue;
+                        }
+                        if let Some((centre, radius)) = before {
+                            if (scene::norm(scene::sub(f, centre)) - radius).abs() > gate {
+                                continue;
+                            }
+                        }
+                        sides[k][side].add(f);
+                    }
+                };
+                if x > 0 && here[i - 1] == 0 {
+                    void_face([-0.5, 0.0, 0.0]);
+                }
+                if x + 1 < nx && here[i + 1] == 0 {
+                    void_face([0.5, 0.0, 0.0]);
+                }
+                if y > 0 && here[i - nx] == 0 {
+                    void_face([0.0, -0.5, 0.0]);
+                }
+                if y + 1 < ny && here[i + nx] == 0 {
+                    void_face([0.0, 0.5, 0.0]);
+                }
+                if z > 0 && below[i] == 0 {
+                    void_face([0.0, 0.0, -0.5]);
+                }
+                if z + 1 < nz && above[i] == 0 {
+                    void_face([0.0, 0.0, 0.5]);
+                }
+            }
+        }
+    }
+    Ok(Fits { sides, patches })
+}
+
+fn to_metres(p: [f64; 3], options: &Options) -> Vec3 {
+    let s = options.voxel_size;
+    [
+        options.origin[0] + s * p[0],
+        options.origin[1] + s * p[1],
+        options.origin[2] + s * p[2],
+    ]
+}
+
+fn contacts_of(
+    scan: &Scan,
+    grains: &[GrainGeometry],
+    zones: &[Zone],
+    fits: &Fits,
+    plane_hits: &[(usize, usize, bool)],
+    options: &Options,
+) -> Vec<DetectedContact> {
+    let s = options.voxel_size;
+    let mut out = Vec::new();
+    for (k, z) in zones.iter().enumerate() {
+        let fa = fits.sides[k][0].solve(options.fit.min_faces);
+        let fb = fits.sides[k][1].solve(options.fit.min_faces);
+        // A fit far from the grain's size is of something else (a flat face,
+        // a neck): not trusted.
+        let sane = |f: Option<([f64; 3], f64)>, g: usize| {
+            f.filter(|(_, r)| {
+                let rg = grains[g].radius_voxels;
+                *r > 0.25 * rg && *r < 4.0 * rg
+            })
+        };
+        let fa = sane(fa, z.a as usize);
+        let (mut point, mut normal, mut method, mut gap) = (z.centre, z.pca_normal, "pca", None);
+        if options.normals == NormalMethod::SurfaceFit {
+            let fb = match z.b {
+                Side::Grain(b) => sane(fb, b as usize),
+                Side::Container => None,
+            };
+            let close = |n: [f64; 3]| scene::dot(n, z.pca_normal) > 0.5_f64.sqrt();
+            match (fa, fb) {
+                (Some((ca, ra)), Some((cb, rb))) => {
+                    let d = scene::sub(cb, ca);
+                    let dist = scene::norm(d);
+                    if let Some(n) = unit(d).filter(|n| close(*n)) {
+                        let overlap = ra + rb - dist;
+                        let arm = ra - 0.5 * overlap;
+                        point = [ca[0] + arm * n[0], ca[1] + arm * n[1], ca[2] + arm * n[2]];
+                        normal = n;
+                        method = "fit";
+                        gap = Some(-overlap * s);
+                    }
+                }
+                (Some((ca, _)), None) => {
+                    if let Some(n) = unit(scene::sub(z.centre, ca)).filter(|n| close(*n)) {
+                        normal = n;
+                        method = "fit-a";
+                    }
+                }
+                (None, Some((cb, _))) => {
+                    if let Some(n) = unit(scene::sub(cb, z.centre)).filter(|n| close(*n)) {
+                        normal = n;
+                        method = "fit-b";
+                    }
+                }
+                (None, None) => {}
+            }
+        }
+        let mut kept = true;
+        if let Some(g) = z.grey {
+            kept &= g >= options.min_grey;
+        }
+        out.push(DetectedContact {
+            a: scan.labels[z.a as usize],
+            b: match z.b {
+                Side::Grain(b) => Other::Grain(scan.labels[b as usize]),
+                Side::Container => Other::Wall(options.walls.len()),
+            },
+            zone: z.number,
+            point: to_metres(point, options),
+            normal,
+            method,
+            faces: z.faces,
+            area: z.faces as f64 * s * s,
+            pca_normal: z.pca_normal,
+            pca_point: to_metres(z.centre, options),
+            gap,
+            grey: z.grey,
+            kept,
+        });
+    }
+    if let Some(max) = options.max_gap {
+        let gaps: Vec<f64> = out.iter().filter_map(|c| c.gap).collect();
+        if !gaps.is_empty() {
+            let median = synth::quantile(&gaps, 0.5);
+            for c in &mut out {
+                if let Some(g) = c.gap {
+                    c.kept &= g <= median + max * s;
+                }
+            }
+        }
+    }
+    for (h, &(g, w, towards_high)) in plane_hits.iter().enumerate() {
+        let (sum, count) = fits.patches[h];
+        if count == 0.0 {
+            continue;
+        }
+        let plane = &options.walls[w];
+        let mut p = to_metres(sum.map(|x| x / count), options);
+        p[plane.axis] = plane.position;
+        let mut normal = [0.0; 3];
+        normal[plane.axis] = if towards_high { 1.0 } else { -1.0 };
+        out.push(DetectedContact {
+            a: scan.labels[g],
+            b: Other::Wall(w),
+            zone: 0,
+            point: p,
+            normal,
+            method: "plane",
+            faces: count as usize,
+            area: count * s * s,
+            pca_normal: normal,
+            pca_point: p,
+            gap: None,
+            grey: None,
+            kept: true,
+        });
+    }
+    out
+}
+
+fn build(
+    scan: Scan,
+    grains: Vec<GrainGeometry>,
+    detected: Vec<DetectedContact>,
+    options: &Options,
+) -> LabelScene {
+    let s = options.voxel_size;
+    let mut scene = Scene::new(3);
+    // Grains in label order.
+    let mut order: Vec<usize> = (0..scan.labels.len()).collect();
+    order.sort_unstable_by_key(|&g| scan.labels[g]);
+    let mut position_of = HashMap::new();
+    let mut second_moments = Vec::new();
+    let mut cut = Vec::new();
+    let s5 = s.powi(5);
+    for &g in &order {
+        let geo = &grains[g];
+        let label = scan.labels[g];
+        let mut grain = Grain::new(
+            label.to_string(),
+            to_metres(geo.centroid, options),
+            geo.volume_voxels * s * s * s,
+            [0.0; 6],
+        );
+        grain.radius = Some(geo.radius_voxels * s);
+        let second = geo.second.map(|x| x * s5);
+        if let Some(rho) = options.density {
+            grain.mass = Some(rho * grain.volume);
+            let trace = second[0] + second[1] + second[2];
+            let mut i = [0.0; 6];
+            for k in 0..6 {
+                i[k] = rho * (if k < 3 { trace } else { 0.0 } - second[k]);
+            }
+            grain.inertia = Some(Inertia::Tensor(i));
+        }
+        if scan.moments[g].cut {
+            cut.push(label.to_string());
+        }
+        position_of.insert(label, scene.grains.len());
+        scene.grains.push(grain);
+        second_moments.push(second);
+    }
+    for w in &options.walls {
+        scene.walls.push(Wall {
+            name: w.name.clone(),
+            measured_force: None,
+        });
+    }
+    let container_wall = options.container.map(|_| {
+        scene.walls.push(Wall {
+            name: "container".into(),
+            measured_force: None,
+        });
+        scene.walls.len() - 1
+    });
+    let (kept, dropped): (Vec<_>, Vec<_>) = detected.into_iter().partition(|c| c.kept);
+    let mut touched = vec![false; scene.grains.len()];
+    for c in &kept {
+        let a = position_of[&c.a];
+        touched[a] = true;
+        let b = match c.b {
+            Other::Grain(b) => {
+                touched[position_of[&b]] = true;
+                Body::Grain(position_of[&b])
+            }
+            Other::Wall(w) if w == options.walls.len() => {
+                Body::Wall(container_wall.expect("container contacts need a container"))
+            }
+            Other::Wall(w) => Body::Wall(w),
+        };
+        scene.contacts.push(Contact {
+            id: scene.contacts.len().to_string(),
+            a,
+            b,
+            point: c.point,
+            normal: c.normal,
+            mu: None,
+        });
+    }
+    let rattlers: Vec<String> = scene
+        .grains
+        .iter()
+        .zip(&touched)
+        .filter(|(_, t)| !**t)
+        .map(|(g, _)| g.id.clone())
+        .collect();
+    let mut warnings = Vec::new();
+    if !cut.is_empty() {
+        warnings.push(format!(
+            "{} grain(s) touch the edge of the volume, so their volume and centroid are partial: {}",
+            cut.len(),
+            preview(&cut)
+        ));
+    }
+    if !dropped.is_empty() {
+        warnings.push(format!(
+            "{} touching zone(s) dropped as doubtful (fitted gap or grey evidence); listed in contacts_quality.csv with kept = 0",
+            dropped.len()
+        ));
+    }
+    let labels = order.iter().map(|&g| scan.labels[g]).collect();
+    let mut detected = kept;
+    detected.extend(dropped);
+    LabelScene {
+        scene,
+        labels,
+        detected,
+        second_moments,
+        rattlers,
+        cut,
+        warnings,
+    }
+}
+
+fn preview(ids: &[String]) -> String {
+    let mut s = ids.iter().take(10).cloned().collect::<Vec<_>>().join(", ");
+    if ids.len() > 10 {
+        s.push_str(&format!(" … ({} more)", ids.len() - 10));
+    }
+    s
+}
+
+impl LabelScene {
+    /// Writes the scene folder and `contacts_quality.csv` (every zone found,
+    /// with its area, fitted gap, grey evidence, the standard normal, and
+    /// whether it was kept; kept rows carry the scene's contact id).
+    pub fn write(&self, dir: &Path) -> Result<()> {
+        self.scene.validate()?;
+        scene::write_scene(dir, &self.scene)?;
+        let mut text = String::from(
+            "contact,a,b,zone,kept,method,faces,area,gap,grey,x,y,z,n_x,n_y,n_z,pca_x,pca_y,pca_z,pca_n_x,pca_n_y,pca_n_z\n",
+        );
+        let wall_name = |w: usize| -> String {
+            self.scene
+                .walls
+                .get(w)
+                .map_or("container".into(), |w| w.name.clone())
+        };
+        let opt = |x: Option<f64>| x.map_or(String::new(), |v| format!("{v}"));
+        for (i, c) in self.detected.iter().enumerate() {
+            let b = match &c.b {
+                Other::Grain(b) => b.to_string(),
+                Other::Wall(w) => wall_name(*w),
+            };
+            let id = if c.kept { i.to_string() } else { String::new() };
+            text.push_str(&format!(
+                "{id},{},{b},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
+                c.a,
+                c.zone,
+                c.kept as u8,
+                c.method,
+                c.faces,
+                c.area,
+                opt(c.gap),
+                opt(c.grey),
+                c.point[0],
+                c.point[1],
+                c.point[2],
+                c.normal[0],
+                c.normal[1],
+                c.normal[2],
+                c.pca_point[0],
+                c.pca_point[1],
+                c.pca_point[2],
+                c.pca_normal[0],
+                c.pca_normal[1],
+                c.pca_normal[2],
+            ));
+        }
+        scene::write_file_atomically(&dir.join("contacts_quality.csv"), text.as_bytes())
+    }
+}

@@ -1,0 +1,164 @@
+//! `import imaged11`: stresses from ImageD11 grain maps, against the stresses
+//! ImageD11's own functions compute from the same files
+//! (fixtures/import/imaged11/make_fixtures.py wrote both).
+
+mod common;
+
+use common::run;
+use grainforce::import::imaged11::{self, Options};
+use grainforce::import::stiffness::Stiffness;
+use std::path::{Path, PathBuf};
+
+fn dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/import/imaged11")
+}
+
+/// (grain, position µm, stress MPa in Sym order xx yy zz xy xz yz).
+fn expected(name: &str) -> Vec<(usize, [f64; 3], [f64; 6])> {
+    let text = std::fs::read_to_string(dir().join(format!("{name}_stress.csv"))).unwrap();
+    text.lines()
+        .skip(1)
+        .map(|l| {
+            let v: Vec<f64> = l.split(',').map(|x| x.parse().unwrap()).collect();
+            (
+                v[0] as usize,
+                [v[1], v[2], v[3]],
+                [v[4], v[5], v[6], v[7], v[8], v[9]],
+            )
+        })
+        .collect()
+}
+
+fn cell(name: &str) -> [f64; 6] {
+    match name {
+        "zirconium" => [3.232, 3.232, 5.147, 90.0, 90.0, 120.0],
+        _ => [4.9134, 4.9134, 5.4052, 90.0, 90.0, 120.0],
+    }
+}
+
+#[test]
+fn stresses_match_imaged11_within_a_kilopascal() {
+    for name in ["zirconium", "quartz"] {
+        let options = Options {
+            cell: cell(name),
+            stiffness: Stiffness::parse(name).unwrap(),
+            grain_volume: Some(1e-12),
+        };
+        let out = imaged11::import(&dir().join(format!("{name}.map")), None, &options).unwrap();
+        let scene = &out.frames[0];
+        let truth = expected(name);
+        assert_eq!(scene.grains.len(), truth.len());
+        let mut worst: f64 = 0.0;
+        for (g, (i, p, s)) in scene.grains.iter().zip(&truth) {
+            assert_eq!(g.id, i.to_string());
+            for k in 0..3 {
+                assert!((g.position[k] - p[k] * 1e-6).abs() < 1e-15);
+            }
+            for k in 0..6 {
+                worst = worst.max((g.stress[k] / 1e6 - s[k]).abs());
+            }
+        }
+        eprintln!("{name}: largest difference from ImageD11 {worst:.2e} MPa");
+        assert!(worst <= 1e-3, "{name}: {worst} MPa");
+    }
+}
+
+#[test]
+fn each_convention_matters() {
+    // The Busing–Levy U in place of the polar rotation, or Green–Lagrange in
+    // place of Biot, or constants left in the IEEE axes, move the stresses by
+    // more than the 1e-3 MPa tolerance: the test above can tell them apart.
+    let name = "quartz";
+    let grains = imaged11::read_map(&dir().join("quartz.map")).unwrap();
+    let b0 = imaged11::b_matrix(cell(name)).unwrap();
+    let truth = expected(name);
+    let rotated = Stiffness::parse("quartz").unwrap();
+    let mut ieee = rotated.clone();
+    ieee.constants_to_crystal = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+    let (mut d_ieee, mut d_u, mut d_gl): (f64, f64, f64) = (0.0, 0.0, 0.0);
+    for (g, (_, _, s)) in grains.iter().zip(&truth) {
+        let st = imaged11::grain_strain(&g.ubi, &b0).unwrap();
+        let a = ieee.stress(&st.rotation, &st.strain_sample);
+        // Busing–Levy U = (B0 UBI)ᵀ.
+        let mut u = [[0.0; 3]; 3];
+        for i in 0..3 {
+            for j in 0..3 {
+                u[j][i] = (0..3).map(|k| b0[i][k] * g.ubi[k][j]).sum();
+            }
+        }
+        let b = rotated.stress(&u, &st.strain_sample);
+        // Green–Lagrange: ½(V² − I) = e + e²/2 with e = V − I.
+        let e = st.strain_sample;
+        let t = [[e[0], e[3], e[4]], [e[3], e[1], e[5]], [e[4], e[5], e[2]]];
+        let mut gl = e;
+        for (k, &(i, j)) in [(0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2)]
+            .iter()
+            .enumerate()
+        {
+            gl[k] += 0.5 * (0..3).map(|m| t[i][m] * t[m][j]).sum::<f64>();
+        }
+        let c = rotated.stress(&st.rotation, &gl);
+        for k in 0..6 {
+            d_ieee = d_ieee.max((a[k] / 1e6 - s[k]).abs());
+            d_u = d_u.max((b[k] / 1e6 - s[k]).abs());
+            d_gl = d_gl.max((c[k] / 1e6 - s[k]).abs());
+        }
+    }
+    eprintln!(
+        "IEEE axes {d_ieee:.3} MPa, Busing–Levy U {d_u:.3} MPa, Green–Lagrange {d_gl:.3} MPa"
+    );
+    assert!(
+        d_ieee > 1.0 && d_u > 1e-2 && d_gl > 1e-2,
+        "{d_ieee} {d_u} {d_gl}"
+    );
+}
+
+#[test]
+fn cli_writes_grains_and_reads_contacts() {
+    let tmp = tempfile::tempdir().unwrap();
+    let contacts = tmp.path().join("contacts.csv");
+    std::fs::write(
+        &contacts,
+        "a,b,x,y,z,n_x,n_y,n_z\n0,1,0,0,0,1,0,0\n2,top,0,0,0,0,0,1\n",
+    )
+    .unwrap();
+    let out = tmp.path().join("scene");
+    let map = dir().join("zirconium.map");
+    let (ok, err) = run(&[
+        "import",
+        "imaged11",
+        map.to_str().unwrap(),
+        contacts.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--cell",
+        "3.232,3.232,5.147,90,90,120",
+        "--stiffness",
+        "zirconium",
+        "--grain-volume",
+        "1e-12",
+    ]);
+    assert!(ok, "{err}");
+    let scene = grainforce::scene::read_scene(&out).unwrap();
+    assert_eq!((scene.grains.len(), scene.contacts.len()), (12, 2));
+    // Without --grain-volume: a clear error, nothing written.
+    let out2 = tmp.path().join("scene2");
+    let (ok, err) = run(&[
+        "import",
+        "imaged11",
+        map.to_str().unwrap(),
+        "-o",
+        out2.to_str().unwrap(),
+        "--cell",
+        "3.232,3.232,5.147,90,90,120",
+        "--stiffness",
+        "zirconium",
+    ]);
+    assert!(!ok && err.contains("--grain-volume"), "{err}");
+    assert!(!out2.exists());
+    // A broken UBI row names the file and line.
+    let bad = tmp.path().join("bad.map");
+    std::fs::write(&bad, "#translation: 1 2 3\n#UBI:\n1 0 0\n0 1 x\n0 0 1\n").unwrap();
+    let e = imaged11::read_map(&bad).unwrap_err().to_string();
+    assert!(e.contains("bad.map") && e.contains("line 4"), "{e}");
+}
