@@ -1405,7 +1405,8 @@ fn to_unknowns(scene: &Scene, forces: &[[f64; 2]], scale: f64) -> Result<Vec<f64
     Ok(x)
 }
 
-/// |ΣF| / Σ|F| of each grain under `forces` (0 for a grain without force).
+/// |ΣF| / Σ|F| of each grain under `forces` (0 for a grain without force,
+/// or with only round-off: Σ|F| below 10⁻⁹ of the most loaded grain's).
 pub fn imbalances(scene: &Scene, forces: &[[f64; 2]]) -> Vec<f64> {
     let mut sum = vec![[0.0f64; 2]; scene.grains.len()];
     let mut total = vec![0.0f64; scene.grains.len()];
@@ -1419,9 +1420,17 @@ pub fn imbalances(scene: &Scene, forces: &[[f64; 2]]) -> Vec<f64> {
             total[b] += f[0].hypot(f[1]);
         }
     }
+    // A grain whose forces are round-off next to the packing's counts as unloaded.
+    let floor = 1e-9 * total.iter().fold(0.0f64, |m, t| m.max(*t));
     sum.iter()
         .zip(&total)
-        .map(|(s, t)| if *t > 0.0 { s[0].hypot(s[1]) / t } else { 0.0 })
+        .map(|(s, t)| {
+            if *t > floor {
+                s[0].hypot(s[1]) / t
+            } else {
+                0.0
+            }
+        })
         .collect()
 }
 
