@@ -29,6 +29,7 @@ mod import;
 mod infer;
 mod merge;
 mod perturb;
+mod photoelastic;
 mod plot;
 mod render;
 mod score;
@@ -72,6 +73,8 @@ enum Command {
     Strain(strain::Args),
     /// Draw a scene as a camera would see it (speckled, deformed disks).
     Render(render::Args),
+    /// Fit every contact force to a photoelastic photograph's fringes.
+    Photoelastic(photoelastic::Args),
     /// Convert DEM or diffraction output into a scene.
     Import(import::Args),
     /// Write a scene and its forces for ParaView.
@@ -103,6 +106,7 @@ pub fn main() -> std::process::ExitCode {
         Command::Detect(a) => detect::run(a),
         Command::Strain(a) => strain::run(a),
         Command::Render(a) => render::run(a),
+        Command::Photoelastic(a) => photoelastic::run(a),
         Command::Import(a) => import::run(a),
         Command::Export(a) => export::run(a),
         Command::Stats(a) => stats::run(a),

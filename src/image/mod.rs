@@ -14,6 +14,7 @@ pub mod detect;
 pub mod dic;
 pub mod elastic;
 mod font;
+pub mod fringe_fit;
 pub mod io;
 pub mod overlay;
 pub mod photoelastic;

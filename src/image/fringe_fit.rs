@@ -1,0 +1,1650 @@
+//! Contact forces from a photoelastic photograph: one fit of every contact
+//! force to the fringes of all disks at once, under each disk's balance and
+//! Coulomb friction.
+//!
+//! Unknowns: one force per contact, (u_n, u_t) in the contact's frame (u_n
+//! the compressive normal part on grain `a`, so action equals reaction by
+//! construction). Each disk's stress is [`disk_stress`](super::photoelastic::disk_stress)
+//! of its loads, its fringe order N = (σ₁ − σ₂)/f_σ, and a pixel's intensity
+//! b_d + c_d S with S = ½ − ½ cos(2πN) e^{−2π² s²}: sin²(πN) averaged over the
+//! pixel and the optics' blur, s the blur radius times |∇N| (dense fringes
+//! fade to grey, as a camera sees them). b_d and c_d, each disk's background
+//! and contrast, are fitted in closed form at every step.
+//!
+//! Each Gauss–Newton / Levenberg–Marquardt step is one constrained least
+//! squares, min Σ_d ‖J_d δ − r_d‖² + μ ‖D δ‖² subject to K_eq (f + δ) = 0 and
+//! the Coulomb wedge on f + δ: a [`ConicProblem`] with two terms. J_d is dense
+//! only over disk d's own contacts, so each disk enters as a few rows
+//! (its k × k normal matrix factored), whatever its pixel count.
+//!
+//! The start avoids the per-disk fit's failure: each disk's load level from
+//! its fringe gradients G² = ⟨|∇I|²⟩ matched to the model's G² of the same
+//! disk under equal normal loads (calibrated on the image's own contrast),
+//! turned into a balanced, friction-admissible field by one constrained
+//! least squares, then fitted with the blur widened and narrowed in three
+//! stages (a smoother objective first, fewer local minima).
+
+use super::{FloatImage, PixelFrame};
+use crate::error::{Error, Result};
+use crate::scene::{Body, Scene};
+use crate::solver::conic::{self, Cone, ConicProblem, ConicSettings, Term};
+use crate::solver::Triplets;
+use rayon::prelude::*;
+use std::f64::consts::PI;
+
+/// How each disk's balance of force and moment enters the fit.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub enum Balance {
+    /// Exact: K_eq f = 0 (the default).
+    Hard,
+    /// A weighted penalty w Σ_d ‖(ΣF, ΣM/R)_d / F₀‖² beside the fringe
+    /// residual (F₀ = f_σ R, the force of about one fringe), where a frame
+    /// is known not to balance (missing contacts, dynamics).
+    Penalty(f64),
+}
+
+#[derive(Debug, Clone)]
+pub struct FringeFitSettings {
+    /// The stress of one fringe order, f_σ / t [Pa] (fringe constant [N/m]
+    /// over the thickness [m]); forces come out in N/m, per unit thickness.
+    pub fringe_stress: f64,
+    /// Friction coefficient where a contact has none of its own.
+    pub mu: f64,
+    pub balance: Balance,
+    /// Gaussian blur of the optics [px] (the pixel's own area is added).
+    pub blur_px: f64,
+    /// Pixels closer than this to a disk's edge are not fitted (its dark rim).
+    pub edge_px: f64,
+    /// Largest number of Levenberg–Marquardt steps, all stages together.
+    pub max_iterations: usize,
+    /// A disk whose fit explains less than this share of its intensity
+    /// variance (and shows fringes) is flagged.
+    pub poor_fit: f64,
+    /// Start from these forces (scene contact order, force on `a` by `b`
+    /// [N/m]; e.g. the previous frame's) instead of the fringe gradients.
+    pub start: Option<Vec<[f64; 2]>>,
+}
+
+impl FringeFitSettings {
+    pub fn new(fringe_stress: f64) -> Self {
+        FringeFitSettings {
+            fringe_stress,
+            mu: 0.5,
+            balance: Balance::Hard,
+            blur_px: 1.0,
+            edge_px: 6.0,
+            max_iterations: 60,
+            poor_fit: 0.5,
+            start: None,
+        }
+    }
+
+    fn validate(&self) -> Result<()> {
+        let ok = |v: f64| v.is_finite() && v >= 0.0;
+        if !(self.fringe_stress.is_finite() && self.fringe_stress > 0.0) {
+            return Err(Error::Invalid(format!(
+                "the fringe stress f_σ/t must be positive, not {}",
+                self.fringe_stress
+            )));
+        }
+        if !(ok(self.mu) && ok(self.blur_px) && ok(self.edge_px)) {
+            return Err(Error::Invalid(
+                "fringe fit: friction, blur and edge band must be finite and not negative".into(),
+            ));
+        }
+        if let Balance::Penalty(w) = self.balance {
+            if !(w.is_finite() && w > 0.0) {
+                return Err(Error::Invalid(format!(
+                    "the balance weight must be positive, not {w}"
+                )));
+            }
+        }
+        if self.max_iterations == 0 {
+            return Err(Error::Invalid(
+                "the fringe fit needs at least one iteration".into(),
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// How well one disk's fringes are explained.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct DiskFit {
+    pub grain: String,
+    /// Pixels fitted.
+    pub pixels: usize,
+    pub background: f64,
+    pub contrast: f64,
+    /// Root-mean-square intensity residual.
+    pub rms: f64,
+    /// Share of the disk's intensity variance the fit explains, 1 − SSR/SST.
+    pub explained: f64,
+    /// |ΣF| / Σ|F| of the fitted forces on this disk.
+    pub imbalance: f64,
+    /// The load level its fringe gradients gave at the start [N/m]: equal
+    /// normal loads at its contacts showing the photograph's G².
+    pub start_level: f64,
+    /// The photograph's G² = ⟨|∇I|²⟩ over the fitted pixels [per px²].
+    pub g2: f64,
+    /// The fit does not explain this disk's fringes.
+    pub flagged: bool,
+}
+
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct FringeFitReport {
+    pub method: &'static str,
+    pub fringe_stress: f64,
+    pub balance: Balance,
+    pub mu: f64,
+    pub blur_px: f64,
+    pub iterations: usize,
+    /// Σ of squared intensity residuals at the start and at the end.
+    pub objective_start: f64,
+    pub objective: f64,
+    /// The Levenberg–Marquardt damping of the last step.
+    pub damping: f64,
+    pub median_imbalance: f64,
+    pub max_imbalance: f64,
+    pub flagged: Vec<String>,
+    pub seconds: f64,
+    pub disks: Vec<DiskFit>,
+}
+
+/// The fitted forces (force on grain `a` by `b`, scene axes, N/m, in the
+/// scene's contact order) and the report.
+#[derive(Debug, Clone)]
+pub struct FringeFit {
+    pub forces: Vec<[f64; 2]>,
+    pub report: FringeFitReport,
+}
+
+/// One load on a disk: contact `contact`'s force, on this disk with `sign`.
+#[derive(Debug, Clone, Copy)]
+struct Load {
+    /// The unknowns' pair (2 × unknown, 2 × unknown + 1).
+    unknown: usize,
+    sign: f64,
+    /// On the disk's boundary [m].
+    point: [f64; 2],
+    normal: [f64; 2],
+    tangent: [f64; 2],
+}
+
+impl Load {
+    /// The force on the disk per unit (u_n, u_t).
+    fn directions(&self) -> [[f64; 2]; 2] {
+        let s = self.sign;
+        [
+            [-s * self.normal[0], -s * self.normal[1]],
+            [s * self.tangent[0], s * self.tangent[1]],
+        ]
+    }
+}
+
+struct DiskData {
+    grain: usize,
+    centre: [f64; 2],
+    radius: f64,
+    loads: Vec<Load>,
+    /// Fitted pixels: scene position and intensity.
+    points: Vec<[f64; 2]>,
+    intensity: Vec<f64>,
+    /// Pixel (column, row) of each point, for gradients and the overlay.
+    pixels: Vec<(u32, u32)>,
+}
+
+/// What one evaluation of a disk gives.
+#[derive(Default, Clone)]
+struct DiskEval {
+    background: f64,
+    contrast: f64,
+    ssr: f64,
+    sst: f64,
+    /// Normal matrix JᵀJ (k × k, row-major) and Jᵀr over the disk's local unknowns.
+    normal: Vec<f64>,
+    rhs: Vec<f64>,
+    model: Vec<f64>,
+}
+
+/// Model constants of one evaluation.
+#[derive(Clone, Copy)]
+struct Optics {
+    /// Fringe stress in force units of the unknowns, per metre.
+    fringe: f64,
+    /// Blur variance [m²].
+    blur2: f64,
+    /// Contrast when a disk's own cannot be fitted, and the range allowed.
+    contrast: f64,
+    /// Fit the fringe envelope instead of the intensity: the model is
+    /// c π |∇N| e^{−2π² s²} / √2 per pixel (the root of the local mean of
+    /// |∇I|²), with the image scale [px/m] given here.
+    envelope: Option<f64>,
+}
+
+/// Flamant weights at p of a unit force at q: (σ_xx − σ_yy, 2σ_xy) = (w1·F, w2·F).
+#[inline]
+fn flamant(q: [f64; 2], p: [f64; 2], floor: f64) -> ([f64; 2], [f64; 2]) {
+    let e = [p[0] - q[0], p[1] - q[1]];
+    let r = e[0].hypot(e[1]).max(floor);
+    let e = [e[0] / r, e[1] / r];
+    let g = -2.0 / (PI * r);
+    let c1 = g * (e[0] * e[0] - e[1] * e[1]);
+    let c2 = g * 2.0 * e[0] * e[1];
+    ([c1 * e[0], c1 * e[1]], [c2 * e[0], c2 * e[1]])
+}
+
+impl DiskData {
+    fn local_unknowns(&self) -> usize {
+        2 * self.loads.len()
+    }
+
+    /// S and (when `jacobian`) ∂S/∂u per pixel, for the local unknowns `u`.
+    fn fringes(&self, u: &[f64], optics: &Optics, jacobian: bool) -> (Vec<f64>, Vec<f64>) {
+        let k = self.local_unknowns();
+        let h = 0.25 * (optics.blur2.sqrt()).max(1e-9 * self.radius);
+        let floor = 1e-3 * self.radius;
+        let n = self.points.len();
+        let mut s_all = Vec::with_capacity(n);
+        let mut ds_all = if jacobian {
+            vec![0.0; n * k]
+        } else {
+            Vec::new()
+        };
+        // Per load: coefficients of (u_n, u_t) in d1, d2 and their x, y derivatives.
+        let mut coef = vec![[0.0f64; 6]; k];
+        for (i, p) in self.points.iter().enumerate() {
+            let (mut d1, mut d2) = (0.0, 0.0);
+            let (mut g1, mut g2) = ([0.0; 2], [0.0; 2]);
+            for (l, load) in self.loads.iter().enumerate() {
+                let dirs = load.directions();
+                let (w1, w2) = flamant(load.point, *p, floor);
+                let (w1xp, w2xp) = flamant(load.point, [p[0] + h, p[1]], floor);
+                let (w1xm, w2xm) = flamant(load.point, [p[0] - h, p[1]], floor);
+                let (w1yp, w2yp) = flamant(load.point, [p[0], p[1] + h], floor);
+                let (w1ym, w2ym) = flamant(load.point, [p[0], p[1] - h], floor);
+                for (j, dir) in dirs.iter().enumerate() {
+                    let dot = |w: [f64; 2]| w[0] * dir[0] + w[1] * dir[1];
+                    let c = &mut coef[2 * l + j];
+                    c[0] = dot(w1);
+                    c[1] = dot(w2);
+                    c[2] = (dot(w1xp) - dot(w1xm)) / (2.0 * h);
+                    c[3] = (dot(w1yp) - dot(w1ym)) / (2.0 * h);
+                    c[4] = (dot(w2xp) - dot(w2xm)) / (2.0 * h);
+                    c[5] = (dot(w2yp) - dot(w2ym)) / (2.0 * h);
+                    let x = u[2 * l + j];
+                    d1 += c[0] * x;
+                    d2 += c[1] * x;
+                    g1[0] += c[2] * x;
+                    g1[1] += c[3] * x;
+                    g2[0] += c[4] * x;
+                    g2[1] += c[5] * x;
+                }
+            }
+            let d = d1.hypot(d2);
+            let fr = optics.fringe;
+            let big = 1e-12 * (d1.abs() + d2.abs() + 1e-300);
+            let (gd, s2) = if d > big {
+                let gd = [(d1 * g1[0] + d2 * g2[0]) / d, (d1 * g1[1] + d2 * g2[1]) / d];
+                (
+                    gd,
+                    optics.blur2 * (gd[0] * gd[0] + gd[1] * gd[1]) / (fr * fr),
+                )
+            } else {
+                ([0.0; 2], 0.0)
+            };
+            let order = d / fr;
+            let fade = (-2.0 * PI * PI * s2).exp();
+            if let Some(px_per_m) = optics.envelope {
+                let norm = gd[0].hypot(gd[1]);
+                let gain = optics.contrast * PI / (std::f64::consts::SQRT_2 * fr * px_per_m);
+                s_all.push(gain * norm * fade);
+                if jacobian && d > big && norm > 0.0 {
+                    let out = &mut ds_all[i * k..(i + 1) * k];
+                    for (m, c) in coef.iter().enumerate() {
+                        let dd = (d1 * c[0] + d2 * c[1]) / d;
+                        let mut dnorm = 0.0;
+                        for j in 0..2 {
+                            let dgd = (c[0] * g1[j] + d1 * c[2 + j] + c[1] * g2[j] + d2 * c[4 + j])
+                                / d
+                                - gd[j] * dd / d;
+                            dnorm += gd[j] * dgd / norm;
+                        }
+                        out[m] = gain * fade * dnorm * (1.0 - 4.0 * PI * PI * s2);
+                    }
+                }
+                continue;
+            }
+            let (sin, cos) = (2.0 * PI * order).sin_cos();
+            s_all.push(0.5 - 0.5 * cos * fade);
+            if jacobian && d > big {
+                let out = &mut ds_all[i * k..(i + 1) * k];
+                for (m, c) in coef.iter().enumerate() {
+                    let dd = (d1 * c[0] + d2 * c[1]) / d;
+                    let mut ds2 = 0.0;
+                    for j in 0..2 {
+                        let dgd = (c[0] * g1[j] + d1 * c[2 + j] + c[1] * g2[j] + d2 * c[4 + j]) / d
+                            - gd[j] * dd / d;
+                        ds2 += gd[j] * dgd;
+                    }
+                    ds2 *= 2.0 * optics.blur2 / (fr * fr);
+                    out[m] = PI * fade * sin * dd / fr + PI * PI * fade * cos * ds2;
+                }
+            }
+        }
+        (s_all, ds_all)
+    }
+
+    /// Background and contrast in closed form, the residual and (with
+    /// `jacobian`) the normal equations of the step.
+    fn evaluate(&self, u: &[f64], optics: &Optics, jacobian: bool) -> DiskEval {
+        let n = self.points.len();
+        if n == 0 {
+            return DiskEval {
+                normal: vec![0.0; self.local_unknowns().pow(2)],
+                rhs: vec![0.0; self.local_unknowns()],
+                ..Default::default()
+            };
+        }
+        let (s, ds) = self.fringes(u, optics, jacobian);
+        if optics.envelope.is_some() {
+            return self.evaluate_envelope(&s, &ds, jacobian);
+        }
+        let nf = n as f64;
+        let mean_i = self.intensity.iter().sum::<f64>() / nf;
+        let mean_s = s.iter().sum::<f64>() / nf;
+        let (mut vss, mut vis, mut sst) = (0.0, 0.0, 0.0);
+        for (a, b) in s.iter().zip(&self.intensity) {
+            vss += (a - mean_s) * (a - mean_s);
+            vis += (a - mean_s) * (b - mean_i);
+            sst += (b - mean_i) * (b - mean_i);
+        }
+        // A disk without fringe variation takes the packing's contrast; a
+        // fitted one is kept within a factor 3 of it.
+        let c_ref = optics.contrast;
+        let contrast = if vss > 1e-3 * nf * 0.01 {
+            (vis / vss).clamp(c_ref / 3.0, 3.0 * c_ref)
+        } else {
+            c_ref
+        };
+        let background = mean_i - contrast * mean_s;
+        let model: Vec<f64> = s.iter().map(|v| background + contrast * v).collect();
+        let residual: Vec<f64> = self
+            .intensity
+            .iter()
+            .zip(&model)
+            .map(|(a, b)| a - b)
+            .collect();
+        let ssr = residual.iter().map(|r| r * r).sum();
+        let k = self.local_unknowns();
+        let (mut normal, mut rhs) = (vec![0.0; k * k], vec![0.0; k]);
+        if jacobian {
+            let mut mean_ds = vec![0.0; k];
+            for i in 0..n {
+                for m in 0..k {
+                    mean_ds[m] += ds[i * k + m] / nf;
+                }
+            }
+            let mut row = vec![0.0; k];
+            for i in 0..n {
+                for m in 0..k {
+                    row[m] = contrast * (ds[i * k + m] - mean_ds[m]);
+                }
+                for a in 0..k {
+                    rhs[a] += row[a] * residual[i];
+                    for b in a..k {
+                        normal[a * k + b] += row[a] * row[b];
+                    }
+                }
+            }
+            for a in 0..k {
+                for b in 0..a {
+                    normal[a * k + b] = normal[b * k + a];
+                }
+            }
+        }
+        DiskEval {
+            background,
+            contrast,
+            ssr,
+            sst,
+            normal,
+            rhs,
+            model,
+        }
+    }
+
+    /// The envelope fit's residual (data in `intensity`) and normal equations.
+    fn evaluate_envelope(&self, model: &[f64], dm: &[f64], jacobian: bool) -> DiskEval {
+        let k = self.local_unknowns();
+        let (mut normal, mut rhs) = (vec![0.0; k * k], vec![0.0; k]);
+        let mut ssr = 0.0;
+        for (i, (y, m)) in self.intensity.iter().zip(model).enumerate() {
+            let r = y - m;
+            ssr += r * r;
+            if jacobian {
+                let row = &dm[i * k..(i + 1) * k];
+                for a in 0..k {
+                    rhs[a] += row[a] * r;
+                    for b in 0..k {
+                        normal[a * k + b] += row[a] * row[b];
+                    }
+                }
+            }
+        }
+        DiskEval {
+            ssr,
+            normal,
+            rhs,
+            model: model.to_vec(),
+            ..Default::default()
+        }
+    }
+
+    fn gather(&self, x: &[f64]) -> Vec<f64> {
+        let mut u = Vec::with_capacity(self.local_unknowns());
+        for l in &self.loads {
+            u.push(x[2 * l.unknown]);
+            u.push(x[2 * l.unknown + 1]);
+        }
+        u
+    }
+}
+
+/// The problem shared by the joint and the per-disk fits.
+struct Prepared {
+    disks: Vec<DiskData>,
+    /// Unknown pairs: one per contact (joint) or per contact side (per disk).
+    unknowns: usize,
+    /// The force scale F₀ = f_σ R̄ [N/m] of the unknowns.
+    scale: f64,
+    optics: Optics,
+}
+
+fn prepare(
+    image: &FloatImage,
+    frame: &PixelFrame,
+    scene: &Scene,
+    settings: &FringeFitSettings,
+    per_side: bool,
+) -> Result<Prepared> {
+    settings.validate()?;
+    frame.validate()?;
+    if scene.dim != 2 {
+        return Err(Error::Invalid(
+            "the fringe fit needs a 2D scene (disks)".into(),
+        ));
+    }
+    if (image.width(), image.height()) != (frame.width, frame.height) {
+        return Err(Error::Invalid(format!(
+            "the image is {}×{} px but its pixel frame says {}×{}",
+            image.width(),
+            image.height(),
+            frame.width,
+            frame.height
+        )));
+    }
+    let s = frame.px_per_m;
+    let mut disks: Vec<DiskData> = Vec::with_capacity(scene.grains.len());
+    for (g, grain) in scene.grains.iter().enumerate() {
+        let radius = grain.equivalent_radius(2);
+        if !(radius.is_finite() && radius > 0.0) {
+            return Err(Error::Invalid(format!(
+                "grain {}: no positive radius for the fringe fit",
+                grain.id
+            )));
+        }
+        disks.push(DiskData {
+            grain: g,
+            centre: [grain.position[0], grain.position[1]],
+            radius,
+            loads: Vec::new(),
+            points: Vec::new(),
+            intensity: Vec::new(),
+            pixels: Vec::new(),
+        });
+    }
+    let mut unknowns = 0;
+    for (k, c) in scene.contacts.iter().enumerate() {
+        let len = c.normal[0].hypot(c.normal[1]);
+        if !(len.is_finite() && len > 0.0) {
+            return Err(Error::Invalid(format!(
+                "contact {}: its normal has no direction",
+                c.id
+            )));
+        }
+        let n = [c.normal[0] / len, c.normal[1] / len];
+        let t = [-n[1], n[0]];
+        let mut sides = vec![(c.a, 1.0)];
+        if let Body::Grain(b) = c.b {
+            sides.push((b, -1.0));
+        }
+        for (g, sign) in sides {
+            let d = &mut disks[g];
+            // The load acts where the contact meets this disk's circle.
+            let towards = [sign * n[0], sign * n[1]];
+            let point = [
+                d.centre[0] + d.radius * towards[0],
+                d.centre[1] + d.radius * towards[1],
+            ];
+            let unknown = if per_side { unknowns } else { k };
+            if per_side {
+                unknowns += 1;
+            }
+            d.loads.push(Load {
+                unknown,
+                sign,
+                point,
+                normal: n,
+                tangent: t,
+            });
+        }
+    }
+    if !per_side {
+        unknowns = scene.contacts.len();
+    }
+    // Pixels inside each disk, clear of its rim.
+    let (w, h) = (frame.width as i64, frame.height as i64);
+    for d in &mut disks {
+        let c = frame.to_pixel(d.centre);
+        let r = d.radius * s - settings.edge_px;
+        if r < 2.0 {
+            continue;
+        }
+        let (x0, x1) = (
+            ((c[0] - r).floor() as i64).max(0),
+            ((c[0] + r).ceil() as i64).min(w - 1),
+        );
+        let (y0, y1) = (
+            ((c[1] - r).floor() as i64).max(0),
+            ((c[1] + r).ceil() as i64).min(h - 1),
+        );
+        for y in y0..=y1 {
+            for x in x0..=x1 {
+                let (dx, dy) = (x as f64 - c[0], y as f64 - c[1]);
+                if dx * dx + dy * dy <= r * r {
+                    d.points.push(frame.to_scene([x as f64, y as f64]));
+                    d.intensity
+                        .push(image.get_pixel(x as u32, y as u32)[0] as f64);
+                    d.pixels.push((x as u32, y as u32));
+                }
+            }
+        }
+    }
+    let mut radii: Vec<f64> = disks.iter().map(|d| d.radius).collect();
+    radii.sort_by(f64::total_cmp);
+    let scale = settings.fringe_stress * radii[radii.len() / 2];
+    let blur_px2 = settings.blur_px.powi(2) + 1.0 / 12.0;
+    let optics = Optics {
+        fringe: settings.fringe_stress / scale,
+        blur2: blur_px2 / (s * s),
+        contrast: contrast_estimate(&disks),
+        envelope: None,
+    };
+    Ok(Prepared {
+        disks,
+        unknowns,
+        scale,
+        optics,
+    })
+}
+
+/// The packing's fringe contrast: the upper quartile over the disks of each
+/// disk's 2–98 % intensity range (a disk with a full fringe spans it).
+fn contrast_estimate(disks: &[DiskData]) -> f64 {
+    let mut ranges: Vec<f64> = disks
+        .iter()
+        .filter(|d| d.intensity.len() > 20)
+        .map(|d| {
+            let mut v = d.intensity.clone();
+            v.sort_by(f64::total_cmp);
+            let at = |q: f64| v[((v.len() - 1) as f64 * q) as usize];
+            at(0.98) - at(0.02)
+        })
+        .collect();
+    if ranges.is_empty() {
+        return 0.5;
+    }
+    ranges.sort_by(f64::total_cmp);
+    ranges[(ranges.len() * 3) / 4].max(1e-3)
+}
+
+/// A disk's pixels on their bounding grid (NaN outside the fitted set).
+struct PixelGrid {
+    x0: u32,
+    y0: u32,
+    width: usize,
+    height: usize,
+}
+
+impl PixelGrid {
+    fn of(d: &DiskData) -> Option<PixelGrid> {
+        let (mut x0, mut y0, mut x1, mut y1) = (u32::MAX, u32::MAX, 0, 0);
+        for &(x, y) in &d.pixels {
+            x0 = x0.min(x);
+            y0 = y0.min(y);
+            x1 = x1.max(x);
+            y1 = y1.max(y);
+        }
+        (!d.pixels.is_empty()).then(|| PixelGrid {
+            x0,
+            y0,
+            width: (x1 - x0 + 1) as usize,
+            height: (y1 - y0 + 1) as usize,
+        })
+    }
+
+    fn index(&self, x: u32, y: u32) -> usize {
+        (y - self.y0) as usize * self.width + (x - self.x0) as usize
+    }
+
+    fn scatter(&self, d: &DiskData, values: &[f64]) -> Vec<f64> {
+        let mut grid = vec![f64::NAN; self.width * self.height];
+        for (&(x, y), v) in d.pixels.iter().zip(values) {
+            grid[self.index(x, y)] = *v;
+        }
+        grid
+    }
+}
+
+/// Mean squared intensity gradient (central differences, per px²) over the
+/// disk's pixels selected by `subset` (all when `None`) whose four
+/// neighbours are fitted pixels too.
+fn mean_squared_gradient(d: &DiskData, values: &[f64], subset: Option<&[bool]>) -> f64 {
+    let Some(g) = PixelGrid::of(d) else {
+        return 0.0;
+    };
+    let grid = g.scatter(d, values);
+    let (mut sum, mut count) = (0.0, 0usize);
+    for (i, &(x, y)) in d.pixels.iter().enumerate() {
+        if subset.is_some_and(|s| !s[i]) {
+            continue;
+        }
+        let (xi, yi) = ((x - g.x0) as usize, (y - g.y0) as usize);
+        if xi == 0 || yi == 0 || xi + 1 == g.width || yi + 1 == g.height {
+            continue;
+        }
+        let at = |xx: usize, yy: usize| grid[yy * g.width + xx];
+        let gx = 0.5 * (at(xi + 1, yi) - at(xi - 1, yi));
+        let gy = 0.5 * (at(xi, yi + 1) - at(xi, yi - 1));
+        if gx.is_finite() && gy.is_finite() {
+            sum += gx * gx + gy * gy;
+            count += 1;
+        }
+    }
+    if count == 0 {
+        0.0
+    } else {
+        sum / count as f64
+    }
+}
+
+/// The disk's intensities smoothed by a Gaussian of `sigma_px` within its
+/// fitted pixels (normalised convolution, so the rim does not bleed in).
+fn smoothed_intensity(d: &DiskData, sigma_px: f64) -> Vec<f64> {
+    smooth_values(d, &d.intensity, sigma_px)
+}
+
+/// `values` (one per fitted pixel, NaN for none) smoothed by a Gaussian of
+/// `sigma_px` within the disk's fitted pixels.
+fn smooth_values(d: &DiskData, values: &[f64], sigma_px: f64) -> Vec<f64> {
+    let Some(g) = PixelGrid::of(d) else {
+        return Vec::new();
+    };
+    if sigma_px <= 0.0 {
+        return values.to_vec();
+    }
+    let values = g.scatter(d, values);
+    let reach = (3.0 * sigma_px).ceil() as isize;
+    let kernel: Vec<f64> = (-reach..=reach)
+        .map(|i| (-(i * i) as f64 / (2.0 * sigma_px * sigma_px)).exp())
+        .collect();
+    let (w, h) = (g.width as isize, g.height as isize);
+    let pass = |src: &[f64], weight: &[f64], horizontal: bool| -> (Vec<f64>, Vec<f64>) {
+        let mut out = vec![0.0; src.len()];
+        let mut out_w = vec![0.0; src.len()];
+        for y in 0..h {
+            for x in 0..w {
+                let (mut acc, mut acc_w) = (0.0, 0.0);
+                for (k, kv) in kernel.iter().enumerate() {
+                    let o = k as isize - reach;
+                    let (xx, yy) = if horizontal { (x + o, y) } else { (x, y + o) };
+                    if xx < 0 || yy < 0 || xx >= w || yy >= h {
+                        continue;
+                    }
+                    let j = (yy * w + xx) as usize;
+                    acc += kv * src[j];
+                    acc_w += kv * weight[j];
+                }
+                let i = (y * w + x) as usize;
+                out[i] = acc;
+                out_w[i] = acc_w;
+            }
+        }
+        (out, out_w)
+    };
+    let weight: Vec<f64> = values
+        .iter()
+        .map(|v| if v.is_finite() { 1.0 } else { 0.0 })
+        .collect();
+    let masked: Vec<f64> = values
+        .iter()
+        .map(|v| if v.is_finite() { *v } else { 0.0 })
+        .collect();
+    let (a, aw) = pass(&masked, &weight, true);
+    let (b, bw) = pass(&a, &aw, false);
+    d.pixels
+        .iter()
+        .map(|&(x, y)| {
+            let i = g.index(x, y);
+            if bw[i] > 0.0 {
+                b[i] / bw[i]
+            } else {
+                0.0
+            }
+        })
+        .collect()
+}
+
+/// The photograph's fringe envelope per fitted pixel: the root of the local
+/// (Gaussian, `sigma_px`) mean of |∇I|².
+fn envelope_data(d: &DiskData, sigma_px: f64) -> Vec<f64> {
+    let Some(g) = PixelGrid::of(d) else {
+        return Vec::new();
+    };
+    let grid = g.scatter(d, &d.intensity);
+    let squared: Vec<f64> = d
+        .pixels
+        .iter()
+        .map(|&(x, y)| {
+            let (xi, yi) = ((x - g.x0) as usize, (y - g.y0) as usize);
+            if xi == 0 || yi == 0 || xi + 1 == g.width || yi + 1 == g.height {
+                return f64::NAN;
+            }
+            let at = |xx: usize, yy: usize| grid[yy * g.width + xx];
+            let gx = 0.5 * (at(xi + 1, yi) - at(xi - 1, yi));
+            let gy = 0.5 * (at(xi, yi + 1) - at(xi, yi - 1));
+            gx * gx + gy * gy
+        })
+        .collect();
+    smooth_values(d, &squared, sigma_px)
+        .into_iter()
+        .map(|v| v.max(0.0).sqrt())
+        .collect()
+}
+
+/// The problem with each disk's intensities replaced by its fringe envelope.
+fn enveloped(p: &Prepared, sigma_px: f64) -> Prepared {
+    Prepared {
+        disks: p
+            .disks
+            .par_iter()
+            .map(|d| DiskData {
+                grain: d.grain,
+                centre: d.centre,
+                radius: d.radius,
+                loads: d.loads.clone(),
+                points: d.points.clone(),
+                intensity: envelope_data(d, sigma_px),
+                pixels: d.pixels.clone(),
+            })
+            .collect(),
+        unknowns: p.unknowns,
+        scale: p.scale,
+        optics: p.optics,
+    }
+}
+
+/// Each contact side's force (in units of F₀) from the fringe gradients
+/// near it: over the disk's pixels within 0.6 R of the load and nearer it
+/// than any other load of the disk, the level at which that load alone
+/// (normal) gives the model the photograph's G² (model contrast: the
+/// packing's). Returned per disk, per load.
+fn load_levels(p: &Prepared) -> Vec<Vec<f64>> {
+    let levels: Vec<f64> = (0..28).map(|i| 0.02 * 1.3f64.powi(i)).collect();
+    p.disks
+        .par_iter()
+        .map(|d| {
+            if d.points.len() < 20 {
+                return vec![0.0; d.loads.len()];
+            }
+            (0..d.loads.len())
+                .map(|l| {
+                    let q = d.loads[l].point;
+                    let near: Vec<bool> = d
+                        .points
+                        .iter()
+                        .map(|pt| {
+                            let dist = |a: [f64; 2]| (pt[0] - a[0]).hypot(pt[1] - a[1]);
+                            let own = dist(q);
+                            own < 0.6 * d.radius && d.loads.iter().all(|o| dist(o.point) >= own)
+                        })
+                        .collect();
+                    if near.iter().filter(|v| **v).count() < 10 {
+                        return 0.0;
+                    }
+                    let target = mean_squared_gradient(d, &d.intensity, Some(&near));
+                    let mut previous = (0.0f64, 0.0f64);
+                    // Past the model's largest G² (dense fringes fade under
+                    // blur) the level of that largest G² is the answer.
+                    let mut highest = (0.0f64, 0.0f64);
+                    for &level in &levels {
+                        let mut u = vec![0.0; d.local_unknowns()];
+                        u[2 * l] = level;
+                        let (s, _) = d.fringes(&u, &p.optics, false);
+                        let model: Vec<f64> = s.iter().map(|v| p.optics.contrast * v).collect();
+                        let g2 = mean_squared_gradient(d, &model, Some(&near));
+                        if g2 >= target {
+                            let (l0, g0) = previous;
+                            if l0 > 0.0 && g0 > 0.0 && g2 > g0 {
+                                let t = (target.ln() - g0.ln()) / (g2.ln() - g0.ln());
+                                return (l0.ln() + t * (level.ln() - l0.ln())).exp();
+                            }
+                            return level;
+                        }
+                        if g2 > highest.1 {
+                            highest = (level, g2);
+                        }
+                        previous = (level, g2);
+                    }
+                    highest.0
+                })
+                .collect()
+        })
+        .collect()
+}
+
+/// K_eq: per grain, Σ F = 0 and Σ r × F / R = 0 (3 rows), over the unknowns.
+fn balance_rows(p: &Prepared) -> Triplets {
+    let mut k = Triplets::new(3 * p.disks.len(), 2 * p.unknowns);
+    for (g, d) in p.disks.iter().enumerate() {
+        for l in &d.loads {
+            let dirs = l.directions();
+            let r = [
+                (l.point[0] - d.centre[0]) / d.radius,
+                (l.point[1] - d.centre[1]) / d.radius,
+            ];
+            for (j, dir) in dirs.iter().enumerate() {
+                let col = 2 * l.unknown + j;
+                k.push(3 * g, col, dir[0]);
+                k.push(3 * g + 1, col, dir[1]);
+                k.push(3 * g + 2, col, r[0] * dir[1] - r[1] * dir[0]);
+            }
+        }
+    }
+    k
+}
+
+fn friction_cones(scene: &Scene, mu: f64) -> Vec<Cone> {
+    scene
+        .contacts
+        .iter()
+        .enumerate()
+        .map(|(k, c)| Cone::Wedge {
+            normal: 2 * k,
+            tangent: 2 * k + 1,
+            mu: c.mu.or(scene.settings.mu).unwrap_or(mu),
+        })
+        .collect()
+}
+
+fn constrained_problem<'a>(
+    n: usize,
+    terms: Vec<Term<'a>>,
+    balance: &'a Triplets,
+    zeros: &'a [f64],
+    settings: &FringeFitSettings,
+    cones: Vec<Cone>,
+) -> ConicProblem<'a> {
+    let mut problem = ConicProblem {
+        n,
+        terms,
+        equalities: Vec::new(),
+        lambda: 0.0,
+        regularized: 0,
+        cones,
+    };
+    match settings.balance {
+        Balance::Hard => problem.equalities.push((balance, zeros)),
+        Balance::Penalty(w) => problem.terms.push(Term {
+            matrix: balance,
+            rhs: zeros,
+            weight: w,
+        }),
+    }
+    problem
+}
+
+/// The balanced, friction-admissible field nearest the G² load levels:
+/// min Σ (u_n − F_c)² + 0.01 Σ u_t² under balance and friction.
+fn balanced_start(
+    p: &Prepared,
+    scene: &Scene,
+    settings: &FringeFitSettings,
+    levels: &[Vec<f64>],
+) -> Result<Vec<f64>> {
+    let n = 2 * p.unknowns;
+    // Each contact's level: the geometric mean of its sides' (or its one side's).
+    let mut product = vec![1.0; p.unknowns];
+    let mut sides = vec![0.0; p.unknowns];
+    for (d, side_levels) in p.disks.iter().zip(levels) {
+        for (l, v) in d.loads.iter().zip(side_levels) {
+            product[l.unknown] *= v.max(1e-3);
+            sides[l.unknown] += 1.0;
+        }
+    }
+    let mut target = vec![0.0; n];
+    let mut identity = Triplets::new(n, n);
+    for k in 0..p.unknowns {
+        if sides[k] > 0.0 {
+            target[2 * k] = product[k].powf(1.0 / sides[k]);
+        }
+        identity.push(2 * k, 2 * k, 1.0);
+        identity.push(2 * k + 1, 2 * k + 1, 0.1);
+    }
+    let balance = balance_rows(p);
+    let zeros = vec![0.0; balance.nrows];
+    let terms = vec![Term {
+        matrix: &identity,
+        rhs: &target,
+        weight: 1.0,
+    }];
+    let problem = constrained_problem(
+        n,
+        terms,
+        &balance,
+        &zeros,
+        settings,
+        friction_cones(scene, settings.mu),
+    );
+    Ok(conic::solve(&problem, &ConicSettings::default())?.x)
+}
+
+fn objective(p: &Prepared, x: &[f64], optics: &Optics) -> f64 {
+    p.disks
+        .par_iter()
+        .map(|d| d.evaluate(&d.gather(x), optics, false).ssr)
+        .sum()
+}
+
+/// Levenberg–Marquardt from `x`, each step a constrained least squares
+/// (`constraints` = balance and cones) or, without them, free.
+struct Stepper<'a> {
+    p: &'a Prepared,
+    scene: Option<&'a Scene>,
+    settings: &'a FringeFitSettings,
+}
+
+struct LmOutcome {
+    x: Vec<f64>,
+    iterations: usize,
+    damping: f64,
+}
+
+impl Stepper<'_> {
+    fn run(&self, mut x: Vec<f64>, optics: &Optics, max_iterations: usize) -> Result<LmOutcome> {
+        let p = self.p;
+        let n = 2 * p.unknowns;
+        let balance = balance_rows(p);
+        let zeros = vec![0.0; balance.nrows];
+        let mut damping = 1e-3;
+        let mut iterations = 0;
+        let mut current = f64::INFINITY;
+        let mut stalls = 0;
+        while iterations < max_iterations {
+            let evals: Vec<DiskEval> = p
+                .disks
+                .par_iter()
+                .map(|d| d.evaluate(&d.gather(&x), optics, true))
+                .collect();
+            current = evals.iter().map(|e| e.ssr).sum();
+            // Each disk's normal equations as rows: G = V Λ Vᵀ → √λ vᵀ x ≈ vᵀ(h + G u)/√λ.
+            let mut rows = Triplets::new(0, n);
+            let mut rhs = Vec::new();
+            let mut diagonal = vec![0.0; n];
+            for (d, e) in p.disks.iter().zip(&evals) {
+                let k = d.local_unknowns();
+                if k == 0 || d.points.is_empty() {
+                    continue;
+                }
+                let g = nalgebra::DMatrix::from_row_slice(k, k, &e.normal);
+                let u = d.gather(&x);
+                let gu = &g * nalgebra::DVector::from_column_slice(&u);
+                let eig = nalgebra::SymmetricEigen::new(g);
+                let top = eig.eigenvalues.iter().fold(0.0f64, |m, v| m.max(*v));
+                if top <= 0.0 {
+                    continue;
+                }
+                let cols: Vec<usize> = d
+                    .loads
+                    .iter()
+                    .flat_map(|l| [2 * l.unknown, 2 * l.unknown + 1])
+                    .collect();
+                for (m, &c) in cols.iter().enumerate() {
+                    diagonal[c] += e.normal[m * k + m];
+                }
+                for (j, &lambda) in eig.eigenvalues.iter().enumerate() {
+                    if lambda <= 1e-10 * top {
+                        continue;
+                    }
+                    let v = eig.eigenvectors.column(j);
+                    let root = lambda.sqrt();
+                    let row = rows.nrows;
+                    rows.nrows += 1;
+                    let mut b = 0.0;
+                    for m in 0..k {
+                        rows.push(row, cols[m], root * v[m]);
+                        b += v[m] * (e.rhs[m] + gu[m]);
+                    }
+                    rhs.push(b / root);
+                }
+            }
+            let floor = 1e-6 * diagonal.iter().fold(0.0f64, |m, v| m.max(*v)).max(1e-12);
+            let mut accepted = false;
+            for _ in 0..10 {
+                let mut damp = Triplets::new(n, n);
+                let mut damp_rhs = vec![0.0; n];
+                for i in 0..n {
+                    let w = (damping * (diagonal[i] + floor)).sqrt();
+                    damp.push(i, i, w);
+                    damp_rhs[i] = w * x[i];
+                }
+                let candidate = self.step(&rows, &rhs, &damp, &damp_rhs, &balance, &zeros, &x)?;
+                let trial = objective(p, &candidate, optics);
+                if trial.is_finite() && trial < current {
+                    let gain = (current - trial) / current.max(1e-300);
+                    x = candidate;
+                    current = trial;
+                    damping = (damping / 3.0).max(1e-9);
+                    accepted = true;
+                    stalls = if gain < 1e-5 { stalls + 1 } else { 0 };
+                    break;
+                }
+                damping *= 6.0;
+            }
+            iterations += 1;
+            if !accepted || stalls >= 2 {
+                break;
+            }
+        }
+        let _ = current;
+        Ok(LmOutcome {
+            x,
+            iterations,
+            damping,
+        })
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn step(
+        &self,
+        rows: &Triplets,
+        rhs: &[f64],
+        damp: &Triplets,
+        damp_rhs: &[f64],
+        balance: &Triplets,
+        zeros: &[f64],
+        x: &[f64],
+    ) -> Result<Vec<f64>> {
+        let n = x.len();
+        let terms = vec![
+            Term {
+                matrix: rows,
+                rhs,
+                weight: 1.0,
+            },
+            Term {
+                matrix: damp,
+                rhs: damp_rhs,
+                weight: 1.0,
+            },
+        ];
+        match self.scene {
+            Some(scene) => {
+                let problem = constrained_problem(
+                    n,
+                    terms,
+                    balance,
+                    zeros,
+                    self.settings,
+                    friction_cones(scene, self.settings.mu),
+                );
+                let mut sol = conic::solve(&problem, &ConicSettings::default())?;
+                for c in &problem.cones {
+                    c.project(&mut sol.x);
+                }
+                Ok(sol.x)
+            }
+            None => {
+                // Free steps (the per-disk baseline): dense normal equations.
+                let mut a = nalgebra::DMatrix::<f64>::zeros(n, n);
+                let mut b = nalgebra::DVector::<f64>::zeros(n);
+                for t in [(rows, rhs), (damp, damp_rhs)] {
+                    let (m, r) = t;
+                    let mut by_row: Vec<Vec<(usize, f64)>> = vec![Vec::new(); m.nrows];
+                    for ((&i, &j), &v) in m.rows.iter().zip(&m.cols).zip(&m.vals) {
+                        by_row[i].push((j, v));
+                    }
+                    for (i, entries) in by_row.iter().enumerate() {
+                        for &(j1, v1) in entries {
+                            b[j1] += v1 * r[i];
+                            for &(j2, v2) in entries {
+                                a[(j1, j2)] += v1 * v2;
+                            }
+                        }
+                    }
+                }
+                let solved = a
+                    .cholesky()
+                    .map(|c| c.solve(&b))
+                    .ok_or_else(|| Error::Invalid("fringe fit: a singular per-disk step".into()))?;
+                Ok(solved.iter().copied().collect())
+            }
+        }
+    }
+}
+
+/// Extra blur of the stages, in units of the median disk radius [px]: the
+/// photograph and the model are smoothed alike, so the first stages see only
+/// the coarse fringes (a smoother objective, fewer local minima).
+const STAGES: [f64; 3] = [0.08, 0.04, 0.0];
+
+/// The problem with each disk's intensities smoothed by `sigma_px`.
+fn smoothed(p: &Prepared, sigma_px: f64) -> Prepared {
+    Prepared {
+        disks: p
+            .disks
+            .par_iter()
+            .map(|d| DiskData {
+                grain: d.grain,
+                centre: d.centre,
+                radius: d.radius,
+                loads: d.loads.clone(),
+                points: d.points.clone(),
+                intensity: smoothed_intensity(d, sigma_px),
+                pixels: d.pixels.clone(),
+            })
+            .collect(),
+        unknowns: p.unknowns,
+        scale: p.scale,
+        optics: p.optics,
+    }
+}
+
+fn stage_optics(
+    p: &Prepared,
+    frame: &PixelFrame,
+    settings: &FringeFitSettings,
+    extra_px: f64,
+) -> Optics {
+    let s = frame.px_per_m;
+    Optics {
+        blur2: (settings.blur_px.powi(2) + 1.0 / 12.0 + extra_px * extra_px) / (s * s),
+        ..p.optics
+    }
+}
+
+/// Fits every contact force of `scene` to the fringes of `image` (one
+/// channel, intensities in [0, 1]; green for a colour photograph) placed in
+/// the scene by `frame`: all disks at once, under balance and friction.
+pub fn fit_fringes(
+    image: &FloatImage,
+    frame: &PixelFrame,
+    scene: &Scene,
+    settings: &FringeFitSettings,
+) -> Result<FringeFit> {
+    let started = std::time::Instant::now();
+    let p = prepare(image, frame, scene, settings, false)?;
+    let levels = load_levels(&p);
+    let mut x = match &settings.start {
+        Some(forces) => to_unknowns(scene, forces, p.scale)?,
+        None => balanced_start(&p, scene, settings, &levels)?,
+    };
+    let objective_start = objective(&p, &x, &p.optics);
+    let radius_px = p.scale / settings.fringe_stress * frame.px_per_m;
+    let mut iterations = 0;
+    let mut damping = 0.0;
+    if settings.start.is_none() {
+        // The envelope first: smooth in the forces, its minimum near the
+        // intensity fit's basin.
+        let env = enveloped(&p, (0.08 * radius_px).max(2.0));
+        let optics = Optics {
+            envelope: Some(frame.px_per_m),
+            ..stage_optics(&p, frame, settings, 0.0)
+        };
+        let stepper = Stepper {
+            p: &env,
+            scene: Some(scene),
+            settings,
+        };
+        let out = stepper.run(x, &optics, settings.max_iterations / 3)?;
+        x = out.x;
+        iterations += out.iterations;
+    }
+    for (i, &extra) in STAGES.iter().enumerate() {
+        let left = settings.max_iterations.saturating_sub(iterations);
+        let budget = if i + 1 == STAGES.len() {
+            left
+        } else {
+            left / 3
+        };
+        if budget == 0 {
+            continue;
+        }
+        let sigma = extra * radius_px;
+        let stage = if sigma > 0.5 {
+            Some(smoothed(&p, sigma))
+        } else {
+            None
+        };
+        let stepper = Stepper {
+            p: stage.as_ref().unwrap_or(&p),
+            scene: Some(scene),
+            settings,
+        };
+        let optics = stage_optics(
+            &p,
+            frame,
+            settings,
+            if stage.is_some() { sigma } else { 0.0 },
+        );
+        let out = stepper.run(x, &optics, budget)?;
+        x = out.x;
+        iterations += out.iterations;
+        damping = out.damping;
+    }
+    let forces = to_forces(scene, &x, p.scale);
+    let report = report(
+        "joint",
+        &p,
+        scene,
+        settings,
+        &x,
+        &forces,
+        &levels,
+        objective_start,
+        iterations,
+        damping,
+        started,
+    );
+    Ok(FringeFit { forces, report })
+}
+
+/// The per-disk fit the field uses (PeGS-like), as a baseline: each disk's
+/// forces fitted to its own fringes alone (no balance, no friction, forces
+/// of either sign), from the same G² start, and the two sides of each
+/// contact averaged.
+pub fn fit_fringes_per_disk(
+    image: &FloatImage,
+    frame: &PixelFrame,
+    scene: &Scene,
+    settings: &FringeFitSettings,
+) -> Result<FringeFit> {
+    let started = std::time::Instant::now();
+    let p = prepare(image, frame, scene, settings, true)?;
+    let levels = load_levels(&p);
+    let mut x = vec![0.0; 2 * p.unknowns];
+    for (d, side_levels) in p.disks.iter().zip(&levels) {
+        for (l, v) in d.loads.iter().zip(side_levels) {
+            x[2 * l.unknown] = *v;
+        }
+    }
+    let objective_start = objective(&p, &x, &p.optics);
+    let optics = stage_optics(&p, frame, settings, 0.0);
+    // Each disk on its own: a problem of its loads only.
+    let results: Vec<(Vec<f64>, usize)> = p
+        .disks
+        .par_iter()
+        .map(|d| {
+            let mut local = DiskData {
+                grain: d.grain,
+                centre: d.centre,
+                radius: d.radius,
+                loads: d.loads.clone(),
+                points: d.points.clone(),
+                intensity: d.intensity.clone(),
+                pixels: d.pixels.clone(),
+            };
+            for (i, l) in local.loads.iter_mut().enumerate() {
+                l.unknown = i;
+            }
+            let sub = Prepared {
+                unknowns: local.loads.len(),
+                disks: vec![local],
+                scale: p.scale,
+                optics: p.optics,
+            };
+            let u0 = d.gather(&x);
+            if u0.is_empty() {
+                return Ok((u0, 0));
+            }
+            let stepper = Stepper {
+                p: &sub,
+                scene: None,
+                settings,
+            };
+            let out = stepper.run(u0, &optics, settings.max_iterations)?;
+            Ok((out.x, out.iterations))
+        })
+        .collect::<Result<_>>()?;
+    let mut iterations = 0;
+    for (d, (u, its)) in p.disks.iter().zip(&results) {
+        iterations = iterations.max(*its);
+        for (i, l) in d.loads.iter().enumerate() {
+            x[2 * l.unknown] = u[2 * i];
+            x[2 * l.unknown + 1] = u[2 * i + 1];
+        }
+    }
+    // Average the sides of each contact.
+    let mut joint = vec![0.0; 2 * scene.contacts.len()];
+    let mut count = vec![0.0; scene.contacts.len()];
+    let mut side = 0;
+    for (k, c) in scene.contacts.iter().enumerate() {
+        let sides = if matches!(c.b, Body::Grain(_)) { 2 } else { 1 };
+        for _ in 0..sides {
+            joint[2 * k] += x[2 * side];
+            joint[2 * k + 1] += x[2 * side + 1];
+            count[k] += 1.0;
+            side += 1;
+        }
+    }
+    for k in 0..scene.contacts.len() {
+        joint[2 * k] /= count[k];
+        joint[2 * k + 1] /= count[k];
+    }
+    let forces = to_forces(scene, &joint, p.scale);
+    // The report's residuals are those of each disk's own fit.
+    let report = report(
+        "per-disk",
+        &p,
+        scene,
+        settings,
+        &x,
+        &forces,
+        &levels,
+        objective_start,
+        iterations,
+        0.0,
+        started,
+    );
+    Ok(FringeFit { forces, report })
+}
+
+fn to_forces(scene: &Scene, x: &[f64], scale: f64) -> Vec<[f64; 2]> {
+    scene
+        .contacts
+        .iter()
+        .enumerate()
+        .map(|(k, c)| {
+            let len = c.normal[0].hypot(c.normal[1]);
+            let n = [c.normal[0] / len, c.normal[1] / len];
+            let t = [-n[1], n[0]];
+            let (un, ut) = (x[2 * k] * scale, x[2 * k + 1] * scale);
+            [-un * n[0] + ut * t[0], -un * n[1] + ut * t[1]]
+        })
+        .collect()
+}
+
+/// Forces (scene axes) to the unknowns (u_n, u_t) / F₀.
+fn to_unknowns(scene: &Scene, forces: &[[f64; 2]], scale: f64) -> Result<Vec<f64>> {
+    if forces.len() != scene.contacts.len() {
+        return Err(Error::Invalid(format!(
+            "{} forces for {} contacts",
+            forces.len(),
+            scene.contacts.len()
+        )));
+    }
+    let mut x = vec![0.0; 2 * scene.contacts.len()];
+    for (k, (c, f)) in scene.contacts.iter().zip(forces).enumerate() {
+        let len = c.normal[0].hypot(c.normal[1]);
+        let n = [c.normal[0] / len, c.normal[1] / len];
+        let t = [-n[1], n[0]];
+        x[2 * k] = -(f[0] * n[0] + f[1] * n[1]) / scale;
+        x[2 * k + 1] = (f[0] * t[0] + f[1] * t[1]) / scale;
+    }
+    Ok(x)
+}
+
+/// |ΣF| / Σ|F| of each grain under `forces` (0 for a grain without force,
+/// or with only round-off: Σ|F| below 10⁻⁹ of the most loaded grain's).
+pub fn imbalances(scene: &Scene, forces: &[[f64; 2]]) -> Vec<f64> {
+    let mut sum = vec![[0.0f64; 2]; scene.grains.len()];
+    let mut total = vec![0.0f64; scene.grains.len()];
+    for (c, f) in scene.contacts.iter().zip(forces) {
+        sum[c.a][0] += f[0];
+        sum[c.a][1] += f[1];
+        total[c.a] += f[0].hypot(f[1]);
+        if let Body::Grain(b) = c.b {
+            sum[b][0] -= f[0];
+            sum[b][1] -= f[1];
+            total[b] += f[0].hypot(f[1]);
+        }
+    }
+    // A grain whose forces are round-off next to the packing's counts as unloaded.
+    let floor = 1e-9 * total.iter().fold(0.0f64, |m, t| m.max(*t));
+    sum.iter()
+        .zip(&total)
+        .map(|(s, t)| {
+            if *t > floor {
+                s[0].hypot(s[1]) / t
+            } else {
+                0.0
+            }
+        })
+        .collect()
+}
+
+#[allow(clippy::too_many_arguments)]
+fn report(
+    method: &'static str,
+    p: &Prepared,
+    scene: &Scene,
+    settings: &FringeFitSettings,
+    x: &[f64],
+    forces: &[[f64; 2]],
+    levels: &[Vec<f64>],
+    objective_start: f64,
+    iterations: usize,
+    damping: f64,
+    started: std::time::Instant,
+) -> FringeFitReport {
+    let imbalance = imbalances(scene, forces);
+    let evals: Vec<DiskEval> = p
+        .disks
+        .par_iter()
+        .map(|d| d.evaluate(&d.gather(x), &p.optics, false))
+        .collect();
+    let disks: Vec<DiskFit> = p
+        .disks
+        .iter()
+        .zip(&evals)
+        .map(|(d, e)| {
+            let n = d.points.len().max(1) as f64;
+            let explained = if e.sst > 0.0 {
+                1.0 - e.ssr / e.sst
+            } else {
+                1.0
+            };
+            let shows_fringes = (e.sst / n).sqrt() > 0.05 * p.optics.contrast;
+            DiskFit {
+                grain: scene.grains[d.grain].id.clone(),
+                pixels: d.points.len(),
+                background: e.background,
+                contrast: e.contrast,
+                rms: (e.ssr / n).sqrt(),
+                explained,
+                imbalance: imbalance[d.grain],
+                start_level: levels
+                    .get(d.grain)
+                    .map(|v| v.iter().sum::<f64>() / v.len().max(1) as f64)
+                    .unwrap_or(0.0)
+                    * p.scale,
+                g2: mean_squared_gradient(d, &d.intensity, None),
+                flagged: shows_fringes && explained < settings.poor_fit,
+            }
+        })
+        .collect();
+    let mut sorted = imbalance.clone();
+    sorted.sort_by(f64::total_cmp);
+    FringeFitReport {
+        method,
+        fringe_stress: settings.fringe_stress,
+        balance: settings.balance,
+        mu: settings.mu,
+        blur_px: settings.blur_px,
+        iterations,
+        objective_start,
+        objective: evals.iter().map(|e| e.ssr).sum(),
+        damping,
+        median_imbalance: sorted.get(sorted.len() / 2).copied().unwrap_or(0.0),
+        max_imbalance: sorted.last().copied().unwrap_or(0.0),
+        flagged: disks
+            .iter()
+            .filter(|d| d.flagged)
+            .map(|d| d.grain.clone())
+            .collect(),
+        seconds: started.elapsed().as_secs_f64(),
+        disks,
+    }
+}
+
+/// The photograph with each fitted disk's pixels replaced by the fitted
+/// fringes (b_d + c_d S), for an overlay beside the photograph.
+pub fn fitted_image(
+    image: &FloatImage,
+    frame: &PixelFrame,
+    scene: &Scene,
+    settings: &FringeFitSettings,
+    forces: &[[f64; 2]],
+) -> Result<FloatImage> {
+    let p = prepare(image, frame, scene, settings, false)?;
+    if forces.len() != scene.contacts.len() {
+        return Err(Error::Invalid(format!(
+            "{} forces for {} contacts",
+            forces.len(),
+            scene.contacts.len()
+        )));
+    }
+    let x = to_unknowns(scene, forces, p.scale)?;
+    let mut out = image.clone();
+    for d in &p.disks {
+        let e = d.evaluate(&d.gather(&x), &p.optics, false);
+        for (&(px, py), v) in d.pixels.iter().zip(&e.model) {
+            out.put_pixel(px, py, ::image::Luma([v.clamp(0.0, 1.0) as f32]));
+        }
+    }
+    Ok(out)
+}
+
+/// The one scalar that brings the fitted wall forces closest to the walls'
+/// load cells (`measured_force`), Σ W·F / Σ |F|²: forces scale with the
+/// fringe stress, so multiplying both by it fits f_σ to the walls. `None`
+/// without a measured wall that has fitted contacts.
+pub fn wall_scale(scene: &Scene, forces: &[[f64; 2]]) -> Option<f64> {
+    let mut fitted = vec![[0.0f64; 2]; scene.walls.len()];
+    let mut touched = vec![false; scene.walls.len()];
+    for (c, f) in scene.contacts.iter().zip(forces) {
+        if let Body::Wall(w) = c.b {
+            fitted[w][0] += f[0];
+            fitted[w][1] += f[1];
+            touched[w] = true;
+        }
+    }
+    let (mut num, mut den) = (0.0, 0.0);
+    for ((wall, f), t) in scene.walls.iter().zip(&fitted).zip(&touched) {
+        if let (Some(m), true) = (wall.measured_force, *t) {
+            num += m[0] * f[0] + m[1] * f[1];
+            den += f[0] * f[0] + f[1] * f[1];
+        }
+    }
+    (den > 0.0 && num > 0.0).then(|| num / den)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn disk() -> DiskData {
+        let radius = 0.01;
+        let centre = [0.2, 0.1];
+        let loads = [(0.3, 1.0), (2.2, -1.0), (4.0, 1.0)]
+            .iter()
+            .enumerate()
+            .map(|(k, &(angle, sign)): (usize, &(f64, f64))| {
+                let n = [sign * f64::cos(angle), sign * f64::sin(angle)];
+                Load {
+                    unknown: k,
+                    sign,
+                    point: [
+                        centre[0] + radius * sign * n[0],
+                        centre[1] + radius * sign * n[1],
+                    ],
+                    normal: n,
+                    tangent: [-n[1], n[0]],
+                }
+            })
+            .collect();
+        let mut points = Vec::new();
+        for i in 0..12 {
+            for j in 0..12 {
+                let p = [
+                    centre[0] + (i as f64 - 5.5) * 1.3e-3,
+                    centre[1] + (j as f64 - 5.5) * 1.3e-3,
+                ];
+                if (p[0] - centre[0]).hypot(p[1] - centre[1]) < 0.8 * radius {
+                    points.push(p);
+                }
+            }
+        }
+        let n = points.len();
+        DiskData {
+            grain: 0,
+            centre,
+            radius,
+            loads,
+            points,
+            intensity: (0..n).map(|i| 0.3 + 0.2 * (i as f64 * 0.7).sin()).collect(),
+            pixels: (0..n).map(|i| (i as u32, 0)).collect(),
+        }
+    }
+
+    /// ∂S/∂u, blur fade included, agrees with central differences.
+    #[test]
+    fn fringe_derivatives_match_finite_differences() {
+        let d = disk();
+        for (blur, envelope) in [
+            (0.0, None),
+            (1e-8, None),
+            (4e-8, None),
+            (1e-8, Some(4e3)),
+            (4e-8, Some(4e3)),
+        ] {
+            let optics = Optics {
+                fringe: 1.0 / d.radius,
+                blur2: blur,
+                contrast: 0.6,
+                envelope,
+            };
+            let u = vec![1.3, 0.2, 0.7, -0.1, 2.1, 0.4];
+            let (_, ds) = d.fringes(&u, &optics, true);
+            let k = u.len();
+            let mut worst: f64 = 0.0;
+            for m in 0..k {
+                let h = 1e-6;
+                let (mut up, mut down) = (u.clone(), u.clone());
+                up[m] += h;
+                down[m] -= h;
+                let (sp, _) = d.fringes(&up, &optics, false);
+                let (sm, _) = d.fringes(&down, &optics, false);
+                for i in 0..d.points.len() {
+                    let fd = (sp[i] - sm[i]) / (2.0 * h);
+                    worst = worst.max((fd - ds[i * k + m]).abs() / (1.0 + fd.abs()));
+                }
+            }
+            assert!(
+                worst < 1e-4,
+                "blur {blur}: worst relative difference {worst}"
+            );
+        }
+    }
+}
