@@ -484,3 +484,186 @@ fn balancing_noisy_fits_brings_them_closer_to_the_truth() {
         "infer {infer_err} vs PeGS {pegs_err}"
     );
 }
+
+/// `$GRAINFORCE_TEST_DATA/real-photos/NAME` (the experimenters' files, not
+/// shipped with grainforce), or `None` with a skip message.
+fn real_photos(name: &str) -> Option<PathBuf> {
+    match std::env::var_os("GRAINFORCE_TEST_DATA") {
+        Some(root) => Some(PathBuf::from(root).join("real-photos").join(name)),
+        None => {
+            println!("skipped: GRAINFORCE_TEST_DATA is not set (it names the folder holding real-photos/)");
+            None
+        }
+    }
+}
+
+/// Lines `x,y,…` (or `a,b,…` after a header) of a small text table.
+fn table(path: &Path, skip: usize) -> Vec<Vec<f64>> {
+    std::fs::read_to_string(path)
+        .unwrap()
+        .lines()
+        .skip(skip)
+        .filter(|l| !l.trim().is_empty())
+        .map(|l| l.split(',').map(|v| v.trim().parse().unwrap()).collect())
+        .collect()
+}
+
+/// The real PeGS 1.x files (Junyi Lin's runs of PeGSDiskPrep and
+/// PeGSDiskSolve on his photographs): the disks and the contact lists come
+/// out as the files hold them (checked against the tables the data's
+/// SOURCE.md derived with scipy), and a solved file's forces are PeGS's.
+#[test]
+fn real_pegs1_preprocessing_and_solved_files() {
+    let Some(root) = real_photos("") else {
+        return;
+    };
+    // folder, file, centres table, contacts table, disk-wall contacts, solved
+    let cases = [
+        (
+            "jlin-fixed48",
+            "image2_preprocessing.mat",
+            "image2_centers.txt",
+            "image2_contacts_ref.csv",
+            13,
+            false,
+        ),
+        (
+            "jlin-fixed48",
+            "image2_solved.mat",
+            "image2_centers.txt",
+            "image2_contacts_ref.csv",
+            13,
+            true,
+        ),
+        (
+            "jlin-narrow21",
+            "image_preprocessing.mat",
+            "image_centers.txt",
+            "image_contacts_ref.csv",
+            14,
+            false,
+        ),
+        (
+            "jlin-narrow21",
+            "image_solved.mat",
+            "image_solved_centers.txt",
+            "image_solved_contacts_ref.csv",
+            11,
+            true,
+        ),
+        (
+            "jlin-step83",
+            "image3_preprocessing.mat",
+            "image3_centers.txt",
+            "image3_contacts_ref.csv",
+            24,
+            false,
+        ),
+        (
+            "jlin-step83",
+            "image3_solved.mat",
+            "image3_solved_centers.txt",
+            "image3_solved_contacts_ref.csv",
+            13,
+            true,
+        ),
+        (
+            "jlin-iphone83",
+            "image4_preprocessing.mat",
+            "image4_centers.txt",
+            "image4_contacts_ref.csv",
+            25,
+            false,
+        ),
+    ];
+    for (folder, file, centres, pairs, walls, is_solved) in cases {
+        let dir = root.join(folder);
+        const HEIGHT: u32 = 2000;
+        let options = Options {
+            image_height: Some(HEIGHT),
+            ..Options::default()
+        };
+        let (imported, conversion) = import(&dir.join(file), &options).unwrap();
+        assert_eq!(conversion.scale_source, ScaleSource::File, "{file}");
+        let s = conversion.px_per_m;
+        let scene = &imported.frames[0];
+        let centres = table(&dir.join(centres), 0);
+        assert_eq!(scene.grains.len(), centres.len(), "{folder}/{file}");
+        for (g, c) in scene.grains.iter().zip(&centres) {
+            // Back to MATLAB pixels: x = X S + ½, y = H + ½ − Y S.
+            let (x, y) = (
+                g.position[0] * s + 0.5,
+                HEIGHT as f64 + 0.5 - g.position[1] * s,
+            );
+            assert!(
+                (x - c[0]).abs() < 1e-6 && (y - c[1]).abs() < 1e-6,
+                "{file}: grain {} at ({x}, {y}), table {c:?}",
+                g.id
+            );
+            assert!(
+                (g.radius.unwrap() * s - c[2]).abs() < 1e-6,
+                "{file}: radius"
+            );
+        }
+        let mut found: Vec<(usize, usize)> = Vec::new();
+        let mut wall_contacts = 0;
+        for c in &scene.contacts {
+            match c.b {
+                Body::Grain(b) => {
+                    let (a, b) = (
+                        scene.grains[c.a].id.parse::<usize>().unwrap(),
+                        scene.grains[b].id.parse::<usize>().unwrap(),
+                    );
+                    found.push((a.min(b), a.max(b)));
+                }
+                Body::Wall(_) => wall_contacts += 1,
+            }
+        }
+        found.sort();
+        let mut expected: Vec<(usize, usize)> = table(&dir.join(pairs), 1)
+            .iter()
+            .map(|p| (p[0] as usize, p[1] as usize))
+            .collect();
+        expected.sort();
+        assert_eq!(found, expected, "{folder}/{file}: disk-disk contacts");
+        assert_eq!(wall_contacts, walls, "{folder}/{file}: wall contacts");
+        assert_eq!(imported.forces.is_some(), is_solved, "{folder}/{file}");
+        if let Some(forces) = &imported.forces {
+            // PeGS's fitted magnitudes (forces.csv of the data folder: id,
+            // neighbour, beta, alpha, force, …): a wall contact is fitted once,
+            // so its force is PeGS's exactly.
+            let stem = file.trim_end_matches("_solved.mat");
+            let rows = table(&dir.join(format!("{stem}_forces.csv")), 1);
+            let mut checked = 0;
+            for (c, f) in scene.contacts.iter().zip(&forces[0]) {
+                if let Body::Wall(_) = c.b {
+                    let id: f64 = scene.grains[c.a].id.parse().unwrap();
+                    let magnitude = f[0].hypot(f[1]);
+                    let row = rows
+                        .iter()
+                        .filter(|r| r[0] == id && r[1] < 0.0)
+                        .min_by(|p, q| {
+                            (p[4].abs() - magnitude)
+                                .abs()
+                                .total_cmp(&(q[4].abs() - magnitude).abs())
+                        })
+                        .unwrap();
+                    assert!(
+                        // The table holds 6 significant digits.
+                        (row[4].abs() - magnitude).abs() <= 1e-5 * magnitude.max(1e-3),
+                        "{file}: wall force {magnitude}, PeGS {}",
+                        row[4]
+                    );
+                    checked += 1;
+                }
+            }
+            assert_eq!(checked, walls, "{file}");
+        }
+        println!(
+            "{folder}/{file}: {} disks, {} + {wall_contacts} contacts{}",
+            scene.grains.len(),
+            expected.len(),
+            if is_solved { ", forces" } else { "" }
+        );
+    }
+}

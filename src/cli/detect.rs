@@ -52,12 +52,14 @@ pub struct Args {
     /// Find both bright and dark disks.
     #[arg(long)]
     either_polarity: bool,
-    /// The channel of a colour image to analyse: red, green, blue or luma.
-    /// Green by default: photoelastic analyses measure the fringe intensity in
-    /// green, and a camera's Bayer sensor has twice as many green sites (its
-    /// sharpest, least noisy channel). Red shows the fewest fringes, which can
-    /// help on heavily loaded disks. Gray images are read as they are.
-    #[arg(long, default_value = "green", value_parser = parse_channel)]
+    /// What of a colour image the disks are searched in: auto (the default)
+    /// reads the background colour from the image (its most common colour)
+    /// and searches the colour distance from it, in which disks are bright
+    /// whatever their fringes, rims or the light's colour; or one channel:
+    /// red, green, blue or luma (then the polarity options apply). The
+    /// choice is printed and recorded in image-frame.json. Gray images are
+    /// read as they are.
+    #[arg(long, default_value = "auto", value_parser = parse_channel)]
     channel: Channel,
     /// Gaussian smoothing before voting [px] (default: from the radius).
     #[arg(long)]
@@ -102,7 +104,7 @@ const EVIDENCE_FILE: &str = "contacts-evidence.csv";
 fn write_evidence(path: &Path, detection: &Detection, keep_doubtful: bool) -> Result<()> {
     let sequence = detection.frames.len() > 1;
     let mut text = String::from(
-        "contact,a,b,outer_gap_px,tolerance_px,background_between,g2_a,g2_b,confidence,status",
+        "contact,a,b,outer_gap_px,tolerance_px,background_between,g2_a,g2_b,confidence,status,force_bearing",
     );
     text += if sequence { ",frame\n" } else { "\n" };
     for (k, frame) in detection.frames.iter().enumerate() {
@@ -126,14 +128,15 @@ fn write_evidence(path: &Path, detection: &Detection, keep_doubtful: bool) -> Re
                 None => "unknown",
             };
             text += &format!(
-                "{contact},{},{b},{:.2},{:.2},{background},{:.2},{:.2},{:.3},{}",
+                "{contact},{},{b},{:.2},{:.2},{background},{:.2},{:.2},{:.3},{},{}",
                 frame.ids[c.contact.a],
                 e.outer_gap,
                 e.tolerance,
                 e.g2[0],
                 e.g2[1],
                 e.confidence,
-                if c.doubtful { "doubtful" } else { "contact" }
+                if c.doubtful { "doubtful" } else { "contact" },
+                if e.force_bearing { "yes" } else { "no" }
             );
             text += &if sequence {
                 format!(",{k}\n")
@@ -143,6 +146,20 @@ fn write_evidence(path: &Path, detection: &Detection, keep_doubtful: bool) -> Re
         }
     }
     std::fs::write(path, text).map_err(|e| Error::io(path, e))
+}
+
+/// image-frame.json: the pixel frame, and what the disks were searched in
+/// (the first image's choice; extra keys that frame readers ignore).
+fn write_frame(path: &Path, detection: &Detection) -> Result<()> {
+    let mut json = serde_json::to_value(detection.frame).expect("a frame always serialises");
+    if let (Some(map), Some(first)) = (json.as_object_mut(), detection.frames.first()) {
+        map.insert(
+            "search".into(),
+            serde_json::to_value(&first.choice).expect("a choice always serialises"),
+        );
+    }
+    let text = serde_json::to_string_pretty(&json).expect("JSON always prints");
+    grainforce::scene::write_file_atomically(path, (text + "\n").as_bytes())
 }
 
 fn parse_channel(s: &str) -> std::result::Result<Channel, String> {
@@ -214,8 +231,18 @@ pub fn run(args: Args) -> Result<()> {
     };
     let detection = detect_images(&args.images, &settings, &mut |k, path, image, found| {
         let doubtful = found.candidates.iter().filter(|c| c.doubtful).count();
+        let bearing = found
+            .candidates
+            .iter()
+            .filter(|c| c.evidence.force_bearing && (settings.keep_doubtful || !c.doubtful))
+            .count();
         status!(
-            "{}: {} disks, {} contacts{}",
+            "{}: searched the {}",
+            path.display(),
+            found.choice.describe()
+        );
+        status!(
+            "{}: {} disks, {} contacts ({bearing} carrying force){}",
             path.display(),
             found.disks.len(),
             found.contacts.len(),
@@ -248,7 +275,7 @@ pub fn run(args: Args) -> Result<()> {
     })?;
     let scenes: Vec<_> = detection.frames.iter().map(|f| f.scene.clone()).collect();
     write_sequence(&args.output, &scenes)?;
-    detection.frame.write(&args.output.join(FRAME_FILE))?;
+    write_frame(&args.output.join(FRAME_FILE), &detection)?;
     if settings.gap_px.is_none() {
         write_evidence(
             &args.output.join(EVIDENCE_FILE),

@@ -237,6 +237,13 @@ pub struct Rim {
     pub background: f64,
 }
 
+/// G² over the floor on both sides from which a contact counts as carrying
+/// force: above the level of the packing's unloaded disks (the floor, the
+/// lower quartile of the disks' interior G²). On the five shared real
+/// photographs this flags 49–78 % of PeGS's force-bearing contacts, and
+/// 82–100 % of those it flags are PeGS's (docs/image.md).
+pub const FORCE_G2: f64 = 1.0;
+
 /// Settings of [`find_image_contacts`].
 #[derive(Debug, Clone)]
 pub struct ContactOptions {
@@ -251,6 +258,13 @@ pub struct ContactOptions {
     /// down to `doubtful` are reported with a flag.
     pub confident: f64,
     pub doubtful: f64,
+    /// The outer part of each disk (a fraction of its radius) whose G² is
+    /// not read (a real disk's dark outline has a gradient of its own).
+    pub edge_margin: f64,
+    /// A contact carries force when G² near it, over the packing's floor, is
+    /// at least this on both disks (PeGS's rule, with a threshold relative
+    /// to the image's own unloaded level instead of a fixed number).
+    pub force_g2: f64,
 }
 
 impl Default for ContactOptions {
@@ -261,6 +275,8 @@ impl Default for ContactOptions {
             search_per_radius: 0.2,
             confident: 0.5,
             doubtful: 0.2,
+            edge_margin: 0.0,
+            force_g2: FORCE_G2,
         }
     }
 }
@@ -279,6 +295,9 @@ pub struct ContactEvidence {
     /// quartile of disk-interior G²); [a, b], b = 0 for walls.
     pub g2: [f64; 2],
     pub confidence: f64,
+    /// G² is at least [`ContactOptions::force_g2`] on both sides (on the disk
+    /// for a wall): the contact carries force by PeGS's rule.
+    pub force_bearing: bool,
 }
 
 /// A candidate contact and whether it is doubtful (below the confidence to be
@@ -404,6 +423,35 @@ fn mean_g2(image: &FloatImage, d: &Disk, inner: f64, at: [f64; 2], radius: f64) 
     }
 }
 
+/// The gap between touching disks' outlines: the lower quartile, over the
+/// disks with a neighbour within `search_per_radius` of the smaller radius,
+/// of the gap to the nearest one (0 when outlines overlap). Where a dark rim
+/// is as dark as the background (a dark field) the outline found is the
+/// bright interior's, and touching disks' outlines stop short of each other
+/// by two rims; most disks of a packing touch their nearest neighbour, and
+/// the lower quartile leaves out those that do not.
+pub fn touching_gap(disks: &[Disk], search_per_radius: f64) -> f64 {
+    let mut gaps: Vec<f64> = disks
+        .iter()
+        .enumerate()
+        .filter_map(|(i, a)| {
+            disks
+                .iter()
+                .enumerate()
+                .filter(|&(j, _)| j != i)
+                .map(|(_, b)| ((a.x - b.x).hypot(a.y - b.y) - a.r - b.r, a.r.min(b.r)))
+                .filter(|&(gap, small)| gap <= search_per_radius * small)
+                .map(|(gap, _)| gap)
+                .min_by(f64::total_cmp)
+        })
+        .collect();
+    if gaps.is_empty() {
+        return 0.0;
+    }
+    let k = gaps.len() / 4;
+    gaps.select_nth_unstable_by(k, f64::total_cmp).1.max(0.0)
+}
+
 /// The outer circles: each detected circle grown by its rim (measured, or the
 /// median of the measured ones where its own does not show).
 pub fn outer_disks(disks: &[Disk], rims: &[Option<Rim>]) -> Vec<Disk> {
@@ -435,7 +483,7 @@ pub fn find_image_contacts(
     let o = options;
     // The packing's G² floor: lower quartile of the disks' interior means.
     let interior = |d: &Disk, k: usize| {
-        let width = rims[k].map_or(0.0, |r| r.width);
+        let width = rims[k].map_or(0.0, |r| r.width).max(o.edge_margin * d.r);
         (d.r - width - 1.5).max(1.0)
     };
     let mut floors: Vec<f64> = outer
@@ -539,6 +587,7 @@ pub fn find_image_contacts(
                     background_between,
                     g2,
                     confidence,
+                    force_bearing: g2[0].min(g2[1]) >= o.force_g2,
                 },
                 doubtful: confidence < o.confident,
             });
@@ -580,6 +629,7 @@ pub fn find_image_contacts(
                     background_between: None,
                     g2: [g, 0.0],
                     confidence,
+                    force_bearing: g >= o.force_g2,
                 },
                 doubtful: confidence < o.confident,
             });

@@ -9,14 +9,19 @@ use std::path::{Path, PathBuf};
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Channel {
     Red,
-    /// The default for `detect`: photoelastic analyses measure the fringe
-    /// intensity in green (PeGS does), and a camera's Bayer sensor has twice as
-    /// many green sites, so green is its sharpest, least noisy channel.
-    #[default]
+    /// Photoelastic analyses measure the fringe intensity in green (PeGS
+    /// does), and a camera's Bayer sensor has twice as many green sites, so
+    /// green is its sharpest, least noisy channel: the photoelastic signal
+    /// (G²) of contacts is read in it.
     Green,
     Blue,
     /// Luma, as the `image` crate weighs it (Rec. 709: 0.2126 R + 0.7152 G + 0.0722 B).
     Luma,
+    /// Read from the image (`detect`'s default): a colour image becomes its
+    /// colour distance from the background colour (see [`read_for_detection`]),
+    /// a gray image is read as it is.
+    #[default]
+    Auto,
 }
 
 impl Channel {
@@ -26,8 +31,9 @@ impl Channel {
             "green" | "g" => Ok(Channel::Green),
             "blue" | "b" => Ok(Channel::Blue),
             "luma" | "gray" | "grey" => Ok(Channel::Luma),
+            "auto" => Ok(Channel::Auto),
             _ => Err(Error::Invalid(format!(
-                "channel `{s}`: expected red, green, blue or luma"
+                "channel `{s}`: expected auto, red, green, blue or luma"
             ))),
         }
     }
@@ -64,6 +70,174 @@ pub fn load_channel(path: &Path, channel: Channel) -> Result<FloatImage> {
     Ok(image)
 }
 
+/// What `detect` analyses in an image, and why: the picture the disks are
+/// searched in, the picture their photoelastic signal (G²) is read in, and
+/// what was read from the image to choose them.
+pub struct DetectionImage {
+    pub search: FloatImage,
+    pub signal: FloatImage,
+    pub choice: ChannelChoice,
+}
+
+/// How the searched picture was made (reported in the run summary and in
+/// `image-frame.json`).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct ChannelChoice {
+    /// `colour-distance`, `gray`, or the channel asked for (`red`, …).
+    pub channel: String,
+    /// The background colour (RGB in [0, 1]; one value for gray images), when
+    /// it was estimated: the most common colour of the image.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub background: Option<Vec<f64>>,
+    /// Fraction of the image within that colour's bin.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub background_fraction: Option<f64>,
+    /// `bright` or `dark`: the disks in the searched picture.
+    pub polarity: String,
+}
+
+impl ChannelChoice {
+    pub fn describe(&self) -> String {
+        match &self.background {
+            Some(b) => format!(
+                "{} from the background colour ({}; {:.0} % of the image), disks {}",
+                self.channel.replace('-', " "),
+                b.iter()
+                    .map(|v| format!("{:.0}", 255.0 * v))
+                    .collect::<Vec<_>>()
+                    .join(", "),
+                100.0 * self.background_fraction.unwrap_or(0.0),
+                self.polarity
+            ),
+            None => format!("{} channel, disks {}", self.channel, self.polarity),
+        }
+    }
+}
+
+/// Reads an image for `detect`. With [`Channel::Auto`] a colour image is
+/// searched in its colour distance from the background colour: the most
+/// common colour (a 16-level-per-channel histogram's fullest bin, its mean),
+/// which is the background whenever the disks do not cover most of the
+/// picture, whatever its colour or brightness (a white or painted backdrop, a
+/// dark field, coloured light). Every part of a disk that differs from the
+/// background, a fringe of any order or colour, a dark rim, a dim interior,
+/// is then bright, so a disk is one bright region whose outline is the edge
+/// to the background, and fringes inside it barely show. The photoelastic
+/// signal is read in green (PeGS's choice). A gray image, or an explicit
+/// channel, is searched as it is, disks as `polarity` says.
+pub fn read_for_detection(path: &Path, channel: Channel, polarity: &str) -> Result<DetectionImage> {
+    let reader = ::image::ImageReader::open(path).map_err(|e| Error::io(path, e))?;
+    let reader = reader
+        .with_guessed_format()
+        .map_err(|e| Error::io(path, e))?;
+    let decoded = reader.decode().map_err(|e| image_error(path, e))?;
+    if decoded.width() == 0 || decoded.height() == 0 {
+        return Err(Error::data(path, None, None, "the image is empty"));
+    }
+    let colour = decoded.color().has_color();
+    if channel != Channel::Auto || !colour {
+        let single = match (&decoded, channel) {
+            (DynamicImage::ImageLuma8(g), _) => to_float(g, 255.0),
+            (DynamicImage::ImageLuma16(g), _) => to_float(g, 65535.0),
+            (other, Channel::Luma | Channel::Auto) => other.to_luma32f(),
+            (other, _) => {
+                let c = other.to_rgb32f();
+                pick(c.as_raw(), c.dimensions(), channel, 1.0)
+            }
+        };
+        let name = if colour {
+            format!("{channel:?}").to_ascii_lowercase()
+        } else {
+            "gray".to_owned()
+        };
+        return Ok(DetectionImage {
+            signal: single.clone(),
+            search: single,
+            choice: ChannelChoice {
+                channel: name,
+                background: None,
+                background_fraction: None,
+                polarity: polarity.to_owned(),
+            },
+        });
+    }
+    let (w, h) = (decoded.width(), decoded.height());
+    // 8-bit RGB (cameras' JPEGs) is read in place; anything else as floats.
+    let (search, signal, background, fraction) = match decoded {
+        DynamicImage::ImageRgb8(c) => colour_distance(c.as_raw(), (w, h), 255.0),
+        other => colour_distance(other.to_rgb32f().as_raw(), (w, h), 1.0),
+    };
+    Ok(DetectionImage {
+        search,
+        signal,
+        choice: ChannelChoice {
+            channel: "colour-distance".to_owned(),
+            background: Some(background.iter().map(|&v| v as f64).collect()),
+            background_fraction: Some(fraction),
+            polarity: "bright".to_owned(),
+        },
+    })
+}
+
+/// The colour distance of every pixel from the background colour (scaled so
+/// that the 99th percentile of the distances is 1), the green channel, the
+/// background colour and the fraction of pixels in its histogram bin.
+fn colour_distance<T: Copy + Into<f32> + Sync>(
+    raw: &[T],
+    (width, height): (u32, u32),
+    full_scale: f32,
+) -> (FloatImage, FloatImage, [f32; 3], f64) {
+    const LEVELS: usize = 16;
+    let bin = |p: &[T]| -> usize {
+        let q =
+            |v: T| ((Into::<f32>::into(v) / full_scale * LEVELS as f32) as usize).min(LEVELS - 1);
+        (q(p[0]) * LEVELS + q(p[1])) * LEVELS + q(p[2])
+    };
+    // Every pixel of a small image, every 7th (a prime stride) of a big one.
+    let pixels = raw.len() / 3;
+    let stride = if pixels > 4_000_000 { 7 } else { 1 };
+    let mut count = vec![0usize; LEVELS * LEVELS * LEVELS];
+    let mut sum = vec![[0.0f64; 3]; LEVELS * LEVELS * LEVELS];
+    let mut seen = 0usize;
+    for p in raw.chunks_exact(3).step_by(stride) {
+        let b = bin(p);
+        count[b] += 1;
+        for c in 0..3 {
+            sum[b][c] += Into::<f32>::into(p[c]) as f64;
+        }
+        seen += 1;
+    }
+    let (fullest, &n) = count
+        .iter()
+        .enumerate()
+        .max_by_key(|&(_, &n)| n)
+        .expect("bins");
+    let background = [0, 1, 2].map(|c| (sum[fullest][c] / n.max(1) as f64) as f32 / full_scale);
+    let distance: Vec<f32> = raw
+        .chunks_exact(3)
+        .map(|p| {
+            let d = [0, 1, 2].map(|c| Into::<f32>::into(p[c]) / full_scale - background[c]);
+            (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt()
+        })
+        .collect();
+    let mut sample: Vec<f32> = distance.iter().step_by(stride.max(3)).copied().collect();
+    let k = (sample.len() * 99 / 100).min(sample.len().saturating_sub(1));
+    let top = if sample.is_empty() {
+        1.0
+    } else {
+        *sample.select_nth_unstable_by(k, |a, b| a.total_cmp(b)).1
+    };
+    let scale = if top > 1e-6 { 1.0 / top } else { 1.0 };
+    let search = FloatImage::from_raw(
+        width,
+        height,
+        distance.into_iter().map(|d| (d * scale).min(1.5)).collect(),
+    )
+    .expect("same dimensions");
+    let signal = pick(raw, (width, height), Channel::Green, full_scale);
+    (search, signal, background, n as f64 / seen.max(1) as f64)
+}
+
 /// One channel (or the luma) of interleaved RGB samples, scaled to [0, 1],
 /// without an intermediate float copy of all three channels.
 fn pick<T: Copy + Into<f32>>(
@@ -80,7 +254,7 @@ fn pick<T: Copy + Into<f32>>(
                 Channel::Red => r,
                 Channel::Green => g,
                 Channel::Blue => b,
-                Channel::Luma => 0.2126 * r + 0.7152 * g + 0.0722 * b,
+                Channel::Luma | Channel::Auto => 0.2126 * r + 0.7152 * g + 0.0722 * b,
             };
             v / full_scale
         })

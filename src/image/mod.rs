@@ -36,7 +36,10 @@ pub use contacts::{
 };
 pub use detect::{detect_disks, DetectOptions, Disk, Polarity};
 pub use elastic::{Elasticity, PlaneCondition};
-pub use io::{load_channel, load_gray, load_gray_sequence, save_gray, Channel};
+pub use io::{
+    load_channel, load_gray, load_gray_sequence, read_for_detection, save_gray, Channel,
+    ChannelChoice, DetectionImage,
+};
 pub use render::{render_scene, render_sequence, RenderOptions, RenderedPair, RenderedSequence};
 pub use strain::{measure_stresses, StrainOptions, StrainReport};
 pub use track::{track_sequence, TrackOptions, Tracker};
@@ -250,6 +253,25 @@ impl DetectSettings {
     }
 }
 
+/// The outer part of a disk (a fraction of its radius) left out when its
+/// photoelastic signal is read: the dark outline of a real disk has a strong
+/// gradient of its own, loaded or not.
+const COLOUR_EDGE_MARGIN: f64 = 0.1;
+
+/// How far (a fraction of the radius) the outlines of two disks may cross
+/// in a photograph: loaded photoelastic disks flatten where they press into
+/// each other, and a disk seen slightly from the side shows its wall.
+const COLOUR_OVERLAP: f64 = 0.3;
+
+/// The support a disk needs in the colour distance (confident, and confirmed
+/// by the model fit), below the defaults'.
+const COLOUR_SUPPORT: [f64; 2] = [0.35, 0.25];
+
+/// How far apart (a fraction of the smaller radius) two outlines may be
+/// and still count for the gap between touching disks: two rims of up to
+/// a fifth of the radius each.
+const TOUCHING_SEARCH: f64 = 0.4;
+
 /// What one image gave.
 #[derive(Debug, Clone)]
 pub struct DetectedFrame {
@@ -265,6 +287,8 @@ pub struct DetectedFrame {
     pub ids: Vec<String>,
     pub contacts: Vec<PixelContact>,
     pub scene: Scene,
+    /// What the disks were searched in (read from the image by default).
+    pub choice: ChannelChoice,
 }
 
 #[derive(Debug, Clone)]
@@ -304,7 +328,18 @@ pub fn detect_images(
     let mut pixel_frame = None;
     let mut walls = Vec::new();
     for (k, path) in paths.iter().enumerate() {
-        let image = load_channel(path, settings.channel)?;
+        let polarity = match settings.detect.polarity {
+            Polarity::Bright => "bright",
+            Polarity::Dark => "dark",
+            Polarity::Either => "either",
+        };
+        let DetectionImage {
+            search,
+            signal,
+            choice,
+        } = read_for_detection(path, settings.channel, polarity)?;
+        let by_colour = choice.background.is_some();
+        let image = signal;
         match &first {
             Some(f) => io::check_same_size(f, &paths[0], &image, path)?,
             None => {
@@ -338,15 +373,39 @@ pub fn detect_images(
             }
         }
         let frame = pixel_frame.expect("set with the first image");
-        let disks = detect_disks(&image, &settings.detect)?;
+        let disks = if by_colour {
+            // Disks are bright regions without dark rims in the colour distance.
+            let mut o = settings.detect.clone();
+            o.polarity = Polarity::Bright;
+            o.find_by_rims = false;
+            o.overlap = o.overlap.max(COLOUR_OVERLAP);
+            // Outlines in the colour distance are a few pixels wide: more
+            // smoothing would blur away the outline of a disk whose inside
+            // is as pale as the background.
+            o.smoothing_px = o
+                .smoothing_px
+                .or(Some((o.radius_min / 15.0).clamp(1.5, 3.0)));
+            // Rays that end on a neighbour or a wall carry no outline: in a
+            // dense real packing fewer of them show it.
+            o.min_support = o.min_support.min(COLOUR_SUPPORT[0]);
+            o.min_support_confirmed = o.min_support_confirmed.min(COLOUR_SUPPORT[1]);
+            detect_disks(&search, &o)?
+        } else {
+            detect_disks(&search, &settings.detect)?
+        };
+        drop(search);
         if disks.is_empty() {
             return Err(Error::data(
                 path,
                 None,
                 None,
                 format!(
-                    "no disks of radius {}..{} px found; check --radius (and the disks' polarity)",
-                    settings.detect.radius_min, settings.detect.radius_max
+                    "no disks of radius {}..{} px found in the {}; check --radius, or choose \
+                     the channel (--channel red|green|blue|luma) and the disks' polarity \
+                     (--dark-disks, --either-polarity)",
+                    settings.detect.radius_min,
+                    settings.detect.radius_max,
+                    choice.describe()
                 ),
             ));
         }
@@ -354,6 +413,28 @@ pub fn detect_images(
             Some(gap) => {
                 let contacts = find_contacts(&disks, &walls, gap);
                 (disks, Vec::new(), Vec::new(), contacts)
+            }
+            None if by_colour => {
+                // The circles are the outlines against the background: the
+                // whole disk where its rim differs from the background, the
+                // interior where the rim is as dark as the background (then
+                // touching disks' outlines stop short by two rims, and each
+                // circle grows by one). The photoelastic signal is read in green.
+                let mut options = settings.contacts.clone();
+                let rim = 0.5 * contacts::touching_gap(&disks, TOUCHING_SEARCH);
+                let disks: Vec<Disk> = disks
+                    .into_iter()
+                    .map(|d| Disk { r: d.r + rim, ..d })
+                    .collect();
+                let rims = vec![None; disks.len()];
+                options.edge_margin = options.edge_margin.max(COLOUR_EDGE_MARGIN);
+                let candidates = find_image_contacts(&image, &disks, &rims, &walls, &options);
+                let contacts = candidates
+                    .iter()
+                    .filter(|c| settings.keep_doubtful || !c.doubtful)
+                    .map(|c| c.contact)
+                    .collect();
+                (disks, rims, candidates, contacts)
             }
             None => {
                 let rims = contacts::measure_rims(&image, &disks);
@@ -387,6 +468,7 @@ pub fn detect_images(
             ids,
             contacts,
             scene,
+            choice,
         };
         on_frame(k, path, &image, &detected)?;
         frames.push(detected);

@@ -1,7 +1,9 @@
 //! PeGS / PeGS2 output (the photoelastic community's MATLAB pipeline,
 //! Kollmer's PhotoElastic Grain Solver and its modular successor): the
 //! `particle` struct array of contactDetect's `*_contacts.mat` or diskSolve's
-//! `*_solved.mat`, optionally with particleDetect's `*_centers.txt`.
+//! `*_solved.mat` (PeGS 1.x: `particle` in PeGSDiskPrep's
+//! `*_preprocessing.mat`, `pres` in PeGSDiskSolve's `*_solved.mat`),
+//! optionally with particleDetect's `*_centers.txt`.
 //!
 //! PeGS's conventions, read from its source (PeGS2 `contactDetect.m`,
 //! `diskSolve.m`, `stress_engine_original.m`, `adjacencyMatrix.m`; PeGS 1
@@ -165,18 +167,28 @@ struct Touch {
     force: Option<(f64, f64)>,
 }
 
-/// Reads the `particle` struct array with the field checks PeGS's format
-/// implies; errors name the file and `particle(n).field` (1-based, as MATLAB).
+/// The names of the disks' struct array: `particle` (PeGS2, and PeGS 1.x's
+/// PeGSDiskPrep `*_preprocessing.mat`), `pres` (PeGS 1.x's PeGSDiskSolve
+/// `*_solved.mat`: the same fields plus `forces`, `alphas`, `fitError`,
+/// `synthImg`).
+const STRUCT_NAMES: [&str; 2] = ["particle", "pres"];
+
+/// Reads the disks' struct array with the field checks PeGS's format
+/// implies; errors name the file and `particle(n).field` (1-based, as
+/// MATLAB; `pres(n).field` in a PeGS 1.x solved file).
 fn read_particles(path: &Path) -> Result<Vec<Disk>> {
     let variables = mat5::read(path)?;
-    let Some(var) = variables.iter().find(|v| v.name == "particle") else {
+    let Some(var) = STRUCT_NAMES
+        .iter()
+        .find_map(|&name| variables.iter().find(|v| v.name == name))
+    else {
         let names: Vec<&str> = variables.iter().map(|v| v.name.as_str()).collect();
         return Err(Error::data(
             path,
             None,
             None,
             format!(
-                "no variable `particle` (PeGS's particle struct array); the file holds: {}",
+                "no variable `particle` or `pres` (PeGS's struct array of disks); the file holds: {}",
                 if names.is_empty() {
                     "nothing".to_owned()
                 } else {
@@ -186,19 +198,20 @@ fn read_particles(path: &Path) -> Result<Vec<Disk>> {
         ));
     };
     let particle = &var.value;
+    let name = var.name.as_str();
     let Value::Struct { fields, .. } = particle else {
         return Err(Error::data(
             path,
             None,
             None,
-            format!("`particle` is {}, not a struct array", particle.describe()),
+            format!("`{name}` is {}, not a struct array", particle.describe()),
         ));
     };
     let bad = |message: String| Error::data(path, None, None, message);
     for needed in ["x", "y", "r"] {
         if !fields.iter().any(|f| f == needed) {
             return Err(bad(format!(
-                "`particle` has no field `{needed}` (fields: {})",
+                "`{name}` has no field `{needed}` (fields: {})",
                 fields.join(", ")
             )));
         }
@@ -207,7 +220,7 @@ fn read_particles(path: &Path) -> Result<Vec<Disk>> {
     let has_contacts = has("neighbours") && has("betas");
     if has("neighbours") != has("betas") {
         return Err(bad(format!(
-            "`particle` has `{}` but not `{}`: each contact needs both",
+            "`{name}` has `{}` but not `{}`: each contact needs both",
             if has("neighbours") {
                 "neighbours"
             } else {
@@ -223,7 +236,7 @@ fn read_particles(path: &Path) -> Result<Vec<Disk>> {
     let n = particle.len();
     let mut disks = Vec::with_capacity(n);
     for i in 0..n {
-        let at = |f: &str| format!("particle({}).{f}", i + 1);
+        let at = |f: &str| format!("{name}({}).{f}", i + 1);
         let get = |f: &str| particle.field(i, f);
         let scalar = |f: &str| -> Result<f64> {
             let v = get(f).ok_or_else(|| bad(format!("{} is missing", at(f))))?;
@@ -380,7 +393,7 @@ fn force_on_disk(f: f64, alpha: f64, beta: f64, thickness: f64) -> Vec3 {
 pub fn import(mat: &Path, options: &Options) -> Result<(ImportedScene, Conversion)> {
     let mut disks = read_particles(mat)?;
     if disks.is_empty() {
-        return Err(Error::data(mat, None, None, "`particle` holds no disks"));
+        return Err(Error::data(mat, None, None, "the file holds no disks"));
     }
     // Before the centres file replaces the rounded radii rm was made from.
     let in_file = file_scale(&disks);

@@ -60,7 +60,7 @@ pub fn detect_disks(image: &FloatImage, options: &DetectOptions) -> Result<Vec<D
             (one.radius_min, one.radius_max, one.classes) = (c[0], c[1], Vec::new());
             found.extend(detect_disks(image, &one)?);
         }
-        return Ok(without_overlaps(found));
+        return Ok(without_overlaps(found, options.overlap));
     }
     let o = options;
     if !(o.radius_min.is_finite() && o.radius_max.is_finite())
@@ -162,7 +162,7 @@ pub fn detect_disks(image: &FloatImage, options: &DetectOptions) -> Result<Vec<D
             None => None,
         })
         .collect();
-    let kept = without_overlaps(kept);
+    let kept = without_overlaps(kept, o.overlap);
     if o.find_by_rims && o.polarity == Polarity::Bright {
         if pyramid {
             return Ok(add_rim_enclosed_coarse(
@@ -224,12 +224,13 @@ pub(crate) fn check_smoothing(sigma: f64, edge_sigma: f64) -> Result<()> {
 /// the better supported stays (the other is fitted to fringes or to the space
 /// between disks, or is a size class's echo of a disk of another). Sorted by
 /// row, then column.
-pub(crate) fn without_overlaps(mut kept: Vec<Disk>) -> Vec<Disk> {
+pub(crate) fn without_overlaps(mut kept: Vec<Disk>, overlap: f64) -> Vec<Disk> {
     kept.sort_by(|a, b| score(b).total_cmp(&score(a)));
     let mut solid: Vec<Disk> = Vec::with_capacity(kept.len());
     for d in kept {
-        let crosses =
-            |k: &Disk| (k.x - d.x).hypot(k.y - d.y) < k.r + d.r - (3.0f64).max(0.15 * k.r.min(d.r));
+        let crosses = |k: &Disk| {
+            (k.x - d.x).hypot(k.y - d.y) < k.r + d.r - (3.0f64).max(overlap * k.r.min(d.r))
+        };
         if !solid.iter().any(crosses) {
             solid.push(d);
         }

@@ -44,6 +44,10 @@ pub struct DetectOptions {
     /// Also look for disks outlined by a dark rim, whatever their interior
     /// (dim photoelastic disks darker than the background); bright polarity only.
     pub find_by_rims: bool,
+    /// Two circles may cross by this fraction of the smaller radius (at least
+    /// 3 px) before the less supported one is dropped: fitted outlines of
+    /// real, loaded disks overlap where the disks press into each other.
+    pub overlap: f64,
 }
 
 impl DetectOptions {
@@ -61,6 +65,7 @@ impl DetectOptions {
             min_contrast: 2.0 / 255.0,
             classes: Vec::new(),
             find_by_rims: true,
+            overlap: 0.15,
         }
     }
 
