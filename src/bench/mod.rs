@@ -80,6 +80,7 @@ pub fn method_spec(name: &str, lambda: f64) -> Result<MethodSpec> {
     if let Some(b) = base.strip_suffix("-relaxed") {
         // A tolerance is a knob of the interior point only.
         o.conic.tolerance = RELAXED_TOLERANCE;
+        o.conic.noise_share = None;
         o.solver = ConstrainedSolver::InteriorPoint;
         base = b;
     } else if let Some(b) = base.strip_suffix("-ip") {

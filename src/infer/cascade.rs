@@ -440,10 +440,21 @@ fn sparse_interior_point(
         Err(e) => return (None, Some(ip_failed(why, &e.to_string()))),
     };
     warm.interior_point = ip.restart.take();
-    let attempt = format!(
+    let mut attempt = format!(
         "active set: {why}; interior point on the sparse factorisation: {} iterations (gap {:.1e})",
         ip.iterations, ip.gap
     );
+    if let Some(noise) = ip.noise {
+        attempt.push_str(&format!(
+            "; distance to the optimum ≤ {:.1e} against noise {noise:.1e} (fit norm){}",
+            ip.distance,
+            if ip.at_distance {
+                ", the data's accuracy"
+            } else {
+                ""
+            }
+        ));
+    }
     let solution = ConicSolution {
         x: ip.x,
         status: SolveStatus::SparseInteriorPoint { polished: false },
@@ -457,10 +468,11 @@ fn sparse_interior_point(
 }
 
 /// The sparse interior point to the user's interior-point tolerance
-/// (`--tolerance`), as clarabel after it.
+/// (`--tolerance`), as clarabel after it, or sooner at the data's accuracy.
 pub(crate) fn interior_point_settings(opts: &InferOptions) -> InteriorPointSettings {
     InteriorPointSettings {
         tolerance: opts.conic.tolerance,
+        noise_share: opts.conic.noise_share,
         ..Default::default()
     }
 }

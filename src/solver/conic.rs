@@ -285,7 +285,17 @@ pub struct ConicSettings {
     pub max_iter: u32,
     /// Retry with looser tolerances and softened equalities when the first attempt fails.
     pub retry: bool,
+    /// Where the active set cannot settle, the sparse interior point stops
+    /// once its certified distance to the optimum (in the fit's norm) is this
+    /// share of what the stress residual says the noise moves the answer by
+    /// (`interior_point::noise_size`), or at `tolerance`, whichever comes
+    /// first. `None` (a tolerance asked for): at `tolerance` alone.
+    pub noise_share: Option<f64>,
 }
+
+/// The default [`ConicSettings::noise_share`]: the answer moves by a
+/// hundredth of what the noise moves it.
+pub const DEFAULT_NOISE_SHARE: f64 = 0.01;
 
 impl Default for ConicSettings {
     fn default() -> Self {
@@ -293,6 +303,7 @@ impl Default for ConicSettings {
             tolerance: 1e-8,
             max_iter: 200,
             retry: true,
+            noise_share: Some(DEFAULT_NOISE_SHARE),
         }
     }
 }

@@ -52,6 +52,12 @@ pub struct InteriorPointSettings {
     /// Relative primal and dual residual accepted (clarabel's default is
     /// 1e-8); the relative duality gap must be ten times smaller.
     pub tolerance: f64,
+    /// Also stop, sooner, once the certified distance to the optimum in the
+    /// fit's norm is at most this share of the noise's effect that the
+    /// start's residual implies ([`noise_size`]; the start is the least
+    /// squares without inequalities) and the balance and dual residuals at
+    /// most [`DISTANCE_RESIDUAL`]: the data's accuracy.
+    pub noise_share: Option<f64>,
 }
 
 impl Default for InteriorPointSettings {
@@ -59,8 +65,35 @@ impl Default for InteriorPointSettings {
         InteriorPointSettings {
             max_iterations: 60,
             tolerance: 1e-8,
+            noise_share: None,
         }
     }
+}
+
+/// Balance and dual residuals (relative) below which the certified
+/// distance is trusted for [`InteriorPointSettings::noise_share`]: its bound
+/// assumes a balanced point and cone forces in their dual cones.
+pub const DISTANCE_RESIDUAL: f64 = 1e-4;
+
+/// The size of the noise in the answer, in the fit's norm, that the
+/// residual of the least squares without inequalities (`unconstrained`)
+/// implies: with σ̂² = ‖A x − b‖²/(m − k) per row of A and k = n − rows(C)
+/// directions the fit can move in, the noise moves the answer by about
+/// σ̂ √k. `None` when the rows leave too few degrees of freedom to tell
+/// (fewer than k spare rows) or fit exactly.
+pub fn noise_size(problem: &LeastSquares, unconstrained: &[f64]) -> Option<f64> {
+    let (m, n) = (problem.a.nrows, problem.a.ncols);
+    let free = n.saturating_sub(problem.c.nrows).max(1);
+    let spare = m.checked_sub(free).filter(|&s| s >= free)?;
+    let r2: f64 = problem
+        .a
+        .mul(unconstrained)
+        .iter()
+        .zip(problem.b)
+        .map(|(ax, b)| (ax - b).powi(2))
+        .sum();
+    let size = (r2 * free as f64 / spare as f64).sqrt();
+    (size.is_finite() && size > 0.0).then_some(size)
 }
 
 /// Result of [`solve`].
@@ -80,6 +113,14 @@ pub struct InteriorPointSolution {
     pub primal_residual: f64,
     /// Dual residual (∞-norm) relative to the gradient of the fit.
     pub dual_residual: f64,
+    /// Certified bound on the distance of `x` to the optimum in the fit's
+    /// norm (‖A δ‖² + λ²‖δ‖²)^½, valid to first order in the residuals.
+    pub distance: f64,
+    /// [`noise_size`] at the start, when asked for by
+    /// [`InteriorPointSettings::noise_share`] and known.
+    pub noise: Option<f64>,
+    /// Stopped at the data's accuracy, before `tolerance`.
+    pub at_distance: bool,
     /// An iterate from the middle of the path, to start a nearby problem
     /// from (see [`solve`]'s `restart`).
     pub restart: Option<RestartPoint>,
@@ -88,6 +129,11 @@ pub struct InteriorPointSolution {
 impl InteriorPointSolution {
     fn with_restart(mut self, restart: Option<RestartPoint>) -> Self {
         self.restart = restart;
+        self
+    }
+
+    fn with_noise(mut self, noise: Option<f64>) -> Self {
+        self.noise = noise;
         self
     }
 }
@@ -470,6 +516,9 @@ pub fn solve(
             gap: f64::INFINITY,
             primal_residual: f64::INFINITY,
             dual_residual: f64::INFINITY,
+            distance: f64::INFINITY,
+            noise: None,
+            at_distance: false,
             restart: None,
         });
     }
@@ -492,6 +541,10 @@ pub fn solve(
     };
     let mut keep: Option<RestartPoint> = None;
     let tol = settings.tolerance;
+    let noise = settings
+        .noise_share
+        .and_then(|_| noise_size(problem, start));
+    let target = settings.noise_share.zip(noise).map(|(share, n)| share * n);
     let mut progress = f64::INFINITY;
     let mut since_progress = 0;
     // The best certified point so far: past the gap where the solves lose
@@ -516,6 +569,16 @@ pub fn solve(
         // clarabel's optimum), and near the end the solves' multipliers lose
         // accuracy faster than the forces do.
         let certificate = it.certificate(problem, cones);
+        let accurate_enough = target.is_some_and(|target| {
+            certificate.distance <= target
+                && certificate.primal <= DISTANCE_RESIDUAL
+                && certificate.dual <= DISTANCE_RESIDUAL
+        });
+        if accurate_enough && converged.is_none() {
+            let mut out = it.finish(cones, iteration, None, certificate);
+            out.at_distance = true;
+            return Ok(out.with_restart(keep).with_noise(noise));
+        }
         if let Some((first_x, first_cert)) = converged.take() {
             // One step past convergence: the better certified of the two.
             let cert = if certificate.worst() < first_cert.worst() {
@@ -524,13 +587,17 @@ pub fn solve(
                 it.x = first_x;
                 first_cert
             };
-            return Ok(it.finish(cones, iteration, None, cert).with_restart(keep));
+            return Ok(it
+                .finish(cones, iteration, None, cert)
+                .with_restart(keep)
+                .with_noise(noise));
         }
         if certificate.worst() <= tol {
             if certificate.worst() <= SHARPEN_TARGET * tol {
                 return Ok(it
                     .finish(cones, iteration, None, certificate)
-                    .with_restart(keep));
+                    .with_restart(keep)
+                    .with_noise(noise));
             }
             converged = Some((it.x.clone(), certificate));
         }
@@ -565,20 +632,27 @@ pub fn solve(
     }
     if let Some((first_x, cert)) = converged {
         it.x = first_x;
-        return Ok(it.finish(cones, iterations, None, cert).with_restart(keep));
+        return Ok(it
+            .finish(cones, iterations, None, cert)
+            .with_restart(keep)
+            .with_noise(noise));
     }
     // Stopped short of the tenfold-finer gap: the best certified point is
     // still the answer when its gap meets the tolerance itself.
     match kept {
         Some((x, cert)) if cert.weighted() <= GAP_WEIGHT * tol => {
             it.x = x;
-            Ok(it.finish(cones, iterations, None, cert).with_restart(keep))
+            Ok(it
+                .finish(cones, iterations, None, cert)
+                .with_restart(keep)
+                .with_noise(noise))
         }
         _ => {
             let reason = format!("{stop}: {measures}");
             Ok(it
                 .finish(cones, iterations, Some(reason), measures)
-                .with_restart(keep))
+                .with_restart(keep)
+                .with_noise(noise))
         }
     }
 }
@@ -616,6 +690,9 @@ struct Measures {
     gap: f64,
     primal: f64,
     dual: f64,
+    /// The certificate's bound on ‖x − x*‖_H (∞ for the iterate's own
+    /// measures).
+    distance: f64,
 }
 
 impl Measures {
@@ -756,10 +833,18 @@ impl Iterate {
             ..problem.c.clone()
         }
         .mul(&abs_x);
+        // With x balanced and the cone forces v = ∇f − Cᵀy in their dual
+        // cones, f(x) ≥ f* + ½‖x − x*‖²_H (x* optimal) and f* ≥ f(x) − xᵀv +
+        // ½‖x − x*‖²_H (v ∈ K*, x* ∈ K), so ‖x − x*‖²_H ≤ xᵀv (the gap here,
+        // each cone's term counted by its size); the balance error e adds
+        // yᵀe to first order. No bounded multiplier of the optimum is
+        // needed (a sheared packing's has none).
+        let unbalanced: f64 = balance.iter().zip(&self.y).map(|(e, y)| e * y).sum();
         Measures {
             gap: gap / gap_scale(problem, &x),
             primal: inf_norm(&balance) / inf_norm(&terms).max(f64::MIN_POSITIVE),
             dual: (outside / size.max(f64::MIN_POSITIVE)).max(free / scale),
+            distance: (gap + unbalanced.abs()).sqrt(),
         }
     }
 
@@ -777,6 +862,7 @@ impl Iterate {
             gap: sz / gap_scale(problem, &self.x),
             primal: inf_norm(&primal_gap) / inf_norm(&self.s).max(f64::MIN_POSITIVE),
             dual: inf_norm(&dual_gap) / size.max(f64::MIN_POSITIVE),
+            distance: f64::INFINITY,
         }
     }
 
@@ -904,6 +990,9 @@ impl Iterate {
             gap: measures.gap,
             primal_residual: measures.primal,
             dual_residual: measures.dual,
+            distance: measures.distance,
+            noise: None,
+            at_distance: false,
             restart: None,
         }
     }

@@ -1,0 +1,167 @@
+//! The default accuracy set by the data: where the active set cannot settle
+//! (a 3D packing sheared towards failure) the sparse interior point stops once
+//! its certified distance to the optimum is a hundredth of what the stress
+//! residual says the noise moves the forces by, instead of at 1e-8; exact
+//! data and a tolerance asked for keep their routes.
+
+use grainforce::bench::{perturb, Noise};
+use grainforce::infer::{infer, InferOptions, Inference, Method};
+use grainforce::report::metrics::relative_error;
+use grainforce::scene::{read_forces, read_scene, Scene, Vec3};
+use grainforce::solver::SolveStatus;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+use std::path::PathBuf;
+
+fn fixture() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("fixtures/regression/box3d_sheared")
+}
+
+/// The sheared DEM packing and its forces (the truth).
+fn sheared() -> (Scene, Vec<Vec3>) {
+    let scene = read_scene(&fixture()).unwrap();
+    let path = fixture().join("forces.csv");
+    let truth = read_forces(&path)
+        .unwrap()
+        .for_scene(&scene, &path)
+        .unwrap();
+    (scene, truth)
+}
+
+/// Each stress component × (1 + bias + scatter·N(0, 1)) (eq. 2.16's form).
+fn with_noise(scene: &Scene, bias: f64, scatter: f64, seed: u64) -> Scene {
+    let mut s = scene.clone();
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let unit = Normal::new(0.0, 1.0).unwrap();
+    for g in &mut s.grains {
+        for v in g.stress.iter_mut() {
+            *v *= 1.0 + bias + scatter * unit.sample(&mut rng);
+        }
+    }
+    s
+}
+
+fn qs() -> InferOptions {
+    InferOptions {
+        method: Method::Qs,
+        ..InferOptions::default()
+    }
+}
+
+/// The optimum itself: the interior point on the sparse factorisation to
+/// 1e-10 (a tolerance asked for turns the data's accuracy off).
+fn exact(scene: &Scene) -> Inference {
+    let mut opts = qs();
+    opts.conic.tolerance = 1e-10;
+    opts.conic.noise_share = None;
+    let out = infer(scene, &opts).unwrap();
+    assert!(
+        matches!(
+            out.report.solver_status,
+            SolveStatus::SparseInteriorPoint { .. }
+        ),
+        "{:?}",
+        out.report.solver_attempts
+    );
+    out
+}
+
+/// How far the default answer lies from the optimum, against how far the
+/// noise moved the optimum from the truth (both ‖·‖ of the forces).
+fn distances(scene: &Scene, truth: &[Vec3]) -> (Inference, f64, f64) {
+    let fast = infer(scene, &qs()).unwrap();
+    let optimum = exact(scene);
+    let (f, g) = (fast.forces_or_zero(), optimum.forces_or_zero());
+    (fast, relative_error(&g, &f), relative_error(truth, &g))
+}
+
+/// Stopped at the data's accuracy, as the report says.
+fn at_datas_accuracy(run: &Inference) -> bool {
+    run.report
+        .solver_attempts
+        .iter()
+        .any(|a| a.ends_with("(fit norm), the data's accuracy"))
+}
+
+/// Eq. 2.16 noise (bias 0.15, scatter 0.1): the default stops at the data's
+/// accuracy in fewer iterations than the interior point to 1e-8, meets
+/// friction exactly, lies within a few hundredths of the noise's effect of
+/// the optimum and scores the optimum's relerr to the truth to three digits.
+#[test]
+fn sheared_packing_is_solved_to_the_datas_accuracy() {
+    let (clean, truth) = sheared();
+    let scene = perturb(&clean, Noise::Stress, 18);
+    let (fast, off, noise) = distances(&scene, &truth);
+    let mut to_tolerance = qs();
+    to_tolerance.conic.noise_share = None;
+    let slow = infer(&scene, &to_tolerance).unwrap();
+    let (e_fast, e_opt) = (
+        relative_error(&truth, &fast.forces_or_zero()),
+        relative_error(&truth, &exact(&scene).forces_or_zero()),
+    );
+    eprintln!(
+        "eq. 2.16: {:?}; {off:.2e} from the optimum, noise {noise:.3}, relerr {e_fast:.5} / {e_opt:.5}, {} iterations against {}",
+        fast.report.solver_attempts, fast.report.iterations, slow.report.iterations
+    );
+    assert!(
+        at_datas_accuracy(&fast),
+        "{:?}",
+        fast.report.solver_attempts
+    );
+    assert!(fast.report.iterations < slow.report.iterations);
+    assert!(fast.report.coulomb_violation < 1e-12);
+    assert!(off < 0.03 * noise, "{off:.2e} of noise {noise:.2e}");
+    assert!((e_fast - e_opt).abs() < 5e-4, "{e_fast} against {e_opt}");
+}
+
+/// The rule at its extremes: exact stresses keep their route and answer to
+/// the bit; a tenfold noise stops sooner, still within the same share of its
+/// (larger) effect; under a tiny noise the active set settles and its
+/// answer stays the same to the bit.
+#[test]
+fn the_datas_accuracy_at_the_extremes() {
+    let (clean, truth) = sheared();
+    let mut tight = qs();
+    tight.conic.noise_share = None;
+    let (default, asked) = (
+        infer(&clean, &qs()).unwrap(),
+        infer(&clean, &tight).unwrap(),
+    );
+    assert_eq!(default.report.solver_status, asked.report.solver_status);
+    assert!(default.forces == asked.forces, "exact data: forces differ");
+
+    let moderate = perturb(&clean, Noise::Stress, 18);
+    let loud = with_noise(&clean, 0.15, 1.0, 18);
+    let (fast, off, noise) = distances(&loud, &truth);
+    eprintln!(
+        "scatter 1.0: {:?}; {off:.2e} from the optimum, noise {noise:.3}",
+        fast.report.solver_attempts
+    );
+    assert!(
+        at_datas_accuracy(&fast),
+        "{:?}",
+        fast.report.solver_attempts
+    );
+    assert!(fast.report.coulomb_violation < 1e-12);
+    assert!(off < 0.03 * noise, "{off:.2e} of noise {noise:.2e}");
+    let usual = infer(&moderate, &qs()).unwrap();
+    assert!(
+        fast.report.iterations < usual.report.iterations,
+        "{} iterations at scatter 1.0, {} at 0.1",
+        fast.report.iterations,
+        usual.report.iterations
+    );
+
+    // A tiny noise: the active set settles, and the rule leaves its answer
+    // alone to the bit.
+    let quiet = with_noise(&clean, 0.0, 1e-6, 18);
+    let (default, asked) = (
+        infer(&quiet, &qs()).unwrap(),
+        infer(&quiet, &tight).unwrap(),
+    );
+    eprintln!("scatter 1e-6: {:?}", default.report.solver_attempts);
+    assert!(!at_datas_accuracy(&default));
+    assert_eq!(default.report.solver_status, asked.report.solver_status);
+    assert!(default.forces == asked.forces, "tiny noise: forces differ");
+}
