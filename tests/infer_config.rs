@@ -70,7 +70,7 @@ fn errors_name_the_field_and_the_cli_spells_it_as_its_flag() {
     let cases: [(InferConfig, &str, &str); 5] = [
         (
             InferConfig {
-                tolerance: 2.0,
+                tolerance: Some(2.0),
                 ..Default::default()
             },
             "tolerance",
