@@ -573,7 +573,7 @@ fn largest_system(
     scene: &Scene,
 ) -> (
     grainforce::assemble::System,
-    Vec<grainforce::solver::conic::Cone>,
+    Vec<grainforce::solver::clarabel::Cone>,
 ) {
     use grainforce::assemble::{assemble, AssembleOptions};
     let assembly = assemble(scene, &AssembleOptions::default()).unwrap();
@@ -592,7 +592,7 @@ fn factor_for(system: &grainforce::assemble::System) -> EqualityLeastSquares {
 fn active_set_after_least_squares(
     ls: &mut EqualityLeastSquares,
     system: &grainforce::assemble::System,
-    cones: &[grainforce::solver::conic::Cone],
+    cones: &[grainforce::solver::clarabel::Cone],
     lambda: f64,
     warm: Option<&grainforce::solver::active_set::ActivePieces>,
     settings: &grainforce::solver::active_set::ActiveSetSettings,
@@ -681,7 +681,7 @@ fn active_set_settings_are_validated() {
     let a = identity(2);
     let c = Triplets::new(0, 2);
     let mut ls = EqualityLeastSquares::new(&a, &c).unwrap();
-    let cones = [grainforce::solver::conic::Cone::NonNegative { normal: 0 }];
+    let cones = [grainforce::solver::clarabel::Cone::NonNegative { normal: 0 }];
     let problem = |b: &'static [f64]| LeastSquares {
         a: &a,
         b,

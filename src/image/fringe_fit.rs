@@ -27,7 +27,7 @@
 use super::{FloatImage, PixelFrame};
 use crate::error::{Error, Result};
 use crate::scene::{Body, Scene};
-use crate::solver::conic::{self, Cone, ConicProblem, ConicSettings, Term};
+use crate::solver::clarabel::{self, Cone, ConicProblem, ConicSettings, Term};
 use crate::solver::Triplets;
 use rayon::prelude::*;
 use std::f64::consts::PI;
@@ -957,7 +957,7 @@ fn balanced_start(
         settings,
         friction_cones(scene, settings.mu),
     );
-    Ok(conic::solve(&problem, &ConicSettings::default())?.x)
+    Ok(clarabel::solve(&problem, &ConicSettings::default())?.x)
 }
 
 fn objective(p: &Prepared, x: &[f64], optics: &Optics) -> f64 {
@@ -1109,7 +1109,7 @@ impl Stepper<'_> {
                     self.settings,
                     friction_cones(scene, self.settings.mu),
                 );
-                let mut sol = conic::solve(&problem, &ConicSettings::default())?;
+                let mut sol = clarabel::solve(&problem, &ConicSettings::default())?;
                 for c in &problem.cones {
                     c.project(&mut sol.x);
                 }

@@ -7,7 +7,7 @@
 //! 3. the active set on the same factorisation, warm-started from the previous
 //!    solve's active pieces, then cold;
 //! 4. when it does not converge, the interior point on the same pattern
-//!    (`solver::interior_point`: statically determinate grains with contacts
+//!    (`solver::sparse_interior_point`: statically determinate grains with contacts
 //!    at the edge of their pieces defeat the active set, not it);
 //! 5. clarabel when that does not converge either, its answer projected onto
 //!    the cones;
@@ -20,8 +20,8 @@ use super::{polish as polishing, ConstrainedSolver, InferOptions};
 use crate::assemble::System;
 use crate::error::Result;
 use crate::solver::active_set::{self, ActivePieces, ActiveSetSettings};
-use crate::solver::conic::{self, Cone, ConicProblem, ConicSettings, ConicSolution};
-use crate::solver::interior_point::{self, InteriorPointSettings, RestartPoint};
+use crate::solver::clarabel::{self, Cone, ConicProblem, ConicSettings, ConicSolution};
+use crate::solver::sparse_interior_point::{self, InteriorPointSettings, RestartPoint};
 use crate::solver::sparse_ls::{self, EqualityLeastSquares, Ordering};
 use crate::solver::{LeastSquares, SolveStatus};
 use std::sync::Mutex;
@@ -78,7 +78,7 @@ pub(crate) fn interior_point(
     settings: &ConicSettings,
     note: Option<String>,
 ) -> Result<ConicSolution> {
-    let mut sol = conic::solve(problem, settings)?;
+    let mut sol = clarabel::solve(problem, settings)?;
     for c in &problem.cones {
         c.project(&mut sol.x);
     }
@@ -422,7 +422,7 @@ fn sparse_interior_point(
     };
     // A failure of this stage (e.g. its own analysis) is a reason to fall
     // back to clarabel, not an error of the inference.
-    let outcome = interior_point::solve(
+    let outcome = sparse_interior_point::solve(
         p,
         cone_list,
         &unconstrained.x,

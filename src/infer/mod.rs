@@ -36,7 +36,7 @@ pub use sequence::{infer_frames, infer_sequence, Progress};
 use crate::assemble::{self, AssembleOptions, Assembly, Friction, System};
 use crate::error::{Error, Result};
 use crate::scene::{Scene, Vec3};
-use crate::solver::conic::{self, Cone, ConicProblem, ConicSettings, Term};
+use crate::solver::clarabel::{self, Cone, ConicProblem, ConicSettings, Term};
 use crate::solver::sparse_ls::{self, Ordering};
 use crate::solver::{SolveStatus, Triplets};
 pub(crate) use cascade::{ordering, FactorCache, FactorSlot};
@@ -533,7 +533,7 @@ pub(crate) fn solve_all(
     report: &mut InferenceReport,
 ) -> Result<Vec<Vec<f64>>> {
     use rayon::prelude::*;
-    let results: Vec<Result<(Vec<f64>, Option<conic::ConicSolution>)>> = assembly
+    let results: Vec<Result<(Vec<f64>, Option<clarabel::ConicSolution>)>> = assembly
         .systems
         .par_iter()
         .zip(factors.slots(assembly).par_iter())
@@ -627,7 +627,7 @@ fn solve_system(
     opts: &InferOptions,
     lambda: f64,
     factor: &FactorSlot,
-) -> Result<(Vec<f64>, Option<conic::ConicSolution>)> {
+) -> Result<(Vec<f64>, Option<clarabel::ConicSolution>)> {
     let with_cones = opts.method != Method::Ls;
     let cone_list = if with_cones {
         cones(system, opts.cone)
@@ -782,7 +782,7 @@ fn diagnose_infeasible(system: &System, opts: &InferOptions, problem: &ConicProb
         .iter()
         .any(|u| u.friction != Friction::NormalOnly);
     let hint = "or pass `allow_infeasible` for the least-violation answer";
-    if friction_bound && conic::solve(&normal_only, &opts.conic).is_ok() {
+    if friction_bound && clarabel::solve(&normal_only, &opts.conic).is_ok() {
         Error::Infeasible(format!(
             "the measured loads need tangential forces beyond μ·f_n at some contacts (μ too small for these stresses \
              and accelerations); raise `mu`, check the data, {hint}"

@@ -9,7 +9,7 @@
 
 use crate::assemble::System;
 use crate::error::Result;
-use crate::solver::conic::{Cone, ConicProblem};
+use crate::solver::clarabel::{Cone, ConicProblem};
 use crate::solver::{sparse_ls, Triplets};
 
 /// Slack (relative to the largest unknown) under which a constraint counts as tight.
@@ -75,7 +75,7 @@ fn active_rows(x: &[f64], cones: &[Cone], n: usize) -> Triplets {
                     add(&[(t2, 1.0)]);
                     continue;
                 }
-                for (m, c, s) in crate::solver::conic::pyramid_facets(facets, mu) {
+                for (m, c, s) in crate::solver::clarabel::pyramid_facets(facets, mu) {
                     if m * x[normal] - c * x[t1] - s * x[t2] <= tight {
                         add(&[(normal, m), (t1, -c), (t2, -s)]);
                     }

@@ -4,7 +4,7 @@
 use super::{wall_totals, InferOptions, LambdaTrace, Method};
 use crate::assemble::{Assembly, Friction};
 use crate::scene::{Scene, Vec3};
-use crate::solver::conic::ConicSolution;
+use crate::solver::clarabel::ConicSolution;
 use crate::solver::SolveStatus;
 
 #[derive(Debug, Clone, serde::Serialize)]

@@ -27,7 +27,7 @@ use super::{cascade, cones, ConeModel, InferOptions};
 use crate::assemble::{self, AssembleOptions};
 use crate::error::{Error, Result};
 use crate::scene::{Body, Scene, Vec3};
-use crate::solver::conic::{Cone, ConicProblem, ConicSolution, Term};
+use crate::solver::clarabel::{Cone, ConicProblem, ConicSolution, Term};
 use crate::solver::sparse_ls::EqualityLeastSquares;
 use crate::solver::{LeastSquares, SolveStatus, Triplets};
 use std::collections::HashMap;

@@ -35,7 +35,7 @@
 
 mod predict;
 
-use super::conic::Cone;
+use super::clarabel::Cone;
 use super::sparse_ls::{EqualityLeastSquares, CONVERGED_TOL};
 use super::{LeastSquares, Triplets};
 use crate::error::{Error, Result};

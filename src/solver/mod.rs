@@ -3,8 +3,8 @@
 //! factorisation, and clarabel for the constrained QP/SOCP as the fallback.
 
 pub mod active_set;
-pub mod conic;
-pub mod interior_point;
+pub mod clarabel;
+pub mod sparse_interior_point;
 pub mod sparse_ls;
 
 /// How a solve ended: the route that produced the answer. Reports print and

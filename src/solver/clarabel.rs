@@ -10,8 +10,8 @@
 
 use super::{LeastSquares, SolveStatus, Triplets};
 use crate::error::{Error, Result};
-use clarabel::algebra::CscMatrix;
-use clarabel::solver::{
+use ::clarabel::algebra::CscMatrix;
+use ::clarabel::solver::{
     DefaultSettings, DefaultSettingsBuilder, DefaultSolver, IPSolver, SolverStatus, SupportedConeT,
 };
 use std::borrow::Cow;
@@ -288,7 +288,7 @@ pub struct ConicSettings {
     /// Where the active set cannot settle, the sparse interior point stops
     /// once its certified distance to the optimum (in the fit's norm) is this
     /// share of what the stress residual says the noise moves the answer by
-    /// (`interior_point::noise_size`), or at `tolerance`, whichever comes
+    /// (`sparse_interior_point::noise_size`), or at `tolerance`, whichever comes
     /// first. `None` (a tolerance asked for): at `tolerance` alone.
     pub noise_share: Option<f64>,
 }

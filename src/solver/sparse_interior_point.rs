@@ -32,7 +32,7 @@
 //! better certified of the two points answers (on the regression packings
 //! the forces land 2–30× closer to the optimum for one iteration).
 
-use super::conic::Cone;
+use super::clarabel::Cone;
 use super::sparse_ls::{EqualityLeastSquares, CONVERGED_TOL};
 use super::{LeastSquares, Triplets};
 use crate::error::{Error, Result};
@@ -1031,7 +1031,7 @@ fn gap_scale(problem: &LeastSquares, x: &[f64]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::solver::conic::{self, ConicProblem, ConicSettings, Term};
+    use crate::solver::clarabel::{self, ConicProblem, ConicSettings, Term};
     use crate::solver::sparse_ls::Ordering;
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
@@ -1222,7 +1222,7 @@ mod tests {
         for (seed, kind) in [(3, "circular"), (8, "circular"), (4, "wedge")] {
             for mu in [0.01, 0.5, 10.0] {
                 let unit = random_problem(seed, 40, kind, mu, 1.0);
-                let reference = conic::solve(
+                let reference = clarabel::solve(
                     &ConicProblem {
                         n: unit.a.ncols,
                         terms: vec![Term {
