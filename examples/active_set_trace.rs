@@ -153,10 +153,11 @@ fn main() -> grainforce::Result<()> {
 /// that near-tight contacts cannot be pinned (issue 20, docs/bench.md).
 fn probe_optimum(
     system: &grainforce::assemble::System,
-    cones: &[grainforce::solver::clarabel::Cone],
+    cones: &[grainforce::solver::Cone],
 ) -> grainforce::Result<()> {
-    use grainforce::solver::clarabel::{self, Cone, ConicProblem, ConicSettings, Term};
+    use grainforce::solver::clarabel::{self, ConicSettings};
     use grainforce::solver::Triplets;
+    use grainforce::solver::{Cone, ConicProblem, Term};
     let problem = ConicProblem {
         n: system.n,
         terms: vec![Term {

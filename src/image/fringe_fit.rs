@@ -27,8 +27,9 @@
 use super::{FloatImage, PixelFrame};
 use crate::error::{Error, Result};
 use crate::scene::{Body, Scene};
-use crate::solver::clarabel::{self, Cone, ConicProblem, ConicSettings, Term};
+use crate::solver::clarabel::{self, ConicSettings};
 use crate::solver::Triplets;
+use crate::solver::{Cone, ConicProblem, Term};
 use rayon::prelude::*;
 use std::f64::consts::PI;
 

@@ -20,20 +20,23 @@ use super::{polish as polishing, ConstrainedSolver, InferOptions};
 use crate::assemble::System;
 use crate::error::Result;
 use crate::solver::active_set::{self, ActivePieces, ActiveSetSettings};
-use crate::solver::clarabel::{self, Cone, ConicProblem, ConicSettings, ConicSolution};
+use crate::solver::clarabel::{self, ConicSettings};
 use crate::solver::sparse_interior_point::{self, InteriorPointSettings, RestartPoint};
 use crate::solver::sparse_ls::{self, EqualityLeastSquares, Ordering};
-use crate::solver::{LeastSquares, SolveStatus};
+use crate::solver::{
+    ActiveSetMiss, Attempt, InteriorPointFailure, LeastSquares, Solution, SolveStatus,
+};
+use crate::solver::{Cone, ConicProblem};
 use std::sync::Mutex;
 use std::time::Instant;
 
 /// What the cascade found.
 pub(crate) struct Solved {
     /// The answer; its status names the stage that produced it.
-    pub solution: ConicSolution,
+    pub solution: Solution,
     /// The answer without inequalities, when the sparse stage ran (even
     /// unconverged, it shows how well the data can be fitted).
-    pub unconstrained: Option<ConicSolution>,
+    pub unconstrained: Option<Solution>,
 }
 
 /// Solves `problem` for one cluster. `sparse` allows stages 1–3; without it
@@ -76,8 +79,8 @@ pub(crate) fn solve(
 pub(crate) fn interior_point(
     problem: &ConicProblem,
     settings: &ConicSettings,
-    note: Option<String>,
-) -> Result<ConicSolution> {
+    note: Option<Attempt>,
+) -> Result<Solution> {
     let mut sol = clarabel::solve(problem, settings)?;
     for c in &problem.cones {
         c.project(&mut sol.x);
@@ -88,11 +91,7 @@ pub(crate) fn interior_point(
 
 /// Stage 5: an interior-point answer sharpened by imposing the constraints it
 /// found tight; other answers are exact already and stay as they are.
-pub(crate) fn polish(
-    system: &System,
-    problem: &ConicProblem,
-    sol: &mut ConicSolution,
-) -> Result<()> {
+pub(crate) fn polish(system: &System, problem: &ConicProblem, sol: &mut Solution) -> Result<()> {
     if !sol.status.is_interior_point() || sol.softened {
         return Ok(());
     }
@@ -106,12 +105,12 @@ pub(crate) fn polish(
 /// What the sparse stages found.
 pub(crate) struct SparseRoute {
     /// The least squares without inequalities.
-    pub unconstrained: ConicSolution,
+    pub unconstrained: Solution,
     /// The friction-constrained optimum, when found: the unconstrained answer
     /// if admissible (status `LeastSquares`), else the converged active set.
-    pub constrained: Option<ConicSolution>,
+    pub constrained: Option<Solution>,
     /// Why the active set did not deliver, for the report.
-    pub note: Option<String>,
+    pub note: Option<Attempt>,
 }
 
 /// What one cluster keeps between its solves: the sparse factorisation and
@@ -197,7 +196,7 @@ pub(crate) fn least_squares_only(
     problem: &ConicProblem,
     opts: &InferOptions,
     slot: &FactorSlot,
-) -> Result<Option<ConicSolution>> {
+) -> Result<Option<Solution>> {
     match problem.least_squares() {
         Some(stacked) => Ok(Some(
             sparse_route(system, stacked.view(), &problem.cones, opts, slot, false)?.unconstrained,
@@ -265,12 +264,7 @@ fn sparse_route(
             sol.kkt_residual
         ));
     }
-    let (unconstrained, converged) = as_solution(
-        sol,
-        start,
-        "equality-constrained least squares (faer)",
-        warnings,
-    );
+    let (unconstrained, converged) = as_solution(sol, start, warnings);
     if cone_list.is_empty() || !constrained {
         return Ok(SparseRoute {
             unconstrained,
@@ -320,13 +314,13 @@ pub(crate) fn constrained_on_factor(
     factor: &mut EqualityLeastSquares,
     p: &LeastSquares,
     cone_list: &[Cone],
-    unconstrained: &ConicSolution,
+    unconstrained: &Solution,
     warm: &mut WarmStart,
     stages: Stages,
     settings: &ActiveSetSettings,
     ip_settings: &InteriorPointSettings,
     start: Instant,
-) -> Result<(Option<ConicSolution>, Option<String>)> {
+) -> Result<(Option<Solution>, Option<Attempt>)> {
     if stages.feasible_as_is {
         if let Some(x) = feasible_as_is(&unconstrained.x, cone_list) {
             let mut sol = unconstrained.clone();
@@ -360,8 +354,8 @@ pub(crate) fn constrained_on_factor(
             let why = match failed {
                 Some(sol) => sol
                     .reason
-                    .map_or_else(|| "not converged".to_owned(), |r| r.to_string()),
-                None => "skipped (it did not settle at a nearby λ)".to_owned(),
+                    .map_or(ActiveSetMiss::NotConverged, ActiveSetMiss::Stopped),
+                None => ActiveSetMiss::Skipped,
             };
             return Ok(sparse_interior_point(
                 factor,
@@ -369,7 +363,7 @@ pub(crate) fn constrained_on_factor(
                 cone_list,
                 unconstrained,
                 warm,
-                &why,
+                why,
                 ip_settings,
                 start,
             ));
@@ -380,15 +374,16 @@ pub(crate) fn constrained_on_factor(
         ..Default::default()
     };
     Ok((
-        Some(ConicSolution {
+        Some(Solution {
             x: sol.x,
             status: SolveStatus::ActiveSet,
             iterations: sol.iterations as u32,
             solve_time: start.elapsed().as_secs_f64(),
-            attempts: vec![format!(
-                "active set on the sparse factorisation: {} solves, {} sliding and {} open contacts",
-                sol.iterations, sol.sliding, sol.open
-            )],
+            attempts: vec![Attempt::ActiveSet {
+                solves: sol.iterations,
+                sliding: sol.sliding,
+                open: sol.open,
+            }],
             softened: false,
             warnings: Vec::new(),
         }),
@@ -404,12 +399,12 @@ fn sparse_interior_point(
     factor: &EqualityLeastSquares,
     p: &LeastSquares,
     cone_list: &[Cone],
-    unconstrained: &ConicSolution,
+    unconstrained: &Solution,
     warm: &mut WarmStart,
-    why: &str,
+    why: ActiveSetMiss,
     settings: &InteriorPointSettings,
     start: Instant,
-) -> (Option<ConicSolution>, Option<String>) {
+) -> (Option<Solution>, Option<Attempt>) {
     // Only a nearby λ's mid-path iterate is a good start.
     let restart = if warm.expects_active_set_to_fail(p.lambda) {
         warm.interior_point.take()
@@ -433,29 +428,33 @@ fn sparse_interior_point(
     let mut ip = match outcome {
         Ok(ip) if ip.converged => ip,
         Ok(ip) => {
-            let reason = ip.reason.as_deref().unwrap_or("not converged");
-            let failure = format!("{reason} after {} iterations", ip.iterations);
-            return (None, Some(ip_failed(why, &failure)));
+            let failure = match ip.stop {
+                Some(stop) => InteriorPointFailure::Stopped {
+                    stop,
+                    iterations: ip.iterations,
+                    gap: ip.gap,
+                    primal_residual: ip.primal_residual,
+                    dual_residual: ip.dual_residual,
+                },
+                None => InteriorPointFailure::Error("not converged".into()),
+            };
+            return (None, Some(ip_failed(why, failure)));
         }
-        Err(e) => return (None, Some(ip_failed(why, &e.to_string()))),
+        Err(e) => {
+            let failure = InteriorPointFailure::Error(e.to_string());
+            return (None, Some(ip_failed(why, failure)));
+        }
     };
     warm.interior_point = ip.restart.take();
-    let mut attempt = format!(
-        "active set: {why}; interior point on the sparse factorisation: {} iterations (gap {:.1e})",
-        ip.iterations, ip.gap
-    );
-    if let Some(noise) = ip.noise {
-        attempt.push_str(&format!(
-            "; distance to the optimum ≤ {:.1e} against noise {noise:.1e} (fit norm){}",
-            ip.distance,
-            if ip.at_distance {
-                ", the data's accuracy"
-            } else {
-                ""
-            }
-        ));
-    }
-    let solution = ConicSolution {
+    let attempt = Attempt::SparseInteriorPoint {
+        active_set: why,
+        iterations: ip.iterations,
+        gap: ip.gap,
+        distance: ip.noise.map(|_| ip.distance),
+        noise: ip.noise,
+        at_data_accuracy: ip.at_distance,
+    };
+    let solution = Solution {
         x: ip.x,
         status: SolveStatus::SparseInteriorPoint { polished: false },
         iterations: ip.iterations as u32,
@@ -477,10 +476,11 @@ pub(crate) fn interior_point_settings(opts: &InferOptions) -> InteriorPointSetti
     }
 }
 
-fn ip_failed(why: &str, failure: &str) -> String {
-    format!(
-        "active set: {why}; interior point on the sparse factorisation: {failure}; solved by the interior point instead"
-    )
+fn ip_failed(why: ActiveSetMiss, failure: InteriorPointFailure) -> Attempt {
+    Attempt::SparseInteriorPointFailed {
+        active_set: why,
+        failure,
+    }
 }
 
 /// Relative size of a cone violation treated as round-off of an exact answer.
@@ -518,17 +518,16 @@ pub(crate) fn feasible_as_is(x: &[f64], cones: &[Cone]) -> Option<Vec<f64>> {
 pub(crate) fn as_solution(
     sol: sparse_ls::LsSolution,
     start: Instant,
-    attempt: &str,
     warnings: Vec<String>,
-) -> (ConicSolution, bool) {
+) -> (Solution, bool) {
     let converged = sol.converged;
     (
-        ConicSolution {
+        Solution {
             x: sol.x,
             status: SolveStatus::LeastSquares,
             iterations: sol.refinement_steps as u32,
             solve_time: start.elapsed().as_secs_f64(),
-            attempts: vec![attempt.into()],
+            attempts: vec![Attempt::LeastSquares],
             softened: false,
             warnings,
         },

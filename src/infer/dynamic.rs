@@ -12,7 +12,8 @@ use super::{cascade, cones, FactorCache, FactorSlot, InferOptions, InferenceRepo
 use crate::assemble::{Assembly, System};
 use crate::error::{Error, Result};
 use crate::report::pareto::ParetoPoint;
-use crate::solver::clarabel::{self, ConicProblem, Term};
+use crate::solver::clarabel::{self};
+use crate::solver::{ConicProblem, Term};
 
 /// How λ (the weight of the momentum rows) is chosen.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
@@ -69,7 +70,7 @@ pub(crate) fn solve_weighted(
     report: &mut InferenceReport,
 ) -> Result<(Vec<Vec<f64>>, f64, f64)> {
     use rayon::prelude::*;
-    let results: Vec<Result<(Vec<f64>, clarabel::ConicSolution)>> = assembly
+    let results: Vec<Result<(Vec<f64>, Solution)>> = assembly
         .systems
         .par_iter()
         .zip(factors.slots(assembly).par_iter())
@@ -95,7 +96,7 @@ fn solve_one(
     opts: &InferOptions,
     lambda: f64,
     factor: &FactorSlot,
-) -> Result<(Vec<f64>, clarabel::ConicSolution)> {
+) -> Result<(Vec<f64>, Solution)> {
     let problem = ConicProblem {
         n: system.n,
         terms: vec![

@@ -36,8 +36,9 @@ pub use sequence::{infer_frames, infer_sequence, Progress};
 use crate::assemble::{self, AssembleOptions, Assembly, Friction, System};
 use crate::error::{Error, Result};
 use crate::scene::{Scene, Vec3};
-use crate::solver::clarabel::{self, Cone, ConicProblem, ConicSettings, Term};
+use crate::solver::clarabel::{self, ConicSettings};
 use crate::solver::sparse_ls::{self, Ordering};
+use crate::solver::{Cone, ConicProblem, Term};
 use crate::solver::{SolveStatus, Triplets};
 pub(crate) use cascade::{ordering, FactorCache, FactorSlot};
 use std::time::Instant;
@@ -533,7 +534,7 @@ pub(crate) fn solve_all(
     report: &mut InferenceReport,
 ) -> Result<Vec<Vec<f64>>> {
     use rayon::prelude::*;
-    let results: Vec<Result<(Vec<f64>, Option<clarabel::ConicSolution>)>> = assembly
+    let results: Vec<Result<(Vec<f64>, Option<Solution>)>> = assembly
         .systems
         .par_iter()
         .zip(factors.slots(assembly).par_iter())
@@ -627,7 +628,7 @@ fn solve_system(
     opts: &InferOptions,
     lambda: f64,
     factor: &FactorSlot,
-) -> Result<(Vec<f64>, Option<clarabel::ConicSolution>)> {
+) -> Result<(Vec<f64>, Option<Solution>)> {
     let with_cones = opts.method != Method::Ls;
     let cone_list = if with_cones {
         cones(system, opts.cone)

@@ -9,8 +9,8 @@
 
 use crate::assemble::System;
 use crate::error::Result;
-use crate::solver::clarabel::{Cone, ConicProblem};
 use crate::solver::{sparse_ls, Triplets};
+use crate::solver::{Cone, ConicProblem};
 
 /// Slack (relative to the largest unknown) under which a constraint counts as tight.
 const ACTIVE: f64 = 1e-6;
@@ -75,7 +75,7 @@ fn active_rows(x: &[f64], cones: &[Cone], n: usize) -> Triplets {
                     add(&[(t2, 1.0)]);
                     continue;
                 }
-                for (m, c, s) in crate::solver::clarabel::pyramid_facets(facets, mu) {
+                for (m, c, s) in crate::solver::pyramid_facets(facets, mu) {
                     if m * x[normal] - c * x[t1] - s * x[t2] <= tight {
                         add(&[(normal, m), (t1, -c), (t2, -s)]);
                     }

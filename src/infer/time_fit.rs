@@ -27,9 +27,9 @@ use super::{cascade, cones, ConeModel, InferOptions};
 use crate::assemble::{self, AssembleOptions};
 use crate::error::{Error, Result};
 use crate::scene::{Body, Scene, Vec3};
-use crate::solver::clarabel::{Cone, ConicProblem, ConicSolution, Term};
 use crate::solver::sparse_ls::EqualityLeastSquares;
-use crate::solver::{LeastSquares, SolveStatus, Triplets};
+use crate::solver::{Attempt, LeastSquares, Solution, SolveStatus, Triplets};
+use crate::solver::{Cone, ConicProblem, Term};
 use std::collections::HashMap;
 use std::time::Instant;
 
@@ -98,12 +98,25 @@ pub struct TimeFitReport {
     /// σ_r used [N], and whether it was estimated.
     pub roughness: f64,
     pub roughness_estimated: bool,
-    /// "least squares" when the unconstrained fit already met friction, else
-    /// the active set's solves and final pieces (or the interior point's
-    /// status where the active set stalled).
-    pub solver: String,
+    /// The stage that gave the answer: `LeastSquares` when the unconstrained
+    /// fit already met friction.
+    pub solver_status: SolveStatus,
+    /// Each stage tried (the active set's solves and final pieces, or why it
+    /// stalled and what the interior point did).
+    pub solver_attempts: Vec<Attempt>,
     pub seconds: f64,
     pub warnings: Vec<String>,
+}
+
+impl TimeFitReport {
+    /// How the joint problem was solved, as the summary prints it.
+    pub fn solver_text(&self) -> String {
+        if self.solver_status == SolveStatus::LeastSquares && self.solver_attempts.is_empty() {
+            return "least squares (friction met as is)".into();
+        }
+        let attempts: Vec<String> = self.solver_attempts.iter().map(|a| a.to_string()).collect();
+        attempts.join("; ")
+    }
 }
 
 impl std::fmt::Display for TimeFitReport {
@@ -116,7 +129,7 @@ impl std::fmt::Display for TimeFitReport {
             self.kinematic_unknowns,
             self.grain_tracks,
             self.contact_tracks,
-            self.solver,
+            self.solver_text(),
             self.seconds
         )?;
         writeln!(
@@ -603,7 +616,7 @@ pub fn infer_time_fit(
         regularized: 0,
         cones: cone_list,
     };
-    let unconstrained = ConicSolution {
+    let unconstrained = Solution {
         x: sol.x,
         status: SolveStatus::LeastSquares,
         iterations: sol.refinement_steps as u32,
@@ -633,19 +646,16 @@ pub fn infer_time_fit(
         &cascade::interior_point_settings(opts),
         Instant::now(),
     )?;
-    let (x, solver) = match constrained {
-        Some(sol) if sol.status == SolveStatus::LeastSquares => {
-            (sol.x, "least squares (friction met as is)".to_owned())
-        }
-        Some(sol) => (sol.x, sol.attempts.join("; ")),
+    let (x, solver_status, solver_attempts) = match constrained {
+        Some(sol) => (sol.x, sol.status, sol.attempts),
         None => {
             // The joint problem is always feasible (zero forces, free tracks),
             // so an interior-point failure is numerical: say so rather than
             // pass its diagnosis on.
-            let note = note.unwrap_or_default();
-            let ip = cascade::interior_point(&problem, &opts.conic, None).map_err(|e| {
+            let note_text = note.as_ref().map(|n| n.to_string()).unwrap_or_default();
+            let ip = cascade::interior_point(&problem, &opts.conic, note).map_err(|e| {
                 Error::Solver(format!(
-                    "time fit: the interior point did not solve the joint problem either ({e}; {note}); infer frame by frame (`time_fit` = frames)"
+                    "time fit: the interior point did not solve the joint problem either ({e}; {note_text}); infer frame by frame (`time_fit` = frames)"
                 ))
             })?;
             if ip.softened {
@@ -655,8 +665,7 @@ pub fn infer_time_fit(
                 )));
             }
             warnings.extend(ip.warnings);
-            let solver = format!("{note} ({}, {} iterations)", ip.status, ip.iterations);
-            (ip.x, solver)
+            (ip.x, ip.status, ip.attempts)
         }
     };
 
@@ -689,7 +698,8 @@ pub fn infer_time_fit(
         stress_sd: fit.stress_sd,
         roughness,
         roughness_estimated,
-        solver,
+        solver_status,
+        solver_attempts,
         seconds: start.elapsed().as_secs_f64(),
         warnings,
     };
