@@ -1,34 +1,73 @@
-//! The one route of every friction-constrained least squares — quasi-static,
-//! Tikhonov, dynamic, soft and the joint time fit all take it:
+//! The one route of every friction-constrained least squares in the crate —
+//! the formulations of `infer` (quasi-static, Tikhonov, dynamic, soft,
+//! scaled, the joint time fit, the collapse retry and the infeasibility
+//! diagnosis) and the fringe fit's steps:
 //!
 //! 1. the least squares without inequalities on the sparse factorisation (its
-//!    symbolic analysis done once per cluster and kept across λ);
-//! 2. that answer, when it already meets every cone;
-//! 3. the active set on the same factorisation, warm-started from the previous
+//!    symbolic analysis done once per cluster and kept across λ), returned
+//!    when it already meets every cone;
+//! 2. the active set on the same factorisation, warm-started from the previous
 //!    solve's active pieces, then cold;
-//! 4. when it does not converge, the interior point on the same pattern
-//!    (`solver::sparse_interior_point`: statically determinate grains with contacts
-//!    at the edge of their pieces defeat the active set, not it);
-//! 5. clarabel when that does not converge either, its answer projected onto
-//!    the cones;
-//! 6. on request, [`polish`] of an interior-point answer.
+//! 3. when it does not converge, the sparse interior point on the same pattern
+//!    (`solver::sparse_interior_point`: statically determinate grains with
+//!    contacts at the edge of their pieces defeat the active set, not it);
+//! 4. clarabel when that does not converge either, or when the caller gives
+//!    no sparse pattern, its answer projected onto the cones;
+//! 5. on request, [`polish`] of an interior-point answer.
 //!
 //! Callers build one [`ConicProblem`] and read the route taken from the
-//! solution's [`SolveStatus`] and `attempts`.
+//! solution's [`SolveStatus`] and its typed `attempts`.
 
-use super::{polish as polishing, ConstrainedSolver, InferOptions};
-use crate::assemble::System;
+use super::polish as polishing;
 use crate::error::Result;
 use crate::solver::active_set::{self, ActivePieces, ActiveSetSettings};
 use crate::solver::clarabel::{self, ConicSettings};
 use crate::solver::sparse_interior_point::{self, InteriorPointSettings, RestartPoint};
 use crate::solver::sparse_ls::{self, EqualityLeastSquares, Ordering};
 use crate::solver::{
-    ActiveSetMiss, Attempt, InteriorPointFailure, LeastSquares, Solution, SolveStatus,
+    ActiveSetMiss, Attempt, InteriorPointFailure, LeastSquares, Solution, SolveStatus, Triplets,
 };
 use crate::solver::{Cone, ConicProblem};
 use std::sync::Mutex;
 use std::time::Instant;
+
+/// The cascade's own settings (an inference fills them from its options).
+#[derive(Debug, Clone, Copy)]
+pub struct CascadeSettings {
+    /// Try the active set after the least squares (else the interior points
+    /// follow it directly).
+    pub active_set: bool,
+    /// Return the least squares when it already meets every cone.
+    pub exact_first: bool,
+    /// The fill-reducing ordering of the sparse stages (`None`: by dimension).
+    pub ordering: Option<Ordering>,
+    pub active_set_settings: ActiveSetSettings,
+    /// clarabel's settings; their tolerance and noise share are the sparse
+    /// interior point's too.
+    pub interior_point: ConicSettings,
+}
+
+impl Default for CascadeSettings {
+    fn default() -> Self {
+        CascadeSettings {
+            active_set: true,
+            exact_first: true,
+            ordering: None,
+            active_set_settings: ActiveSetSettings::default(),
+            interior_point: ConicSettings::default(),
+        }
+    }
+}
+
+/// What the sparse stages need of a problem besides its terms: which
+/// unknowns belong to one contact (coupled in the factorisation) and the
+/// dimension (the default ordering).
+#[derive(Debug, Clone)]
+pub struct Pattern {
+    pub dim: usize,
+    /// One row per contact, a 1 at each of its unknowns.
+    pub contact_blocks: Triplets,
+}
 
 /// What the cascade found.
 pub(crate) struct Solved {
@@ -39,19 +78,26 @@ pub(crate) struct Solved {
     pub unconstrained: Option<Solution>,
 }
 
-/// Solves `problem` for one cluster. `sparse` allows stages 1–3; without it
-/// (or when the problem has no sparse form) the interior point solves it.
+/// Solves `problem`. `sparse` (the cluster's pattern and cached state)
+/// allows the sparse stages; without it (or when the problem has no sparse
+/// form) clarabel solves it.
 pub(crate) fn solve(
-    system: &System,
     problem: &ConicProblem,
-    sparse: bool,
-    opts: &InferOptions,
-    slot: &FactorSlot,
+    sparse: Option<(&Pattern, &FactorSlot)>,
+    settings: &CascadeSettings,
 ) -> Result<Solved> {
     let mut note = None;
     let mut unconstrained = None;
-    if let Some(stacked) = problem.least_squares().filter(|_| sparse) {
-        let route = sparse_route(system, stacked.view(), &problem.cones, opts, slot, true)?;
+    let stacked = sparse.and_then(|s| problem.least_squares().map(|ls| (s, ls)));
+    if let Some(((pattern, slot), stacked)) = stacked {
+        let route = sparse_route(
+            pattern,
+            stacked.view(),
+            &problem.cones,
+            settings,
+            slot,
+            true,
+        )?;
         if problem.cones.is_empty() {
             return Ok(Solved {
                 solution: route.unconstrained.clone(),
@@ -68,7 +114,7 @@ pub(crate) fn solve(
         unconstrained = Some(route.unconstrained);
     }
     Ok(Solved {
-        solution: interior_point(problem, &opts.conic, note)?,
+        solution: interior_point(problem, &settings.interior_point, note)?,
         unconstrained,
     })
 }
@@ -91,11 +137,11 @@ pub(crate) fn interior_point(
 
 /// Stage 5: an interior-point answer sharpened by imposing the constraints it
 /// found tight; other answers are exact already and stay as they are.
-pub(crate) fn polish(system: &System, problem: &ConicProblem, sol: &mut Solution) -> Result<()> {
+pub(crate) fn polish(pattern: &Pattern, problem: &ConicProblem, sol: &mut Solution) -> Result<()> {
     if !sol.status.is_interior_point() || sol.softened {
         return Ok(());
     }
-    if let Some(x) = polishing::polish(system, problem, &sol.x)? {
+    if let Some(x) = polishing::polish(pattern, problem, &sol.x)? {
         sol.x = x;
         sol.status = sol.status.polished();
     }
@@ -184,22 +230,30 @@ impl FactorCache {
 }
 
 /// The user's ordering, else [`Ordering::for_dim`].
-pub(crate) fn ordering(system: &System, choice: Option<Ordering>) -> Ordering {
-    choice.unwrap_or(Ordering::for_dim(system.dim))
+pub(crate) fn ordering(dim: usize, choice: Option<Ordering>) -> Ordering {
+    choice.unwrap_or(Ordering::for_dim(dim))
 }
 
 /// Stage 1 alone: the least squares without inequalities on the cluster's
 /// cached factorisation, built as the constrained stages need it so that they
 /// can follow on the same analysis. `None` when the problem has no sparse form.
 pub(crate) fn least_squares_only(
-    system: &System,
+    pattern: &Pattern,
     problem: &ConicProblem,
-    opts: &InferOptions,
+    settings: &CascadeSettings,
     slot: &FactorSlot,
 ) -> Result<Option<Solution>> {
     match problem.least_squares() {
         Some(stacked) => Ok(Some(
-            sparse_route(system, stacked.view(), &problem.cones, opts, slot, false)?.unconstrained,
+            sparse_route(
+                pattern,
+                stacked.view(),
+                &problem.cones,
+                settings,
+                slot,
+                false,
+            )?
+            .unconstrained,
         )),
         None => Ok(None),
     }
@@ -208,19 +262,19 @@ pub(crate) fn least_squares_only(
 /// Stages 1–3 on the cluster's cached factorisation (stage 1 alone unless
 /// `constrained`).
 fn sparse_route(
-    system: &System,
+    pattern: &Pattern,
     p: LeastSquares,
     cone_list: &[Cone],
-    opts: &InferOptions,
+    settings: &CascadeSettings,
     slot: &FactorSlot,
     constrained: bool,
 ) -> Result<SparseRoute> {
     let start = Instant::now();
-    let use_active_set = !cone_list.is_empty() && opts.solver == ConstrainedSolver::ActiveSet;
+    let use_active_set = !cone_list.is_empty() && settings.active_set;
     // Each contact's unknowns coupled: the active set's rows then fit the
     // pattern, and nested dissection cuts contacts, not unknowns (METIS at
     // 10⁴ spheres: 0.4 s against 2.6 s on the unknowns, the same fill).
-    let coupling = system.contact_blocks();
+    let coupling = &pattern.contact_blocks;
     // A poisoned slot only means another cluster's solve panicked; its factor
     // is still a valid analysis (or is rebuilt when the pattern differs).
     let mut state = slot.lock().unwrap_or_else(|e| e.into_inner());
@@ -230,8 +284,8 @@ fn sparse_route(
         empty => empty.insert(EqualityLeastSquares::with_ordering(
             p.a,
             p.c,
-            &coupling,
-            ordering(system, opts.ordering),
+            coupling,
+            ordering(pattern.dim, settings.ordering),
         )?),
     };
     // The scan's answers (stage 1 alone) only rank λ by their wall mismatch,
@@ -249,7 +303,7 @@ fn sparse_route(
         sol = factor.solve(p.a, p.c, p.b, p.d, p.lambda)?;
     }
     let mut warnings = Vec::new();
-    let asked = ordering(system, opts.ordering);
+    let asked = ordering(pattern.dim, settings.ordering);
     let ordering_note = (factor.ordering() != asked).then(|| {
         format!(
             "ordering: {asked:?} could not order this {}-unknown system (METIS failed); {:?} used instead: the same forces, at more fill and time",
@@ -273,7 +327,7 @@ fn sparse_route(
         });
     }
     let stages = Stages {
-        feasible_as_is: converged && opts.exact_first,
+        feasible_as_is: converged && settings.exact_first,
         active_set: use_active_set,
     };
     let (mut constrained, note) = constrained_on_factor(
@@ -283,8 +337,8 @@ fn sparse_route(
         &unconstrained,
         warm,
         stages,
-        &opts.active_set,
-        &interior_point_settings(opts),
+        &settings.active_set_settings,
+        &interior_point_settings(settings),
         start,
     )?;
     if let (Some(solution), Some(w)) = (constrained.as_mut(), ordering_note) {
@@ -297,14 +351,15 @@ fn sparse_route(
     })
 }
 
-/// Which of stages 2 and 3 to try.
+/// Whether to return an admissible least squares (stage 1) and to try the
+/// active set (stage 2).
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct Stages {
     pub feasible_as_is: bool,
     pub active_set: bool,
 }
 
-/// Stages 2–4 from an unconstrained answer on its factorisation (which must
+/// Stages 1 (its end) to 3 from an unconstrained answer on its factorisation (which must
 /// couple each contact's unknowns): the constrained optimum when found, else
 /// why not (for the report). `warm` (from the previous solve of a nearby
 /// problem) warm-starts the active set, or skips it where it failed, and
@@ -391,7 +446,7 @@ pub(crate) fn constrained_on_factor(
     ))
 }
 
-/// Stage 4, after the active set did not settle (`why`): the interior point
+/// Stage 3, after the active set did not settle (`why`): the interior point
 /// on the cluster's analysis, restarted mid-path from a nearby λ's solve when
 /// there was one. Its answer, else why it failed too (clarabel follows).
 #[allow(clippy::too_many_arguments)]
@@ -468,10 +523,10 @@ fn sparse_interior_point(
 
 /// The sparse interior point to the user's interior-point tolerance
 /// (`--tolerance`), as clarabel after it, or sooner at the data's accuracy.
-pub(crate) fn interior_point_settings(opts: &InferOptions) -> InteriorPointSettings {
+pub(crate) fn interior_point_settings(settings: &CascadeSettings) -> InteriorPointSettings {
     InteriorPointSettings {
-        tolerance: opts.conic.tolerance,
-        noise_share: opts.conic.noise_share,
+        tolerance: settings.interior_point.tolerance,
+        noise_share: settings.interior_point.noise_share,
         ..Default::default()
     }
 }

@@ -12,7 +12,7 @@ use super::{cascade, cones, FactorCache, FactorSlot, InferOptions, InferenceRepo
 use crate::assemble::{Assembly, System};
 use crate::error::{Error, Result};
 use crate::report::pareto::ParetoPoint;
-use crate::solver::clarabel::{self};
+use crate::solver::Solution;
 use crate::solver::{ConicProblem, Term};
 
 /// How λ (the weight of the momentum rows) is chosen.
@@ -122,9 +122,11 @@ fn solve_one(
     let moderate = (1e-6..=1e6).contains(&lambda);
     let sparse =
         moderate && (opts.exact_first || opts.solver == super::ConstrainedSolver::ActiveSet);
-    let mut sol = cascade::solve(system, &problem, sparse, opts, factor)?.solution;
+    let pattern = super::pattern(system);
+    let sparse = sparse.then_some((&pattern, factor));
+    let mut sol = cascade::solve(&problem, sparse, &opts.cascade())?.solution;
     if opts.polish && moderate {
-        cascade::polish(system, &problem, &mut sol)?;
+        cascade::polish(&pattern, &problem, &mut sol)?;
     }
     Ok((sol.x.clone(), sol))
 }
@@ -363,7 +365,7 @@ fn stress_hat_trace(system: &System, lambda: f64) -> Result<f64> {
         &col_ptr,
         &row_idx,
         &values,
-        super::ordering(system, None),
+        super::ordering(system.dim, None),
         shift,
     )?;
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(19);

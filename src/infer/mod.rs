@@ -39,8 +39,8 @@ use crate::scene::{Scene, Vec3};
 use crate::solver::clarabel::{self, ConicSettings};
 use crate::solver::sparse_ls::{self, Ordering};
 use crate::solver::{Cone, ConicProblem, Term};
-use crate::solver::{SolveStatus, Triplets};
-pub(crate) use cascade::{ordering, FactorCache, FactorSlot};
+use crate::solver::{Solution, SolveStatus, Triplets};
+pub(crate) use cascade::{ordering, CascadeSettings, FactorCache, FactorSlot, Pattern};
 use std::time::Instant;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -186,6 +186,27 @@ pub struct InferOptions {
     pub on_collapse: OnCollapse,
     /// Noise model of the stress rows (how they are weighted).
     pub stress_noise: StressNoise,
+}
+
+impl InferOptions {
+    /// The cascade's settings from these options.
+    pub(crate) fn cascade(&self) -> CascadeSettings {
+        CascadeSettings {
+            active_set: self.solver == ConstrainedSolver::ActiveSet,
+            exact_first: self.exact_first,
+            ordering: self.ordering,
+            active_set_settings: self.active_set,
+            interior_point: self.conic,
+        }
+    }
+}
+
+/// What the cascade's sparse stages need of a cluster: its contacts' unknowns.
+pub(crate) fn pattern(system: &System) -> Pattern {
+    Pattern {
+        dim: system.dim,
+        contact_blocks: system.contact_blocks(),
+    }
 }
 
 impl Default for InferOptions {
@@ -574,7 +595,7 @@ pub(crate) fn solve_all_least_squares(
                 Vec::new()
             };
             let problem = system_problem(system, opts, lambda, cone_list);
-            cascade::least_squares_only(system, &problem, opts, slot)
+            cascade::least_squares_only(&pattern(system), &problem, &opts.cascade(), slot)
         })
         .collect::<Result<Vec<_>>>()?;
     let mut xs = Vec::with_capacity(solved.len());
@@ -654,7 +675,9 @@ fn solve_system(
     let problem = system_problem(system, opts, lambda, cone_list);
     let use_active_set = with_cones && opts.solver == ConstrainedSolver::ActiveSet;
     let sparse = !opts.allow_infeasible && (opts.exact_first || !with_cones || use_active_set);
-    let solved = match cascade::solve(system, &problem, sparse, opts, factor) {
+    let settings = opts.cascade();
+    let pattern = sparse.then(|| pattern(system));
+    let solved = match cascade::solve(&problem, pattern.as_ref().map(|p| (p, factor)), &settings) {
         Ok(solved) => solved,
         Err(Error::Infeasible(_)) => return Err(diagnose_infeasible(system, opts, &problem)),
         Err(e) => return Err(e),
@@ -666,7 +689,8 @@ fn solve_system(
         || !degenerate(fit(&sol.x), unconstrained_fit)
     {
         if opts.polish && !opts.allow_infeasible {
-            cascade::polish(system, &problem, &mut sol)?;
+            let pattern = pattern.unwrap_or_else(|| self::pattern(system));
+            cascade::polish(&pattern, &problem, &mut sol)?;
         }
         return Ok((sol.x.clone(), Some(sol)));
     }
@@ -761,7 +785,7 @@ fn check_identifiability(
     let mut unique = true;
     let mut conditioning = 1.0f64;
     for s in &assembly.systems {
-        let ordering = cascade::ordering(s, opts.ordering);
+        let ordering = cascade::ordering(s.dim, opts.ordering);
         let check = sparse_ls::identifiability_with(&s.stress, &s.momentum, ordering)?;
         unique &= check.unique;
         conditioning = conditioning.min(check.sigma_min_relative);

@@ -643,7 +643,7 @@ pub fn infer_time_fit(
         &mut Default::default(),
         stages,
         &opts.active_set,
-        &cascade::interior_point_settings(opts),
+        &cascade::interior_point_settings(&opts.cascade()),
         Instant::now(),
     )?;
     let (x, solver_status, solver_attempts) = match constrained {

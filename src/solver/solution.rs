@@ -303,3 +303,87 @@ impl fmt::Display for Attempt {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_status_reads_back_from_its_name() {
+        for status in [
+            SolveStatus::NotRun,
+            SolveStatus::LeastSquares,
+            SolveStatus::ActiveSet,
+            SolveStatus::SparseInteriorPoint { polished: false },
+            SolveStatus::SparseInteriorPoint { polished: true },
+            SolveStatus::Solved { polished: false },
+            SolveStatus::Solved { polished: true },
+            SolveStatus::AlmostSolved { polished: false },
+            SolveStatus::AlmostSolved { polished: true },
+        ] {
+            assert_eq!(status.to_string().parse::<SolveStatus>(), Ok(status));
+        }
+        for bad in [
+            "",
+            "failed",
+            "ActiveSet+polished",
+            "Solved+polished+polished",
+        ] {
+            assert!(bad.parse::<SolveStatus>().is_err(), "{bad:?} accepted");
+        }
+    }
+
+    #[test]
+    fn the_interior_points_figures_are_text_and_numbers() {
+        let attempt = Attempt::SparseInteriorPoint {
+            active_set: ActiveSetMiss::Skipped,
+            iterations: 17,
+            gap: 3.2e-9,
+            distance: Some(1.26e-5),
+            noise: Some(4.0e-3),
+            at_data_accuracy: true,
+        };
+        assert_eq!(
+            attempt.to_string(),
+            "active set: skipped (it did not settle at a nearby λ); interior point on the sparse \
+             factorisation: 17 iterations (gap 3.2e-9); distance to the optimum ≤ 1.3e-5 against \
+             noise 4.0e-3 (fit norm), the data's accuracy"
+        );
+        let json = serde_json::to_value(&attempt).unwrap();
+        assert_eq!(json["stage"], "sparse_interior_point");
+        assert_eq!(json["distance"].as_f64(), Some(1.26e-5));
+        assert_eq!(json["noise"].as_f64(), Some(4.0e-3));
+        assert_eq!(json["active_set"], "skipped");
+        // Without a noise estimate the text names neither figure.
+        let tolerance_only = Attempt::SparseInteriorPoint {
+            active_set: ActiveSetMiss::Skipped,
+            iterations: 17,
+            gap: 3.2e-9,
+            distance: None,
+            noise: None,
+            at_data_accuracy: false,
+        };
+        assert!(!tolerance_only.to_string().contains("distance"));
+    }
+
+    #[test]
+    fn clarabel_attempts_print_as_before() {
+        let a = Attempt::Clarabel {
+            tolerance: 1e-8,
+            status: SolverStatus::Solved,
+        };
+        assert_eq!(a.to_string(), "tolerance 1e-8: Solved");
+        assert_eq!(serde_json::to_value(&a).unwrap()["status"], "Solved");
+        let failure = InteriorPointFailure::Stopped {
+            stop: InteriorPointStop::NoProgress { iterations: 8 },
+            iterations: 40,
+            gap: 1e-3,
+            primal_residual: 2e-4,
+            dual_residual: 5e-5,
+        };
+        assert_eq!(
+            failure.to_string(),
+            "no progress in 8 iterations: gap 1.0e-3, primal residual 2.0e-4, dual residual 5.0e-5 after 40 iterations"
+        );
+    }
+}

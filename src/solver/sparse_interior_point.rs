@@ -127,7 +127,7 @@ pub struct InteriorPointSolution {
 }
 
 /// Why the interior point stopped short of its tolerance.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub enum InteriorPointStop {
     /// Pyramidal cones: no certificate is known for them here.
     PyramidalCones,
@@ -139,19 +139,21 @@ pub enum InteriorPointStop {
     NotFinite,
     /// The step to the cone boundary shrank to `alpha`.
     ShortStep { alpha: f64 },
+    /// A Newton system could not be solved (the factorisation's error).
+    LinearSolve(String),
 }
 
 impl InteriorPointStop {
     /// Whether the iterate's gap and residuals say more (not for pyramids,
     /// which stop before the first iteration).
-    pub fn has_measures(self) -> bool {
-        self != InteriorPointStop::PyramidalCones
+    pub fn has_measures(&self) -> bool {
+        *self != InteriorPointStop::PyramidalCones
     }
 }
 
 impl std::fmt::Display for InteriorPointStop {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match *self {
+        match self {
             InteriorPointStop::PyramidalCones => {
                 f.write_str("pyramidal cones have no certificate here")
             }
@@ -163,6 +165,7 @@ impl std::fmt::Display for InteriorPointStop {
             }
             InteriorPointStop::NotFinite => f.write_str("the iterate left the finite numbers"),
             InteriorPointStop::ShortStep { alpha } => write!(f, "step {alpha:.1e}"),
+            InteriorPointStop::LinearSolve(e) => write!(f, "linear solve failed: {e}"),
         }
     }
 }
@@ -986,12 +989,12 @@ impl Iterate {
         w: &Scaling,
         lambda: &[f64],
         xi: &[f64],
-    ) -> std::result::Result<Direction, String> {
+    ) -> std::result::Result<Direction, InteriorPointStop> {
         let t: Vec<f64> = lambda.iter().zip(xi).map(|(l, q)| 2.0 * l + q).collect();
         aug.b[aug.rows_at..].copy_from_slice(&t);
         let sol = ls
             .solve(&aug.a, problem.c, &aug.b, problem.d, problem.lambda)
-            .map_err(|e| format!("linear solve failed: {e}"))?;
+            .map_err(|e| InteriorPointStop::LinearSolve(e.to_string()))?;
         let x_new = sol.x;
         let spring_gap: Vec<f64> = t
             .iter()
