@@ -9,14 +9,12 @@
 //! - `ls`: the equality-constrained least squares without inequalities: the fast floor.
 //! - `dynamic` (eq. 3.18): ‖K_s f − b_s‖² + λ‖K_m f − b_m‖², λ by a rule (see [`dynamic`]).
 
-mod cascade;
 pub mod collapse;
 pub mod config;
 pub mod dynamic;
 pub mod kinematics;
 mod lambda;
 pub mod noise;
-mod polish;
 mod report;
 pub mod run;
 pub mod sequence;
@@ -36,11 +34,13 @@ pub use sequence::{infer_frames, infer_sequence, Progress};
 use crate::assemble::{self, AssembleOptions, Assembly, Friction, System};
 use crate::error::{Error, Result};
 use crate::scene::{Scene, Vec3};
-use crate::solver::clarabel::{self, ConicSettings};
+pub(crate) use crate::solver::cascade::{
+    self, ordering, CascadeSettings, FactorCache, FactorSlot, Pattern,
+};
+use crate::solver::clarabel::ConicSettings;
 use crate::solver::sparse_ls::{self, Ordering};
 use crate::solver::{Cone, ConicProblem, Term};
 use crate::solver::{Solution, SolveStatus, Triplets};
-pub(crate) use cascade::{ordering, CascadeSettings, FactorCache, FactorSlot, Pattern};
 use std::time::Instant;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -706,7 +706,7 @@ fn solve_system(
         rhs: &system.momentum_rhs,
         weight: COLLAPSE_WEIGHT,
     });
-    let mut soft = cascade::interior_point(&soft_problem, &opts.conic, None)?;
+    let mut soft = cascade::solve(&soft_problem, None, &opts.cascade())?.solution;
     let residual = system
         .momentum
         .mul(&soft.x)
@@ -807,7 +807,7 @@ fn diagnose_infeasible(system: &System, opts: &InferOptions, problem: &ConicProb
         .iter()
         .any(|u| u.friction != Friction::NormalOnly);
     let hint = "or pass `allow_infeasible` for the least-violation answer";
-    if friction_bound && clarabel::solve(&normal_only, &opts.conic).is_ok() {
+    if friction_bound && cascade::solve(&normal_only, None, &opts.cascade()).is_ok() {
         Error::Infeasible(format!(
             "the measured loads need tangential forces beyond μ·f_n at some contacts (μ too small for these stresses \
              and accelerations); raise `mu`, check the data, {hint}"
@@ -888,7 +888,7 @@ fn solve_scaled(
         regularized: 0,
         cones: cone_list,
     };
-    let sol = cascade::interior_point(&problem, &opts.conic, None)?;
+    let sol = cascade::solve(&problem, None, &opts.cascade())?.solution;
     report.absorb(&sol);
     let s = sol.x[n];
     if s <= 0.0 {

@@ -23,12 +23,13 @@
 //! pair of bodies they join (contact ids are only unique within a frame); a
 //! contact absent from a frame has zero force there.
 
-use super::{cascade, cones, ConeModel, InferOptions};
+use super::{cones, ConeModel, InferOptions};
 use crate::assemble::{self, AssembleOptions};
 use crate::error::{Error, Result};
 use crate::scene::{Body, Scene, Vec3};
+use crate::solver::cascade::{self, CascadeSettings};
 use crate::solver::sparse_ls::EqualityLeastSquares;
-use crate::solver::{Attempt, LeastSquares, Solution, SolveStatus, Triplets};
+use crate::solver::{Attempt, Solution, SolveStatus, Triplets};
 use crate::solver::{Cone, ConicProblem, Term};
 use std::collections::HashMap;
 use std::time::Instant;
@@ -625,49 +626,27 @@ pub fn infer_time_fit(
         softened: false,
         warnings: Vec::new(),
     };
-    let stages = cascade::Stages {
-        feasible_as_is: true,
+    // The joint problem is always feasible (zero forces, free tracks), so a
+    // failure is numerical: say so rather than pass its diagnosis on.
+    let settings = CascadeSettings {
         active_set: true,
+        exact_first: true,
+        ..opts.cascade()
     };
-    let (constrained, note) = cascade::constrained_on_factor(
-        &mut ls,
-        &LeastSquares {
-            a: &a,
-            b: &b,
-            c: &c,
-            d: &d,
-            lambda: 0.0,
-        },
-        &problem.cones,
-        &unconstrained,
-        &mut Default::default(),
-        stages,
-        &opts.active_set,
-        &cascade::interior_point_settings(&opts.cascade()),
-        Instant::now(),
-    )?;
-    let (x, solver_status, solver_attempts) = match constrained {
-        Some(sol) => (sol.x, sol.status, sol.attempts),
-        None => {
-            // The joint problem is always feasible (zero forces, free tracks),
-            // so an interior-point failure is numerical: say so rather than
-            // pass its diagnosis on.
-            let note_text = note.as_ref().map(|n| n.to_string()).unwrap_or_default();
-            let ip = cascade::interior_point(&problem, &opts.conic, note).map_err(|e| {
-                Error::Solver(format!(
-                    "time fit: the interior point did not solve the joint problem either ({e}; {note_text}); infer frame by frame (`time_fit` = frames)"
-                ))
-            })?;
-            if ip.softened {
-                return Err(Error::Solver(format!(
-                    "time fit: the interior point met the integrator rows only softened ({}); infer frame by frame instead",
-                    ip.status
-                )));
-            }
-            warnings.extend(ip.warnings);
-            (ip.x, ip.status, ip.attempts)
-        }
-    };
+    let solved = cascade::solve_on_factor(&mut ls, &problem, &unconstrained, &settings)
+        .map_err(|e| {
+            Error::Solver(format!(
+                "time fit: the joint problem was not solved ({e}); infer frame by frame (`time_fit` = frames)"
+            ))
+        })?;
+    if solved.softened {
+        return Err(Error::Solver(format!(
+            "time fit: the interior point met the integrator rows only softened ({}); infer frame by frame instead",
+            solved.status
+        )));
+    }
+    warnings.extend(solved.warnings);
+    let (x, solver_status, solver_attempts) = (solved.x, solved.status, solved.attempts);
 
     let forces = placed
         .iter()

@@ -3,7 +3,9 @@
 //! factorisation, and clarabel for the constrained QP/SOCP as the fallback.
 
 pub mod active_set;
+pub mod cascade;
 pub mod clarabel;
+mod polish;
 pub mod problem;
 pub mod solution;
 pub mod sparse_interior_point;

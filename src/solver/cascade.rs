@@ -19,7 +19,7 @@
 //! solution's [`SolveStatus`] and its typed `attempts`.
 
 use super::polish as polishing;
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::solver::active_set::{self, ActivePieces, ActiveSetSettings};
 use crate::solver::clarabel::{self, ConicSettings};
 use crate::solver::sparse_interior_point::{self, InteriorPointSettings, RestartPoint};
@@ -114,15 +114,61 @@ pub(crate) fn solve(
         unconstrained = Some(route.unconstrained);
     }
     Ok(Solved {
-        solution: interior_point(problem, &settings.interior_point, note)?,
+        solution: clarabel_stage(problem, &settings.interior_point, note)?,
         unconstrained,
     })
+}
+
+/// The route of a least squares already factored by its caller (the time
+/// fit keeps its own loosening loop on `factor`, whose pattern must couple
+/// each contact's unknowns): from its unconstrained answer, stages 2–4 on
+/// `factor` (stages 1–3), then clarabel (stage 4).
+pub(crate) fn solve_on_factor(
+    factor: &mut EqualityLeastSquares,
+    problem: &ConicProblem,
+    unconstrained: &Solution,
+    settings: &CascadeSettings,
+) -> Result<Solution> {
+    let start = Instant::now();
+    if let Some(stacked) = problem.least_squares() {
+        let stages = Stages {
+            feasible_as_is: settings.exact_first,
+            active_set: settings.active_set,
+        };
+        let (constrained, note) = constrained_on_factor(
+            factor,
+            &stacked.view(),
+            &problem.cones,
+            unconstrained,
+            &mut WarmStart::default(),
+            stages,
+            &settings.active_set_settings,
+            &interior_point_settings(settings),
+            start,
+        )?;
+        if let Some(solution) = constrained {
+            return Ok(solution);
+        }
+        let text = note.as_ref().map(ToString::to_string).unwrap_or_default();
+        return clarabel_stage(problem, &settings.interior_point, note)
+            .map_err(|e| with_note(e, &text));
+    }
+    clarabel_stage(problem, &settings.interior_point, None)
+}
+
+/// `e` with `note` (why the sparse stages did not deliver) appended.
+fn with_note(e: Error, note: &str) -> Error {
+    match e {
+        Error::Solver(m) => Error::Solver(format!("{m}; {note}")),
+        Error::Infeasible(m) => Error::Infeasible(format!("{m}; {note}")),
+        other => other,
+    }
 }
 
 /// Stage 4: clarabel, its answer projected onto the cones (it meets them only
 /// to its tolerance; the output must meet them exactly). `note` says why the
 /// active set did not deliver.
-pub(crate) fn interior_point(
+fn clarabel_stage(
     problem: &ConicProblem,
     settings: &ConicSettings,
     note: Option<Attempt>,
@@ -354,9 +400,9 @@ fn sparse_route(
 /// Whether to return an admissible least squares (stage 1) and to try the
 /// active set (stage 2).
 #[derive(Debug, Clone, Copy)]
-pub(crate) struct Stages {
-    pub feasible_as_is: bool,
-    pub active_set: bool,
+struct Stages {
+    feasible_as_is: bool,
+    active_set: bool,
 }
 
 /// Stages 1 (its end) to 3 from an unconstrained answer on its factorisation (which must
@@ -365,7 +411,7 @@ pub(crate) struct Stages {
 /// problem) warm-starts the active set, or skips it where it failed, and
 /// learns from this solve.
 #[allow(clippy::too_many_arguments)]
-pub(crate) fn constrained_on_factor(
+fn constrained_on_factor(
     factor: &mut EqualityLeastSquares,
     p: &LeastSquares,
     cone_list: &[Cone],
@@ -523,7 +569,7 @@ fn sparse_interior_point(
 
 /// The sparse interior point to the user's interior-point tolerance
 /// (`--tolerance`), as clarabel after it, or sooner at the data's accuracy.
-pub(crate) fn interior_point_settings(settings: &CascadeSettings) -> InteriorPointSettings {
+fn interior_point_settings(settings: &CascadeSettings) -> InteriorPointSettings {
     InteriorPointSettings {
         tolerance: settings.interior_point.tolerance,
         noise_share: settings.interior_point.noise_share,
