@@ -73,7 +73,7 @@ pub(crate) fn solve_weighted(
     let results: Vec<Result<(Vec<f64>, Solution)>> = assembly
         .systems
         .par_iter()
-        .zip(factors.slots(assembly).par_iter())
+        .zip(factors.slots(assembly.systems.len()).par_iter())
         .map(|(s, slot)| solve_one(s, opts, lambda, slot))
         .collect();
     let (mut xs, mut rs, mut rm) = (Vec::new(), 0.0, 0.0);

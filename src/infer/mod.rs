@@ -361,7 +361,7 @@ pub(crate) fn infer_once(scene: &Scene, opts: &InferOptions) -> Result<Inference
     assemble_opts.single_system = opts.method == Method::Scaled;
     let assembly = assemble::assemble(scene, &assemble_opts)?;
     let mut report = InferenceReport::new(scene, opts, &assembly);
-    let factors = FactorCache::new(&assembly);
+    let factors = FactorCache::new(assembly.systems.len());
     // The uniqueness check has its own factorisation and does not depend on
     // the solve, so it runs beside it: mostly sequential, the solve leaves a
     // second core idle (3D 10⁴ spheres: check 9 s, `ls` solve 10 s).
@@ -558,7 +558,7 @@ pub(crate) fn solve_all(
     let results: Vec<Result<(Vec<f64>, Option<Solution>)>> = assembly
         .systems
         .par_iter()
-        .zip(factors.slots(assembly).par_iter())
+        .zip(factors.slots(assembly.systems.len()).par_iter())
         .map(|(s, slot)| solve_system(s, opts, lambda, slot))
         .collect();
     let mut xs = Vec::with_capacity(results.len());
@@ -587,7 +587,7 @@ pub(crate) fn solve_all_least_squares(
     let solved = assembly
         .systems
         .par_iter()
-        .zip(factors.slots(assembly).par_iter())
+        .zip(factors.slots(assembly.systems.len()).par_iter())
         .map(|(system, slot)| {
             let cone_list = if opts.method != Method::Ls {
                 cones(system, opts.cone)

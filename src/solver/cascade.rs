@@ -258,19 +258,18 @@ pub(crate) struct FactorCache {
 }
 
 impl FactorCache {
-    pub(crate) fn new(assembly: &crate::assemble::Assembly) -> Self {
+    /// One slot for each of `clusters` clusters.
+    pub(crate) fn new(clusters: usize) -> Self {
         FactorCache {
-            slots: assembly
-                .systems
-                .iter()
+            slots: (0..clusters)
                 .map(|_| Mutex::new(ClusterState::default()))
                 .collect(),
         }
     }
 
-    /// One slot per cluster of `assembly` (the one this cache was made for).
-    pub(crate) fn slots(&self, assembly: &crate::assemble::Assembly) -> &[FactorSlot] {
-        debug_assert_eq!(self.slots.len(), assembly.systems.len());
+    /// One slot per cluster; `clusters` must be the count it was made for.
+    pub(crate) fn slots(&self, clusters: usize) -> &[FactorSlot] {
+        debug_assert_eq!(self.slots.len(), clusters);
         &self.slots
     }
 }
