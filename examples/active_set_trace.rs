@@ -153,10 +153,11 @@ fn main() -> grainforce::Result<()> {
 /// that near-tight contacts cannot be pinned (issue 20, docs/bench.md).
 fn probe_optimum(
     system: &grainforce::assemble::System,
-    cones: &[grainforce::solver::conic::Cone],
+    cones: &[grainforce::solver::Cone],
 ) -> grainforce::Result<()> {
-    use grainforce::solver::conic::{self, Cone, ConicProblem, ConicSettings, Term};
+    use grainforce::solver::clarabel::{self, ConicSettings};
     use grainforce::solver::Triplets;
+    use grainforce::solver::{Cone, ConicProblem, Term};
     let problem = ConicProblem {
         n: system.n,
         terms: vec![Term {
@@ -173,7 +174,7 @@ fn probe_optimum(
         tolerance: 1e-10,
         ..ConicSettings::default()
     };
-    let x = conic::solve(&problem, &settings)?.x;
+    let x = clarabel::solve(&problem, &settings)?.x;
     let scale = x.iter().fold(0.0f64, |m, v| m.max(v.abs()));
     let norm = x.iter().map(|v| v * v).sum::<f64>().sqrt();
     let mut ls = EqualityLeastSquares::with_ordering(

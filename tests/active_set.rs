@@ -569,12 +569,7 @@ fn warm_pieces_from_a_nearby_lambda_give_the_same_optimum_sooner() {
 }
 
 /// The largest cluster of a scene, assembled, with its exact cones.
-fn largest_system(
-    scene: &Scene,
-) -> (
-    grainforce::assemble::System,
-    Vec<grainforce::solver::conic::Cone>,
-) {
+fn largest_system(scene: &Scene) -> (grainforce::assemble::System, Vec<grainforce::solver::Cone>) {
     use grainforce::assemble::{assemble, AssembleOptions};
     let assembly = assemble(scene, &AssembleOptions::default()).unwrap();
     let system = assembly.systems.into_iter().max_by_key(|s| s.n).unwrap();
@@ -592,7 +587,7 @@ fn factor_for(system: &grainforce::assemble::System) -> EqualityLeastSquares {
 fn active_set_after_least_squares(
     ls: &mut EqualityLeastSquares,
     system: &grainforce::assemble::System,
-    cones: &[grainforce::solver::conic::Cone],
+    cones: &[grainforce::solver::Cone],
     lambda: f64,
     warm: Option<&grainforce::solver::active_set::ActivePieces>,
     settings: &grainforce::solver::active_set::ActiveSetSettings,
@@ -684,7 +679,7 @@ fn active_set_settings_are_validated() {
     let a = identity(2);
     let c = Triplets::new(0, 2);
     let mut ls = EqualityLeastSquares::new(&a, &c).unwrap();
-    let cones = [grainforce::solver::conic::Cone::NonNegative { normal: 0 }];
+    let cones = [grainforce::solver::Cone::NonNegative { normal: 0 }];
     let problem = |b: &'static [f64]| LeastSquares {
         a: &a,
         b,

@@ -8,7 +8,8 @@ use grainforce::bench::{perturb, Noise};
 use grainforce::infer::{infer, InferOptions, Inference, Method};
 use grainforce::report::metrics::relative_error;
 use grainforce::scene::{read_forces, read_scene, Scene, Vec3};
-use grainforce::solver::SolveStatus;
+use grainforce::solver::clarabel::DEFAULT_NOISE_SHARE;
+use grainforce::solver::{Attempt, SolveStatus};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
@@ -76,12 +77,44 @@ fn distances(scene: &Scene, truth: &[Vec3]) -> (Inference, f64, f64) {
     (fast, relative_error(&g, &f), relative_error(truth, &g))
 }
 
-/// Stopped at the data's accuracy, as the report says.
+/// Stopped at the data's accuracy, as the report says: in its text, in its
+/// typed stages (the certified distance within the noise share of the noise)
+/// and in its JSON (both figures as numbers).
 fn at_datas_accuracy(run: &Inference) -> bool {
-    run.report
+    let text = run
+        .report
         .solver_attempts
         .iter()
-        .any(|a| a.ends_with("(fit norm), the data's accuracy"))
+        .any(|a| a.ends_with("(fit norm), the data's accuracy"));
+    let typed = run.report.solver_stages.iter().any(|a| match a {
+        Attempt::SparseInteriorPoint {
+            at_data_accuracy: true,
+            distance: Some(d),
+            noise: Some(n),
+            ..
+        } => {
+            assert!(
+                *d <= DEFAULT_NOISE_SHARE * n,
+                "distance {d} against noise {n}"
+            );
+            true
+        }
+        _ => false,
+    });
+    let json = serde_json::to_value(&run.report).unwrap();
+    let in_json = json["solver_stages"].as_array().unwrap().iter().any(|a| {
+        a["stage"] == "sparse_interior_point"
+            && a["at_data_accuracy"] == true
+            && a["distance"].as_f64().is_some_and(|d| d > 0.0)
+            && a["noise"].as_f64().is_some_and(|n| n > 0.0)
+    });
+    assert_eq!(
+        (text, typed),
+        (typed, in_json),
+        "{:?}",
+        run.report.solver_stages
+    );
+    typed
 }
 
 /// Eq. 2.16 noise (bias 0.15, scatter 0.1): the default stops at the data's

@@ -151,7 +151,7 @@ fn uniqueness_is_reported() {
 #[test]
 fn pyramids_lie_inside_the_cone_3d() {
     use grainforce::infer::ConeModel;
-    use grainforce::solver::conic::pyramid_facets;
+    use grainforce::solver::pyramid_facets;
     let (mut s, truth) = cubic_stack(0.3);
     // Axis-aligned contacts balance with normal forces alone, so a small μ is
     // feasible, and with noisy stresses it binds.

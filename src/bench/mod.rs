@@ -17,6 +17,7 @@ use crate::infer::{infer, ConeModel, ConstrainedSolver, InferOptions, LambdaPrec
 use crate::report::chart::{Chart, Scale};
 use crate::report::metrics::relative_error;
 use crate::scene::{Scene, Vec3};
+use crate::solver::SolveStatus;
 use image::RgbImage;
 use std::time::Instant;
 
@@ -145,7 +146,9 @@ pub struct CaseResult {
     /// Worst (|f_t| − μ f_n)₊ relative to the mean contact force.
     pub coulomb_violation: f64,
     pub iterations: u32,
-    pub status: String,
+    /// The solve's status; `None` (written "failed") when the case failed.
+    #[serde(with = "status_or_failed")]
+    pub status: Option<SolveStatus>,
     /// The error, when the inference failed or timed out.
     pub error: Option<String>,
 }
@@ -172,7 +175,7 @@ impl CaseResult {
             relerr: f64::NAN,
             coulomb_violation: f64::NAN,
             iterations: 0,
-            status: "failed".into(),
+            status: None,
             error: Some(error),
         }
     }
@@ -205,7 +208,7 @@ pub fn run_case(scene: &Scene, truth: &[Vec3], noise: Noise, spec: &MethodSpec) 
                 relerr: relative_error(truth, &forces),
                 coulomb_violation: r.coulomb_violation,
                 iterations: r.iterations,
-                status: r.solver_status.to_string(),
+                status: Some(r.solver_status),
                 error: None,
             }
         }
@@ -312,7 +315,7 @@ pub fn markdown_table(results: &[CaseResult]) -> String {
         };
         let status = match &r.error {
             Some(e) => format!("**failed**: {}", e.replace('|', "/")),
-            None => r.status.clone(),
+            None => status_or_failed::text(r.status),
         };
         s.push_str(&format!(
             "| {}D | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
@@ -339,6 +342,30 @@ pub fn markdown_table(results: &[CaseResult]) -> String {
         ));
     }
     s
+}
+
+/// A case's status as the table writes it: the status's name, or "failed".
+mod status_or_failed {
+    use crate::solver::SolveStatus;
+    use serde::{Deserialize, Deserializer, Serializer};
+
+    const FAILED: &str = "failed";
+
+    pub fn text(status: Option<SolveStatus>) -> String {
+        status.map_or_else(|| FAILED.to_owned(), |s| s.to_string())
+    }
+
+    pub fn serialize<S: Serializer>(status: &Option<SolveStatus>, s: S) -> Result<S::Ok, S::Error> {
+        s.collect_str(&text(*status))
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Option<SolveStatus>, D::Error> {
+        let text = String::deserialize(d)?;
+        if text == FAILED {
+            return Ok(None);
+        }
+        text.parse().map(Some).map_err(serde::de::Error::custom)
+    }
 }
 
 /// CSV of results (one row per case).

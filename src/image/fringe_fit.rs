@@ -27,8 +27,9 @@
 use super::{FloatImage, PixelFrame};
 use crate::error::{Error, Result};
 use crate::scene::{Body, Scene};
-use crate::solver::conic::{self, Cone, ConicProblem, ConicSettings, Term};
+use crate::solver::cascade::{self, CascadeSettings};
 use crate::solver::Triplets;
+use crate::solver::{Cone, ConicProblem, Term};
 use rayon::prelude::*;
 use std::f64::consts::PI;
 
@@ -957,7 +958,9 @@ fn balanced_start(
         settings,
         friction_cones(scene, settings.mu),
     );
-    Ok(conic::solve(&problem, &ConicSettings::default())?.x)
+    Ok(cascade::solve(&problem, None, &CascadeSettings::default())?
+        .solution
+        .x)
 }
 
 fn objective(p: &Prepared, x: &[f64], optics: &Optics) -> f64 {
@@ -1109,11 +1112,9 @@ impl Stepper<'_> {
                     self.settings,
                     friction_cones(scene, self.settings.mu),
                 );
-                let mut sol = conic::solve(&problem, &ConicSettings::default())?;
-                for c in &problem.cones {
-                    c.project(&mut sol.x);
-                }
-                Ok(sol.x)
+                // The cascade's interior point (its answer projected onto the cones).
+                let solved = cascade::solve(&problem, None, &CascadeSettings::default())?;
+                Ok(solved.solution.x)
             }
             None => {
                 // Free steps (the per-disk baseline): dense normal equations.

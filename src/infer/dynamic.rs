@@ -12,7 +12,8 @@ use super::{cascade, cones, FactorCache, FactorSlot, InferOptions, InferenceRepo
 use crate::assemble::{Assembly, System};
 use crate::error::{Error, Result};
 use crate::report::pareto::ParetoPoint;
-use crate::solver::conic::{self, ConicProblem, Term};
+use crate::solver::Solution;
+use crate::solver::{ConicProblem, Term};
 
 /// How λ (the weight of the momentum rows) is chosen.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
@@ -69,10 +70,10 @@ pub(crate) fn solve_weighted(
     report: &mut InferenceReport,
 ) -> Result<(Vec<Vec<f64>>, f64, f64)> {
     use rayon::prelude::*;
-    let results: Vec<Result<(Vec<f64>, conic::ConicSolution)>> = assembly
+    let results: Vec<Result<(Vec<f64>, Solution)>> = assembly
         .systems
         .par_iter()
-        .zip(factors.slots(assembly).par_iter())
+        .zip(factors.slots(assembly.systems.len()).par_iter())
         .map(|(s, slot)| solve_one(s, opts, lambda, slot))
         .collect();
     let (mut xs, mut rs, mut rm) = (Vec::new(), 0.0, 0.0);
@@ -95,7 +96,7 @@ fn solve_one(
     opts: &InferOptions,
     lambda: f64,
     factor: &FactorSlot,
-) -> Result<(Vec<f64>, conic::ConicSolution)> {
+) -> Result<(Vec<f64>, Solution)> {
     let problem = ConicProblem {
         n: system.n,
         terms: vec![
@@ -121,9 +122,11 @@ fn solve_one(
     let moderate = (1e-6..=1e6).contains(&lambda);
     let sparse =
         moderate && (opts.exact_first || opts.solver == super::ConstrainedSolver::ActiveSet);
-    let mut sol = cascade::solve(system, &problem, sparse, opts, factor)?.solution;
+    let pattern = super::pattern(system);
+    let sparse = sparse.then_some((&pattern, factor));
+    let mut sol = cascade::solve(&problem, sparse, &opts.cascade())?.solution;
     if opts.polish && moderate {
-        cascade::polish(system, &problem, &mut sol)?;
+        cascade::polish(&pattern, &problem, &mut sol)?;
     }
     Ok((sol.x.clone(), sol))
 }
@@ -362,7 +365,7 @@ fn stress_hat_trace(system: &System, lambda: f64) -> Result<f64> {
         &col_ptr,
         &row_idx,
         &values,
-        super::ordering(system, None),
+        super::ordering(system.dim, None),
         shift,
     )?;
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(19);

@@ -9,14 +9,12 @@
 //! - `ls`: the equality-constrained least squares without inequalities: the fast floor.
 //! - `dynamic` (eq. 3.18): ‖K_s f − b_s‖² + λ‖K_m f − b_m‖², λ by a rule (see [`dynamic`]).
 
-mod cascade;
 pub mod collapse;
 pub mod config;
 pub mod dynamic;
 pub mod kinematics;
 mod lambda;
 pub mod noise;
-mod polish;
 mod report;
 pub mod run;
 pub mod sequence;
@@ -36,10 +34,13 @@ pub use sequence::{infer_frames, infer_sequence, Progress};
 use crate::assemble::{self, AssembleOptions, Assembly, Friction, System};
 use crate::error::{Error, Result};
 use crate::scene::{Scene, Vec3};
-use crate::solver::conic::{self, Cone, ConicProblem, ConicSettings, Term};
+pub(crate) use crate::solver::cascade::{
+    self, ordering, CascadeSettings, FactorCache, FactorSlot, Pattern,
+};
+use crate::solver::clarabel::ConicSettings;
 use crate::solver::sparse_ls::{self, Ordering};
-use crate::solver::{SolveStatus, Triplets};
-pub(crate) use cascade::{ordering, FactorCache, FactorSlot};
+use crate::solver::{Cone, ConicProblem, Term};
+use crate::solver::{Solution, SolveStatus, Triplets};
 use std::time::Instant;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -185,6 +186,27 @@ pub struct InferOptions {
     pub on_collapse: OnCollapse,
     /// Noise model of the stress rows (how they are weighted).
     pub stress_noise: StressNoise,
+}
+
+impl InferOptions {
+    /// The cascade's settings from these options.
+    pub(crate) fn cascade(&self) -> CascadeSettings {
+        CascadeSettings {
+            active_set: self.solver == ConstrainedSolver::ActiveSet,
+            exact_first: self.exact_first,
+            ordering: self.ordering,
+            active_set_settings: self.active_set,
+            interior_point: self.conic,
+        }
+    }
+}
+
+/// What the cascade's sparse stages need of a cluster: its contacts' unknowns.
+pub(crate) fn pattern(system: &System) -> Pattern {
+    Pattern {
+        dim: system.dim,
+        contact_blocks: system.contact_blocks(),
+    }
 }
 
 impl Default for InferOptions {
@@ -339,7 +361,7 @@ pub(crate) fn infer_once(scene: &Scene, opts: &InferOptions) -> Result<Inference
     assemble_opts.single_system = opts.method == Method::Scaled;
     let assembly = assemble::assemble(scene, &assemble_opts)?;
     let mut report = InferenceReport::new(scene, opts, &assembly);
-    let factors = FactorCache::new(&assembly);
+    let factors = FactorCache::new(assembly.systems.len());
     // The uniqueness check has its own factorisation and does not depend on
     // the solve, so it runs beside it: mostly sequential, the solve leaves a
     // second core idle (3D 10⁴ spheres: check 9 s, `ls` solve 10 s).
@@ -533,10 +555,10 @@ pub(crate) fn solve_all(
     report: &mut InferenceReport,
 ) -> Result<Vec<Vec<f64>>> {
     use rayon::prelude::*;
-    let results: Vec<Result<(Vec<f64>, Option<conic::ConicSolution>)>> = assembly
+    let results: Vec<Result<(Vec<f64>, Option<Solution>)>> = assembly
         .systems
         .par_iter()
-        .zip(factors.slots(assembly).par_iter())
+        .zip(factors.slots(assembly.systems.len()).par_iter())
         .map(|(s, slot)| solve_system(s, opts, lambda, slot))
         .collect();
     let mut xs = Vec::with_capacity(results.len());
@@ -565,7 +587,7 @@ pub(crate) fn solve_all_least_squares(
     let solved = assembly
         .systems
         .par_iter()
-        .zip(factors.slots(assembly).par_iter())
+        .zip(factors.slots(assembly.systems.len()).par_iter())
         .map(|(system, slot)| {
             let cone_list = if opts.method != Method::Ls {
                 cones(system, opts.cone)
@@ -573,7 +595,7 @@ pub(crate) fn solve_all_least_squares(
                 Vec::new()
             };
             let problem = system_problem(system, opts, lambda, cone_list);
-            cascade::least_squares_only(system, &problem, opts, slot)
+            cascade::least_squares_only(&pattern(system), &problem, &opts.cascade(), slot)
         })
         .collect::<Result<Vec<_>>>()?;
     let mut xs = Vec::with_capacity(solved.len());
@@ -627,7 +649,7 @@ fn solve_system(
     opts: &InferOptions,
     lambda: f64,
     factor: &FactorSlot,
-) -> Result<(Vec<f64>, Option<conic::ConicSolution>)> {
+) -> Result<(Vec<f64>, Option<Solution>)> {
     let with_cones = opts.method != Method::Ls;
     let cone_list = if with_cones {
         cones(system, opts.cone)
@@ -653,7 +675,9 @@ fn solve_system(
     let problem = system_problem(system, opts, lambda, cone_list);
     let use_active_set = with_cones && opts.solver == ConstrainedSolver::ActiveSet;
     let sparse = !opts.allow_infeasible && (opts.exact_first || !with_cones || use_active_set);
-    let solved = match cascade::solve(system, &problem, sparse, opts, factor) {
+    let settings = opts.cascade();
+    let pattern = sparse.then(|| pattern(system));
+    let solved = match cascade::solve(&problem, pattern.as_ref().map(|p| (p, factor)), &settings) {
         Ok(solved) => solved,
         Err(Error::Infeasible(_)) => return Err(diagnose_infeasible(system, opts, &problem)),
         Err(e) => return Err(e),
@@ -665,7 +689,8 @@ fn solve_system(
         || !degenerate(fit(&sol.x), unconstrained_fit)
     {
         if opts.polish && !opts.allow_infeasible {
-            cascade::polish(system, &problem, &mut sol)?;
+            let pattern = pattern.unwrap_or_else(|| self::pattern(system));
+            cascade::polish(&pattern, &problem, &mut sol)?;
         }
         return Ok((sol.x.clone(), Some(sol)));
     }
@@ -681,7 +706,7 @@ fn solve_system(
         rhs: &system.momentum_rhs,
         weight: COLLAPSE_WEIGHT,
     });
-    let mut soft = cascade::interior_point(&soft_problem, &opts.conic, None)?;
+    let mut soft = cascade::solve(&soft_problem, None, &opts.cascade())?.solution;
     let residual = system
         .momentum
         .mul(&soft.x)
@@ -760,7 +785,7 @@ fn check_identifiability(
     let mut unique = true;
     let mut conditioning = 1.0f64;
     for s in &assembly.systems {
-        let ordering = cascade::ordering(s, opts.ordering);
+        let ordering = cascade::ordering(s.dim, opts.ordering);
         let check = sparse_ls::identifiability_with(&s.stress, &s.momentum, ordering)?;
         unique &= check.unique;
         conditioning = conditioning.min(check.sigma_min_relative);
@@ -782,7 +807,7 @@ fn diagnose_infeasible(system: &System, opts: &InferOptions, problem: &ConicProb
         .iter()
         .any(|u| u.friction != Friction::NormalOnly);
     let hint = "or pass `allow_infeasible` for the least-violation answer";
-    if friction_bound && conic::solve(&normal_only, &opts.conic).is_ok() {
+    if friction_bound && cascade::solve(&normal_only, None, &opts.cascade()).is_ok() {
         Error::Infeasible(format!(
             "the measured loads need tangential forces beyond μ·f_n at some contacts (μ too small for these stresses \
              and accelerations); raise `mu`, check the data, {hint}"
@@ -863,7 +888,7 @@ fn solve_scaled(
         regularized: 0,
         cones: cone_list,
     };
-    let sol = cascade::interior_point(&problem, &opts.conic, None)?;
+    let sol = cascade::solve(&problem, None, &opts.cascade())?.solution;
     report.absorb(&sol);
     let s = sol.x[n];
     if s <= 0.0 {

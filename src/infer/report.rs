@@ -4,8 +4,8 @@
 use super::{wall_totals, InferOptions, LambdaTrace, Method};
 use crate::assemble::{Assembly, Friction};
 use crate::scene::{Scene, Vec3};
-use crate::solver::conic::ConicSolution;
 use crate::solver::SolveStatus;
+use crate::solver::{Attempt, Solution};
 
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct WallReport {
@@ -61,8 +61,13 @@ pub struct InferenceReport {
     /// move the forces by up to ~η/σ.
     pub conditioning: Option<f64>,
     pub solver_status: SolveStatus,
-    /// How each solve went (algorithm, iterations, fallbacks), deduplicated.
+    /// How each solve went (algorithm, iterations, fallbacks) and how the λ
+    /// search went, as text, deduplicated.
     pub solver_attempts: Vec<String>,
+    /// The solves' stages of `solver_attempts`, typed: their numbers (the
+    /// interior point's iterations, gap, distance to the optimum and noise)
+    /// are numbers in the JSON report.
+    pub solver_stages: Vec<Attempt>,
     pub iterations: u32,
     pub solver_time: f64,
     pub walls: Vec<WallReport>,
@@ -151,6 +156,7 @@ impl InferenceReport {
             conditioning: None,
             solver_status: SolveStatus::NotRun,
             solver_attempts: Vec::new(),
+            solver_stages: Vec::new(),
             iterations: 0,
             solver_time: 0.0,
             walls: Vec::new(),
@@ -160,15 +166,17 @@ impl InferenceReport {
     }
 
     /// Accounts for one solver call.
-    pub(crate) fn absorb(&mut self, sol: &ConicSolution) {
+    pub(crate) fn absorb(&mut self, sol: &Solution) {
         self.iterations += sol.iterations;
         self.solver_time += sol.solve_time;
         if sol.status.severity() >= self.solver_status.severity() {
             self.solver_status = sol.status;
         }
         for a in &sol.attempts {
-            if !self.solver_attempts.contains(a) {
-                self.solver_attempts.push(a.clone());
+            let text = a.to_string();
+            if !self.solver_attempts.contains(&text) {
+                self.solver_attempts.push(text);
+                self.solver_stages.push(a.clone());
             }
         }
         for w in &sol.warnings {

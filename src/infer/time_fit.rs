@@ -23,13 +23,14 @@
 //! pair of bodies they join (contact ids are only unique within a frame); a
 //! contact absent from a frame has zero force there.
 
-use super::{cascade, cones, ConeModel, InferOptions};
+use super::{cones, ConeModel, InferOptions};
 use crate::assemble::{self, AssembleOptions};
 use crate::error::{Error, Result};
 use crate::scene::{Body, Scene, Vec3};
-use crate::solver::conic::{Cone, ConicProblem, ConicSolution, Term};
+use crate::solver::cascade::{self, CascadeSettings};
 use crate::solver::sparse_ls::EqualityLeastSquares;
-use crate::solver::{LeastSquares, SolveStatus, Triplets};
+use crate::solver::{Attempt, Solution, SolveStatus, Triplets};
+use crate::solver::{Cone, ConicProblem, Term};
 use std::collections::HashMap;
 use std::time::Instant;
 
@@ -98,12 +99,25 @@ pub struct TimeFitReport {
     /// σ_r used [N], and whether it was estimated.
     pub roughness: f64,
     pub roughness_estimated: bool,
-    /// "least squares" when the unconstrained fit already met friction, else
-    /// the active set's solves and final pieces (or the interior point's
-    /// status where the active set stalled).
-    pub solver: String,
+    /// The stage that gave the answer: `LeastSquares` when the unconstrained
+    /// fit already met friction.
+    pub solver_status: SolveStatus,
+    /// Each stage tried (the active set's solves and final pieces, or why it
+    /// stalled and what the interior point did).
+    pub solver_attempts: Vec<Attempt>,
     pub seconds: f64,
     pub warnings: Vec<String>,
+}
+
+impl TimeFitReport {
+    /// How the joint problem was solved, as the summary prints it.
+    pub fn solver_text(&self) -> String {
+        if self.solver_status == SolveStatus::LeastSquares && self.solver_attempts.is_empty() {
+            return "least squares (friction met as is)".into();
+        }
+        let attempts: Vec<String> = self.solver_attempts.iter().map(|a| a.to_string()).collect();
+        attempts.join("; ")
+    }
 }
 
 impl std::fmt::Display for TimeFitReport {
@@ -116,7 +130,7 @@ impl std::fmt::Display for TimeFitReport {
             self.kinematic_unknowns,
             self.grain_tracks,
             self.contact_tracks,
-            self.solver,
+            self.solver_text(),
             self.seconds
         )?;
         writeln!(
@@ -603,7 +617,7 @@ pub fn infer_time_fit(
         regularized: 0,
         cones: cone_list,
     };
-    let unconstrained = ConicSolution {
+    let unconstrained = Solution {
         x: sol.x,
         status: SolveStatus::LeastSquares,
         iterations: sol.refinement_steps as u32,
@@ -612,53 +626,27 @@ pub fn infer_time_fit(
         softened: false,
         warnings: Vec::new(),
     };
-    let stages = cascade::Stages {
-        feasible_as_is: true,
+    // The joint problem is always feasible (zero forces, free tracks), so a
+    // failure is numerical: say so rather than pass its diagnosis on.
+    let settings = CascadeSettings {
         active_set: true,
+        exact_first: true,
+        ..opts.cascade()
     };
-    let (constrained, note) = cascade::constrained_on_factor(
-        &mut ls,
-        &LeastSquares {
-            a: &a,
-            b: &b,
-            c: &c,
-            d: &d,
-            lambda: 0.0,
-        },
-        &problem.cones,
-        &unconstrained,
-        &mut Default::default(),
-        stages,
-        &opts.active_set,
-        &cascade::interior_point_settings(opts),
-        Instant::now(),
-    )?;
-    let (x, solver) = match constrained {
-        Some(sol) if sol.status == SolveStatus::LeastSquares => {
-            (sol.x, "least squares (friction met as is)".to_owned())
-        }
-        Some(sol) => (sol.x, sol.attempts.join("; ")),
-        None => {
-            // The joint problem is always feasible (zero forces, free tracks),
-            // so an interior-point failure is numerical: say so rather than
-            // pass its diagnosis on.
-            let note = note.unwrap_or_default();
-            let ip = cascade::interior_point(&problem, &opts.conic, None).map_err(|e| {
-                Error::Solver(format!(
-                    "time fit: the interior point did not solve the joint problem either ({e}; {note}); infer frame by frame (`time_fit` = frames)"
-                ))
-            })?;
-            if ip.softened {
-                return Err(Error::Solver(format!(
-                    "time fit: the interior point met the integrator rows only softened ({}); infer frame by frame instead",
-                    ip.status
-                )));
-            }
-            warnings.extend(ip.warnings);
-            let solver = format!("{note} ({}, {} iterations)", ip.status, ip.iterations);
-            (ip.x, solver)
-        }
-    };
+    let solved = cascade::solve_on_factor(&mut ls, &problem, &unconstrained, &settings)
+        .map_err(|e| {
+            Error::Solver(format!(
+                "time fit: the joint problem was not solved ({e}); infer frame by frame (`time_fit` = frames)"
+            ))
+        })?;
+    if solved.softened {
+        return Err(Error::Solver(format!(
+            "time fit: the interior point met the integrator rows only softened ({}); infer frame by frame instead",
+            solved.status
+        )));
+    }
+    warnings.extend(solved.warnings);
+    let (x, solver_status, solver_attempts) = (solved.x, solved.status, solved.attempts);
 
     let forces = placed
         .iter()
@@ -689,7 +677,8 @@ pub fn infer_time_fit(
         stress_sd: fit.stress_sd,
         roughness,
         roughness_estimated,
-        solver,
+        solver_status,
+        solver_attempts,
         seconds: start.elapsed().as_secs_f64(),
         warnings,
     };

@@ -35,8 +35,8 @@
 
 mod predict;
 
-use super::conic::Cone;
 use super::sparse_ls::{EqualityLeastSquares, CONVERGED_TOL};
+use super::Cone;
 use super::{LeastSquares, Triplets};
 use crate::error::{Error, Result};
 

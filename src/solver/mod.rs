@@ -3,87 +3,16 @@
 //! factorisation, and clarabel for the constrained QP/SOCP as the fallback.
 
 pub mod active_set;
-pub mod conic;
-pub mod interior_point;
+pub mod cascade;
+pub mod clarabel;
+mod polish;
+pub mod problem;
+pub mod solution;
+pub mod sparse_interior_point;
 pub mod sparse_ls;
 
-/// How a solve ended: the route that produced the answer. Reports print and
-/// serialise it as the names they always used (`ActiveSet`, `Solved+polished`…).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub enum SolveStatus {
-    /// Nothing was solved (no cluster carried load).
-    #[default]
-    NotRun,
-    /// The least-squares answer: no inequalities, or friction met as it is.
-    LeastSquares,
-    /// The active set on the sparse factorisation converged.
-    ActiveSet,
-    /// The interior point on the sparse factorisation converged (the active
-    /// set could not settle).
-    SparseInteriorPoint { polished: bool },
-    /// The interior point (clarabel) converged to its tolerance.
-    Solved { polished: bool },
-    /// The interior point reached only reduced accuracy.
-    AlmostSolved { polished: bool },
-}
-
-impl SolveStatus {
-    /// An interior-point answer, which polishing may sharpen.
-    pub fn is_interior_point(self) -> bool {
-        matches!(
-            self,
-            SolveStatus::SparseInteriorPoint { .. }
-                | SolveStatus::Solved { .. }
-                | SolveStatus::AlmostSolved { .. }
-        )
-    }
-
-    /// The same status after polishing (interior-point answers only).
-    pub fn polished(self) -> SolveStatus {
-        match self {
-            SolveStatus::SparseInteriorPoint { .. } => {
-                SolveStatus::SparseInteriorPoint { polished: true }
-            }
-            SolveStatus::Solved { .. } => SolveStatus::Solved { polished: true },
-            SolveStatus::AlmostSolved { .. } => SolveStatus::AlmostSolved { polished: true },
-            other => other,
-        }
-    }
-
-    /// 0 not run, 1 converged, 2 reduced accuracy: a report of several solves
-    /// shows the worst.
-    pub(crate) fn severity(self) -> u8 {
-        match self {
-            SolveStatus::NotRun => 0,
-            SolveStatus::AlmostSolved { .. } => 2,
-            _ => 1,
-        }
-    }
-}
-
-impl std::fmt::Display for SolveStatus {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        let (name, polished) = match *self {
-            SolveStatus::NotRun => ("not run", false),
-            SolveStatus::LeastSquares => ("LeastSquares", false),
-            SolveStatus::ActiveSet => ("ActiveSet", false),
-            SolveStatus::SparseInteriorPoint { polished } => ("SparseInteriorPoint", polished),
-            SolveStatus::Solved { polished } => ("Solved", polished),
-            SolveStatus::AlmostSolved { polished } => ("AlmostSolved", polished),
-        };
-        f.write_str(name)?;
-        if polished {
-            f.write_str("+polished")?;
-        }
-        Ok(())
-    }
-}
-
-impl serde::Serialize for SolveStatus {
-    fn serialize<S: serde::Serializer>(&self, s: S) -> std::result::Result<S::Ok, S::Error> {
-        s.collect_str(self)
-    }
-}
+pub use problem::{pyramid_facets, Cone, ConicProblem, StackedLeastSquares, Term};
+pub use solution::{ActiveSetMiss, Attempt, InteriorPointFailure, Solution, SolveStatus};
 
 /// The least-squares problem of the sparse route:
 /// minimise ‖A x − b‖² + λ²‖x‖² subject to C x = d.

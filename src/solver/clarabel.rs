@@ -8,275 +8,12 @@
 //! reported as an error with the diagnostics if all attempts fail. Garbage is
 //! never passed on.
 
-use super::{LeastSquares, SolveStatus, Triplets};
+use super::{pyramid_facets, Attempt, Cone, ConicProblem, Solution, SolveStatus, Term, Triplets};
 use crate::error::{Error, Result};
-use clarabel::algebra::CscMatrix;
-use clarabel::solver::{
+use ::clarabel::algebra::CscMatrix;
+use ::clarabel::solver::{
     DefaultSettings, DefaultSettingsBuilder, DefaultSolver, IPSolver, SolverStatus, SupportedConeT,
 };
-use std::borrow::Cow;
-
-/// A constraint on a contact's unknowns (u₀ = compressive normal force).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum Cone {
-    /// u₀ ≥ 0.
-    NonNegative { normal: usize },
-    /// 2D Coulomb: μ u₀ ≥ |u₁| (two linear inequalities).
-    Wedge {
-        normal: usize,
-        tangent: usize,
-        mu: f64,
-    },
-    /// 3D Coulomb: μ u₀ ≥ ‖(u₁, u₂)‖ (a second-order cone).
-    Circular {
-        normal: usize,
-        t1: usize,
-        t2: usize,
-        mu: f64,
-    },
-    /// 3D Coulomb by an inscribed pyramid of `facets` planes (a linear QP).
-    Pyramid {
-        normal: usize,
-        t1: usize,
-        t2: usize,
-        mu: f64,
-        facets: usize,
-    },
-}
-
-impl Cone {
-    /// The same cone on unknowns shifted by `by` (a block placed in a larger problem).
-    pub fn shifted(self, by: usize) -> Cone {
-        match self {
-            Cone::NonNegative { normal } => Cone::NonNegative {
-                normal: normal + by,
-            },
-            Cone::Wedge {
-                normal,
-                tangent,
-                mu,
-            } => Cone::Wedge {
-                normal: normal + by,
-                tangent: tangent + by,
-                mu,
-            },
-            Cone::Circular { normal, t1, t2, mu } => Cone::Circular {
-                normal: normal + by,
-                t1: t1 + by,
-                t2: t2 + by,
-                mu,
-            },
-            Cone::Pyramid {
-                normal,
-                t1,
-                t2,
-                mu,
-                facets,
-            } => Cone::Pyramid {
-                normal: normal + by,
-                t1: t1 + by,
-                t2: t2 + by,
-                mu,
-                facets,
-            },
-        }
-    }
-
-    /// How far `x` lies outside the cone (0 inside), in the units of x.
-    pub fn violation(&self, x: &[f64]) -> f64 {
-        match *self {
-            Cone::NonNegative { normal } => (-x[normal]).max(0.0),
-            Cone::Wedge {
-                normal,
-                tangent,
-                mu,
-            } => (x[tangent].abs() - mu * x[normal]).max(-x[normal]).max(0.0),
-            Cone::Circular { normal, t1, t2, mu } => (x[t1].hypot(x[t2]) - mu * x[normal])
-                .max(-x[normal])
-                .max(0.0),
-            Cone::Pyramid {
-                normal,
-                t1,
-                t2,
-                mu,
-                facets,
-            } => {
-                let worst = pyramid_facets(facets, mu)
-                    .map(|(m, c, s)| c * x[t1] + s * x[t2] - m * x[normal])
-                    .fold(-x[normal], f64::max);
-                worst.max(0.0)
-            }
-        }
-    }
-
-    /// Moves `x` onto the cone by the smallest change of its tangential part
-    /// (or of the normal part when that is negative) — for removing round-off.
-    pub fn project(&self, x: &mut [f64]) {
-        let (normal, tangents, mu): (usize, &[usize], f64) = match self {
-            Cone::NonNegative { normal } => (*normal, &[], 0.0),
-            Cone::Wedge {
-                normal,
-                tangent,
-                mu,
-            } => (*normal, std::slice::from_ref(tangent), *mu),
-            Cone::Circular { normal, t1, t2, mu }
-            | Cone::Pyramid {
-                normal, t1, t2, mu, ..
-            } => {
-                x[*normal] = x[*normal].max(0.0);
-                // Inside a pyramid's inscribed circle the point is inside the pyramid.
-                let limit = match self {
-                    Cone::Pyramid { facets, .. } => inscribed_mu(*facets, *mu),
-                    _ => *mu,
-                } * x[*normal];
-                let t = x[*t1].hypot(x[*t2]);
-                if t > limit && t > 0.0 {
-                    x[*t1] *= limit / t;
-                    x[*t2] *= limit / t;
-                }
-                return;
-            }
-        };
-        x[normal] = x[normal].max(0.0);
-        for &t in tangents {
-            x[t] = x[t].clamp(-mu * x[normal], mu * x[normal]);
-        }
-    }
-}
-
-/// The facets of the pyramid inscribed in the cone μ u₀ ≥ ‖(u₁, u₂)‖: each
-/// (μ', cos θ, sin θ) stands for μ' u₀ − cos θ u₁ − sin θ u₂ ≥ 0, with
-/// μ' = μ cos(π/k) so the pyramid touches the cone along its edges.
-pub fn pyramid_facets(facets: usize, mu: f64) -> impl Iterator<Item = (f64, f64, f64)> {
-    let k = facets.max(3);
-    let inscribed = inscribed_mu(k, mu);
-    (0..k).map(move |i| {
-        let theta = 2.0 * std::f64::consts::PI * i as f64 / k as f64;
-        (inscribed, theta.cos(), theta.sin())
-    })
-}
-
-/// μ' = μ cos(π/k): the friction coefficient of a k-facet pyramid's faces
-/// (and of the circle inscribed in it).
-fn inscribed_mu(facets: usize, mu: f64) -> f64 {
-    mu * (std::f64::consts::PI / facets.max(3) as f64).cos()
-}
-
-/// One term w‖K x − b‖² of the objective.
-#[derive(Debug, Clone, Copy)]
-pub struct Term<'a> {
-    pub matrix: &'a Triplets,
-    pub rhs: &'a [f64],
-    pub weight: f64,
-}
-
-/// minimise Σ w‖K x − b‖² + λ² Σ_{i<regularized} x_i²  s.t. C x = d, cones:
-/// the one problem type of every constrained solve (interior point, active
-/// set through [`ConicProblem::least_squares`], polishing).
-#[derive(Debug, Clone, Default)]
-pub struct ConicProblem<'a> {
-    pub n: usize,
-    pub terms: Vec<Term<'a>>,
-    pub equalities: Vec<(&'a Triplets, &'a [f64])>,
-    /// Tikhonov λ (dimensionless); the objective carries λ².
-    pub lambda: f64,
-    /// The first `regularized` unknowns carry the λ² term.
-    pub regularized: usize,
-    pub cones: Vec<Cone>,
-}
-
-/// A [`ConicProblem`] without its cones as one least squares
-/// min ‖A x − b‖² + λ²‖x‖² s.t. C x = d: the terms stacked with weights √w,
-/// the equalities stacked; borrowed when there is only one of each.
-#[derive(Debug, Clone)]
-pub struct StackedLeastSquares<'a> {
-    a: Cow<'a, Triplets>,
-    b: Cow<'a, [f64]>,
-    c: Cow<'a, Triplets>,
-    d: Cow<'a, [f64]>,
-    lambda: f64,
-}
-
-impl StackedLeastSquares<'_> {
-    pub fn view(&self) -> LeastSquares<'_> {
-        LeastSquares {
-            a: &self.a,
-            b: &self.b,
-            c: &self.c,
-            d: &self.d,
-            lambda: self.lambda,
-        }
-    }
-}
-
-/// Stacks blocks of rows (each scaled by its factor) into one matrix.
-fn stack<'a>(
-    n: usize,
-    blocks: &[(&'a Triplets, &'a [f64], f64)],
-) -> (Cow<'a, Triplets>, Cow<'a, [f64]>) {
-    if let [(m, rhs, scale)] = blocks {
-        if *scale == 1.0 {
-            return (Cow::Borrowed(*m), Cow::Borrowed(*rhs));
-        }
-    }
-    let rows = blocks.iter().map(|(m, ..)| m.nrows).sum();
-    let mut a = Triplets::new(rows, n);
-    let mut b = Vec::with_capacity(rows);
-    let mut offset = 0;
-    for &(m, rhs, scale) in blocks {
-        for k in 0..m.nnz() {
-            a.push(offset + m.rows[k], m.cols[k], scale * m.vals[k]);
-        }
-        b.extend(rhs.iter().map(|v| scale * v));
-        offset += m.nrows;
-    }
-    (Cow::Owned(a), Cow::Owned(b))
-}
-
-impl<'a> ConicProblem<'a> {
-    /// The problem as one sparse least squares, when λ covers every unknown
-    /// (or is zero); `None` otherwise.
-    pub fn least_squares(&self) -> Option<StackedLeastSquares<'a>> {
-        if self.lambda > 0.0 && self.regularized != self.n {
-            return None;
-        }
-        let terms: Vec<_> = self
-            .terms
-            .iter()
-            .map(|t| (t.matrix, t.rhs, t.weight.sqrt()))
-            .collect();
-        let (a, b) = stack(self.n, &terms);
-        let equalities: Vec<_> = self.equalities.iter().map(|&(c, d)| (c, d, 1.0)).collect();
-        let (c, d) = if equalities.is_empty() {
-            (Cow::Owned(Triplets::new(0, self.n)), Cow::Owned(Vec::new()))
-        } else {
-            stack(self.n, &equalities)
-        };
-        Some(StackedLeastSquares {
-            a,
-            b,
-            c,
-            d,
-            lambda: self.lambda,
-        })
-    }
-
-    /// Σ w‖K x − b‖² + λ²‖x_reg‖².
-    pub fn objective(&self, x: &[f64]) -> f64 {
-        let reg: f64 = x[..self.regularized].iter().map(|a| a * a).sum();
-        let mut v = self.lambda * self.lambda * reg;
-        for t in &self.terms {
-            v += t.weight
-                * t.matrix
-                    .mul(x)
-                    .iter()
-                    .zip(t.rhs)
-                    .map(|(a, b)| (a - b).powi(2))
-                    .sum::<f64>();
-        }
-        v
-    }
-}
 
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct ConicSettings {
@@ -288,7 +25,7 @@ pub struct ConicSettings {
     /// Where the active set cannot settle, the sparse interior point stops
     /// once its certified distance to the optimum (in the fit's norm) is this
     /// share of what the stress residual says the noise moves the answer by
-    /// (`interior_point::noise_size`), or at `tolerance`, whichever comes
+    /// (`sparse_interior_point::noise_size`), or at `tolerance`, whichever comes
     /// first. `None` (a tolerance asked for): at `tolerance` alone.
     pub noise_share: Option<f64>,
 }
@@ -323,39 +60,30 @@ impl ConicSettings {
     }
 }
 
-#[derive(Debug, Clone, PartialEq, serde::Serialize)]
-pub struct ConicSolution {
-    pub x: Vec<f64>,
-    /// The route that produced `x` (for clarabel: Solved or AlmostSolved).
-    pub status: SolveStatus,
-    pub iterations: u32,
-    pub solve_time: f64,
-    /// What was tried, in order, with each status.
-    pub attempts: Vec<String>,
-    /// True when the solution comes from the softened-equality attempt.
-    pub softened: bool,
-    pub warnings: Vec<String>,
-}
-
 /// Weight of a softened equality relative to the least-squares terms.
 const SOFTENED_WEIGHT: f64 = 1e6;
 
-pub fn solve(problem: &ConicProblem, settings: &ConicSettings) -> Result<ConicSolution> {
+/// clarabel's answer (not projected onto the cones: it meets them to its
+/// tolerance), with each attempt it took.
+pub fn solve(problem: &ConicProblem, settings: &ConicSettings) -> Result<Solution> {
     settings.check()?;
     validate(problem)?;
     let mut attempts = Vec::new();
     let first = attempt(problem, settings.tolerance, settings.max_iter)?;
-    attempts.push(format!(
-        "tolerance {:.0e}: {:?}",
-        settings.tolerance, first.status
-    ));
+    attempts.push(Attempt::Clarabel {
+        tolerance: settings.tolerance,
+        status: first.status,
+    });
     if let Some(sol) = accept(&first, &attempts, false)? {
         return Ok(sol);
     }
     if settings.retry {
         let loose = (settings.tolerance * 100.0).max(1e-6);
         let second = attempt(problem, loose, settings.max_iter * 2)?;
-        attempts.push(format!("tolerance {loose:.0e}: {:?}", second.status));
+        attempts.push(Attempt::Clarabel {
+            tolerance: loose,
+            status: second.status,
+        });
         if let Some(mut sol) = accept(&second, &attempts, false)? {
             sol.warnings
                 .push(format!("solved only at the looser tolerance {loose:.0e}"));
@@ -364,10 +92,10 @@ pub fn solve(problem: &ConicProblem, settings: &ConicSettings) -> Result<ConicSo
         if !problem.equalities.is_empty() {
             let softened = soften(problem);
             let third = attempt(&softened, loose, settings.max_iter * 2)?;
-            attempts.push(format!(
-                "equalities softened (weight {SOFTENED_WEIGHT:.0e}): {:?}",
-                third.status
-            ));
+            attempts.push(Attempt::ClarabelSoftened {
+                weight: SOFTENED_WEIGHT,
+                status: third.status,
+            });
             if let Some(mut sol) = accept(&third, &attempts, true)? {
                 sol.warnings.push(
                     "the hard momentum equalities had no strictly feasible interior; solved with them softened into heavy penalties"
@@ -379,7 +107,11 @@ pub fn solve(problem: &ConicProblem, settings: &ConicSettings) -> Result<ConicSo
     }
     Err(Error::Solver(format!(
         "clarabel did not converge ({}); primal residual {:.2e}, dual residual {:.2e} after {} iterations",
-        attempts.join("; "),
+        attempts
+            .iter()
+            .map(ToString::to_string)
+            .collect::<Vec<_>>()
+            .join("; "),
         first.r_prim,
         first.r_dual,
         first.iterations
@@ -421,7 +153,8 @@ fn validate(problem: &ConicProblem) -> Result<()> {
     Ok(())
 }
 
-struct Attempt {
+/// What one clarabel run gave.
+struct Outcome {
     status: SolverStatus,
     x: Vec<f64>,
     iterations: u32,
@@ -430,7 +163,7 @@ struct Attempt {
     r_dual: f64,
 }
 
-fn accept(a: &Attempt, attempts: &[String], softened: bool) -> Result<Option<ConicSolution>> {
+fn accept(a: &Outcome, attempts: &[Attempt], softened: bool) -> Result<Option<Solution>> {
     let ok = matches!(a.status, SolverStatus::Solved | SolverStatus::AlmostSolved)
         && a.x.iter().all(|v| v.is_finite());
     if matches!(
@@ -448,7 +181,7 @@ fn accept(a: &Attempt, attempts: &[String], softened: bool) -> Result<Option<Con
     if a.status == SolverStatus::AlmostSolved {
         warnings.push("clarabel reached only reduced accuracy (AlmostSolved)".into());
     }
-    Ok(Some(ConicSolution {
+    Ok(Some(Solution {
         x: a.x.clone(),
         status: if a.status == SolverStatus::AlmostSolved {
             SolveStatus::AlmostSolved { polished: false }
@@ -475,7 +208,7 @@ fn soften<'a>(problem: &ConicProblem<'a>) -> ConicProblem<'a> {
     p
 }
 
-fn attempt(problem: &ConicProblem, tolerance: f64, max_iter: u32) -> Result<Attempt> {
+fn attempt(problem: &ConicProblem, tolerance: f64, max_iter: u32) -> Result<Outcome> {
     let n = problem.n;
     let residuals: usize = problem.terms.iter().map(|t| t.matrix.nrows).sum();
     let nz = n + residuals;
@@ -571,7 +304,7 @@ fn attempt(problem: &ConicProblem, tolerance: f64, max_iter: u32) -> Result<Atte
 
     if row == 0 {
         // Nothing constrains x: the minimiser of the (possibly absent) objective is 0.
-        return Ok(Attempt {
+        return Ok(Outcome {
             status: SolverStatus::Solved,
             x: vec![0.0; n],
             iterations: 0,
@@ -593,7 +326,7 @@ fn attempt(problem: &ConicProblem, tolerance: f64, max_iter: u32) -> Result<Atte
         .map_err(|e| Error::Solver(format!("clarabel rejected the problem: {e:?}")))?;
     solver.solve();
     let s = &solver.solution;
-    Ok(Attempt {
+    Ok(Outcome {
         status: s.status,
         x: s.x[..n].to_vec(),
         iterations: s.iterations,

@@ -32,8 +32,8 @@
 //! better certified of the two points answers (on the regression packings
 //! the forces land 2–30× closer to the optimum for one iteration).
 
-use super::conic::Cone;
 use super::sparse_ls::{EqualityLeastSquares, CONVERGED_TOL};
+use super::Cone;
 use super::{LeastSquares, Triplets};
 use crate::error::{Error, Result};
 
@@ -106,7 +106,7 @@ pub struct InteriorPointSolution {
     /// Gap and residuals all within the tolerance.
     pub converged: bool,
     /// Why not, when not converged.
-    pub reason: Option<String>,
+    pub stop: Option<InteriorPointStop>,
     /// sᵀz relative to the objective.
     pub gap: f64,
     /// ‖G x − s‖∞ relative to ‖s‖∞.
@@ -124,6 +124,50 @@ pub struct InteriorPointSolution {
     /// An iterate from the middle of the path, to start a nearby problem
     /// from (see [`solve`]'s `restart`).
     pub restart: Option<RestartPoint>,
+}
+
+/// Why the interior point stopped short of its tolerance.
+#[derive(Debug, Clone, PartialEq)]
+pub enum InteriorPointStop {
+    /// Pyramidal cones: no certificate is known for them here.
+    PyramidalCones,
+    /// The iteration budget ran out.
+    IterationLimit { iterations: usize },
+    /// The worst measure did not halve in this many iterations.
+    NoProgress { iterations: usize },
+    /// The iterate left the finite numbers.
+    NotFinite,
+    /// The step to the cone boundary shrank to `alpha`.
+    ShortStep { alpha: f64 },
+    /// A Newton system could not be solved (the factorisation's error).
+    LinearSolve(String),
+}
+
+impl InteriorPointStop {
+    /// Whether the iterate's gap and residuals say more (not for pyramids,
+    /// which stop before the first iteration).
+    pub fn has_measures(&self) -> bool {
+        *self != InteriorPointStop::PyramidalCones
+    }
+}
+
+impl std::fmt::Display for InteriorPointStop {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            InteriorPointStop::PyramidalCones => {
+                f.write_str("pyramidal cones have no certificate here")
+            }
+            InteriorPointStop::IterationLimit { iterations } => {
+                write!(f, "{iterations} iterations")
+            }
+            InteriorPointStop::NoProgress { iterations } => {
+                write!(f, "no progress in {iterations} iterations")
+            }
+            InteriorPointStop::NotFinite => f.write_str("the iterate left the finite numbers"),
+            InteriorPointStop::ShortStep { alpha } => write!(f, "step {alpha:.1e}"),
+            InteriorPointStop::LinearSolve(e) => write!(f, "linear solve failed: {e}"),
+        }
+    }
 }
 
 impl InteriorPointSolution {
@@ -512,7 +556,7 @@ pub fn solve(
             x: start.to_vec(),
             iterations: 0,
             converged: false,
-            reason: Some("pyramidal cones have no certificate here".into()),
+            stop: Some(InteriorPointStop::PyramidalCones),
             gap: f64::INFINITY,
             primal_residual: f64::INFINITY,
             dual_residual: f64::INFINITY,
@@ -560,7 +604,9 @@ pub fn solve(
     // tries to sharpen them, with their certificate (like `kept`, only x:
     // `finish` reads nothing else).
     let mut converged: Option<(Vec<f64>, Measures)> = None;
-    let mut stop = format!("{} iterations", settings.max_iterations);
+    let mut stop = InteriorPointStop::IterationLimit {
+        iterations: settings.max_iterations,
+    };
     let mut iterations = settings.max_iterations;
     for iteration in 0..settings.max_iterations {
         // Converged only on the recomputed certificate: the iterate's own
@@ -611,7 +657,9 @@ pub fn solve(
             since_progress += 1;
             if since_progress > MAX_STALLED {
                 (stop, iterations) = (
-                    format!("no progress in {MAX_STALLED} iterations"),
+                    InteriorPointStop::NoProgress {
+                        iterations: MAX_STALLED,
+                    },
                     iteration,
                 );
                 break;
@@ -647,13 +695,10 @@ pub fn solve(
                 .with_restart(keep)
                 .with_noise(noise))
         }
-        _ => {
-            let reason = format!("{stop}: {measures}");
-            Ok(it
-                .finish(cones, iterations, Some(reason), measures)
-                .with_restart(keep)
-                .with_noise(noise))
-        }
+        _ => Ok(it
+            .finish(cones, iterations, Some(stop), measures)
+            .with_restart(keep)
+            .with_noise(noise)),
     }
 }
 
@@ -874,9 +919,9 @@ impl Iterate {
         rows: &ConeRows,
         aug: &mut Augmented,
         ls: &mut EqualityLeastSquares,
-    ) -> std::result::Result<(), String> {
+    ) -> std::result::Result<(), InteriorPointStop> {
         if !self.s.iter().chain(&self.z).all(|v| v.is_finite()) {
-            return Err("the iterate left the finite numbers".into());
+            return Err(InteriorPointStop::NotFinite);
         }
         let w = Scaling::new(rows, &self.s, &self.z);
         let lambda = w.apply(rows, &self.z, false);
@@ -917,7 +962,7 @@ impl Iterate {
         let d = self.direction(problem, rows, aug, ls, &w, &lambda, &xi)?;
         let alpha = (STEP_FRACTION * to_boundary(&d)).min(1.0);
         if alpha.is_nan() || alpha < MIN_STEP {
-            return Err(format!("step {alpha:.1e}"));
+            return Err(InteriorPointStop::ShortStep { alpha });
         }
         for (v, dv) in [
             (&mut self.x, &d.dx),
@@ -944,12 +989,12 @@ impl Iterate {
         w: &Scaling,
         lambda: &[f64],
         xi: &[f64],
-    ) -> std::result::Result<Direction, String> {
+    ) -> std::result::Result<Direction, InteriorPointStop> {
         let t: Vec<f64> = lambda.iter().zip(xi).map(|(l, q)| 2.0 * l + q).collect();
         aug.b[aug.rows_at..].copy_from_slice(&t);
         let sol = ls
             .solve(&aug.a, problem.c, &aug.b, problem.d, problem.lambda)
-            .map_err(|e| format!("linear solve failed: {e}"))?;
+            .map_err(|e| InteriorPointStop::LinearSolve(e.to_string()))?;
         let x_new = sol.x;
         let spring_gap: Vec<f64> = t
             .iter()
@@ -975,7 +1020,7 @@ impl Iterate {
         self,
         cones: &[Cone],
         iterations: usize,
-        reason: Option<String>,
+        stop: Option<InteriorPointStop>,
         measures: Measures,
     ) -> InteriorPointSolution {
         let mut x = self.x;
@@ -985,8 +1030,8 @@ impl Iterate {
         InteriorPointSolution {
             x,
             iterations,
-            converged: reason.is_none(),
-            reason,
+            converged: stop.is_none(),
+            stop,
             gap: measures.gap,
             primal_residual: measures.primal,
             dual_residual: measures.dual,
@@ -1031,8 +1076,9 @@ fn gap_scale(problem: &LeastSquares, x: &[f64]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::solver::conic::{self, ConicProblem, ConicSettings, Term};
+    use crate::solver::clarabel::{self, ConicSettings};
     use crate::solver::sparse_ls::Ordering;
+    use crate::solver::{ConicProblem, Term};
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
 
@@ -1222,7 +1268,7 @@ mod tests {
         for (seed, kind) in [(3, "circular"), (8, "circular"), (4, "wedge")] {
             for mu in [0.01, 0.5, 10.0] {
                 let unit = random_problem(seed, 40, kind, mu, 1.0);
-                let reference = conic::solve(
+                let reference = clarabel::solve(
                     &ConicProblem {
                         n: unit.a.ncols,
                         terms: vec![Term {
@@ -1254,7 +1300,7 @@ mod tests {
                     let ours = solve(&ls, &p.cones, &start, &factor, None, &settings).unwrap();
                     // Every case converges (before δ = 1e-12, seed 3 at
                     // μ = 0.5 stalled at two scales).
-                    assert!(ours.converged, "{case}: {:?}", ours.reason);
+                    assert!(ours.converged, "{case}: {:?}", ours.stop);
                     let expected: Vec<f64> = reference.x.iter().map(|v| v * scale).collect();
                     let gap = relative_gap(&ours.x, &expected);
                     eprintln!(
@@ -1282,6 +1328,6 @@ mod tests {
         let factor =
             EqualityLeastSquares::with_ordering(&p.a, &p.c, &p.coupling, Ordering::Amd).unwrap();
         let out = solve(&ls, &p.cones, &start, &factor, None, &Default::default()).unwrap();
-        assert!(!out.converged && out.reason.is_some() && out.iterations == 0);
+        assert!(!out.converged && out.stop.is_some() && out.iterations == 0);
     }
 }

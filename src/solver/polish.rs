@@ -7,10 +7,10 @@
 //! factorisation. The polished answer is kept only if it satisfies every cone
 //! and its objective is no worse; otherwise the interior-point answer stands.
 
-use crate::assemble::System;
+use super::cascade::{ordering, Pattern};
 use crate::error::Result;
-use crate::solver::conic::{Cone, ConicProblem};
 use crate::solver::{sparse_ls, Triplets};
+use crate::solver::{Cone, ConicProblem};
 
 /// Slack (relative to the largest unknown) under which a constraint counts as tight.
 const ACTIVE: f64 = 1e-6;
@@ -75,7 +75,7 @@ fn active_rows(x: &[f64], cones: &[Cone], n: usize) -> Triplets {
                     add(&[(t2, 1.0)]);
                     continue;
                 }
-                for (m, c, s) in crate::solver::conic::pyramid_facets(facets, mu) {
+                for (m, c, s) in crate::solver::pyramid_facets(facets, mu) {
                     if m * x[normal] - c * x[t1] - s * x[t2] <= tight {
                         add(&[(normal, m), (t1, -c), (t2, -s)]);
                     }
@@ -89,11 +89,11 @@ fn active_rows(x: &[f64], cones: &[Cone], n: usize) -> Triplets {
 /// Returns the polished unknowns, or `None` when polishing does not improve
 /// on `x` (the caller keeps `x`).
 pub(crate) fn polish(
-    system: &System,
+    pattern: &Pattern,
     problem: &ConicProblem,
     x: &[f64],
 ) -> Result<Option<Vec<f64>>> {
-    let n = system.n;
+    let n = problem.n;
     let Some(stacked) = problem.least_squares() else {
         return Ok(None);
     };
@@ -111,8 +111,8 @@ pub(crate) fn polish(
     let mut factor = sparse_ls::EqualityLeastSquares::with_ordering(
         ls.a,
         &c,
-        &system.contact_blocks(),
-        super::ordering(system, None),
+        &pattern.contact_blocks,
+        ordering(pattern.dim, None),
     )?;
     let sol = factor.solve(ls.a, &c, ls.b, &d, ls.lambda)?;
     if !sol.converged || sol.x.iter().any(|v| !v.is_finite()) {

@@ -1,54 +1,103 @@
-//! The one route of every friction-constrained least squares — quasi-static,
-//! Tikhonov, dynamic, soft and the joint time fit all take it:
+//! The one route of every friction-constrained least squares in the crate —
+//! the formulations of `infer` (quasi-static, Tikhonov, dynamic, soft,
+//! scaled, the joint time fit, the collapse retry and the infeasibility
+//! diagnosis) and the fringe fit's steps:
 //!
 //! 1. the least squares without inequalities on the sparse factorisation (its
-//!    symbolic analysis done once per cluster and kept across λ);
-//! 2. that answer, when it already meets every cone;
-//! 3. the active set on the same factorisation, warm-started from the previous
+//!    symbolic analysis done once per cluster and kept across λ), returned
+//!    when it already meets every cone;
+//! 2. the active set on the same factorisation, warm-started from the previous
 //!    solve's active pieces, then cold;
-//! 4. when it does not converge, the interior point on the same pattern
-//!    (`solver::interior_point`: statically determinate grains with contacts
-//!    at the edge of their pieces defeat the active set, not it);
-//! 5. clarabel when that does not converge either, its answer projected onto
-//!    the cones;
-//! 6. on request, [`polish`] of an interior-point answer.
+//! 3. when it does not converge, the sparse interior point on the same pattern
+//!    (`solver::sparse_interior_point`: statically determinate grains with
+//!    contacts at the edge of their pieces defeat the active set, not it);
+//! 4. clarabel when that does not converge either, or when the caller gives
+//!    no sparse pattern, its answer projected onto the cones;
+//! 5. on request, [`polish`] of an interior-point answer.
 //!
 //! Callers build one [`ConicProblem`] and read the route taken from the
-//! solution's [`SolveStatus`] and `attempts`.
+//! solution's [`SolveStatus`] and its typed `attempts`.
 
-use super::{polish as polishing, ConstrainedSolver, InferOptions};
-use crate::assemble::System;
-use crate::error::Result;
+use super::polish as polishing;
+use crate::error::{Error, Result};
 use crate::solver::active_set::{self, ActivePieces, ActiveSetSettings};
-use crate::solver::conic::{self, Cone, ConicProblem, ConicSettings, ConicSolution};
-use crate::solver::interior_point::{self, InteriorPointSettings, RestartPoint};
+use crate::solver::clarabel::{self, ConicSettings};
+use crate::solver::sparse_interior_point::{self, InteriorPointSettings, RestartPoint};
 use crate::solver::sparse_ls::{self, EqualityLeastSquares, Ordering};
-use crate::solver::{LeastSquares, SolveStatus};
+use crate::solver::{
+    ActiveSetMiss, Attempt, InteriorPointFailure, LeastSquares, Solution, SolveStatus, Triplets,
+};
+use crate::solver::{Cone, ConicProblem};
 use std::sync::Mutex;
 use std::time::Instant;
+
+/// The cascade's own settings (an inference fills them from its options).
+#[derive(Debug, Clone, Copy)]
+pub struct CascadeSettings {
+    /// Try the active set after the least squares (else the interior points
+    /// follow it directly).
+    pub active_set: bool,
+    /// Return the least squares when it already meets every cone.
+    pub exact_first: bool,
+    /// The fill-reducing ordering of the sparse stages (`None`: by dimension).
+    pub ordering: Option<Ordering>,
+    pub active_set_settings: ActiveSetSettings,
+    /// clarabel's settings; their tolerance and noise share are the sparse
+    /// interior point's too.
+    pub interior_point: ConicSettings,
+}
+
+impl Default for CascadeSettings {
+    fn default() -> Self {
+        CascadeSettings {
+            active_set: true,
+            exact_first: true,
+            ordering: None,
+            active_set_settings: ActiveSetSettings::default(),
+            interior_point: ConicSettings::default(),
+        }
+    }
+}
+
+/// What the sparse stages need of a problem besides its terms: which
+/// unknowns belong to one contact (coupled in the factorisation) and the
+/// dimension (the default ordering).
+#[derive(Debug, Clone)]
+pub struct Pattern {
+    pub dim: usize,
+    /// One row per contact, a 1 at each of its unknowns.
+    pub contact_blocks: Triplets,
+}
 
 /// What the cascade found.
 pub(crate) struct Solved {
     /// The answer; its status names the stage that produced it.
-    pub solution: ConicSolution,
+    pub solution: Solution,
     /// The answer without inequalities, when the sparse stage ran (even
     /// unconverged, it shows how well the data can be fitted).
-    pub unconstrained: Option<ConicSolution>,
+    pub unconstrained: Option<Solution>,
 }
 
-/// Solves `problem` for one cluster. `sparse` allows stages 1–3; without it
-/// (or when the problem has no sparse form) the interior point solves it.
+/// Solves `problem`. `sparse` (the cluster's pattern and cached state)
+/// allows the sparse stages; without it (or when the problem has no sparse
+/// form) clarabel solves it.
 pub(crate) fn solve(
-    system: &System,
     problem: &ConicProblem,
-    sparse: bool,
-    opts: &InferOptions,
-    slot: &FactorSlot,
+    sparse: Option<(&Pattern, &FactorSlot)>,
+    settings: &CascadeSettings,
 ) -> Result<Solved> {
     let mut note = None;
     let mut unconstrained = None;
-    if let Some(stacked) = problem.least_squares().filter(|_| sparse) {
-        let route = sparse_route(system, stacked.view(), &problem.cones, opts, slot, true)?;
+    let stacked = sparse.and_then(|s| problem.least_squares().map(|ls| (s, ls)));
+    if let Some(((pattern, slot), stacked)) = stacked {
+        let route = sparse_route(
+            pattern,
+            stacked.view(),
+            &problem.cones,
+            settings,
+            slot,
+            true,
+        )?;
         if problem.cones.is_empty() {
             return Ok(Solved {
                 solution: route.unconstrained.clone(),
@@ -65,20 +114,66 @@ pub(crate) fn solve(
         unconstrained = Some(route.unconstrained);
     }
     Ok(Solved {
-        solution: interior_point(problem, &opts.conic, note)?,
+        solution: clarabel_stage(problem, &settings.interior_point, note)?,
         unconstrained,
     })
+}
+
+/// The route of a least squares already factored by its caller (the time
+/// fit keeps its own loosening loop on `factor`, whose pattern must couple
+/// each contact's unknowns): from its unconstrained answer, stages 2–4 on
+/// `factor` (stages 1–3), then clarabel (stage 4).
+pub(crate) fn solve_on_factor(
+    factor: &mut EqualityLeastSquares,
+    problem: &ConicProblem,
+    unconstrained: &Solution,
+    settings: &CascadeSettings,
+) -> Result<Solution> {
+    let start = Instant::now();
+    if let Some(stacked) = problem.least_squares() {
+        let stages = Stages {
+            feasible_as_is: settings.exact_first,
+            active_set: settings.active_set,
+        };
+        let (constrained, note) = constrained_on_factor(
+            factor,
+            &stacked.view(),
+            &problem.cones,
+            unconstrained,
+            &mut WarmStart::default(),
+            stages,
+            &settings.active_set_settings,
+            &interior_point_settings(settings),
+            start,
+        )?;
+        if let Some(solution) = constrained {
+            return Ok(solution);
+        }
+        let text = note.as_ref().map(ToString::to_string).unwrap_or_default();
+        return clarabel_stage(problem, &settings.interior_point, note)
+            .map_err(|e| with_note(e, &text));
+    }
+    clarabel_stage(problem, &settings.interior_point, None)
+}
+
+/// `e` with `note` (why the sparse stages did not deliver) appended.
+fn with_note(e: Error, note: &str) -> Error {
+    match e {
+        Error::Solver(m) => Error::Solver(format!("{m}; {note}")),
+        Error::Infeasible(m) => Error::Infeasible(format!("{m}; {note}")),
+        other => other,
+    }
 }
 
 /// Stage 4: clarabel, its answer projected onto the cones (it meets them only
 /// to its tolerance; the output must meet them exactly). `note` says why the
 /// active set did not deliver.
-pub(crate) fn interior_point(
+fn clarabel_stage(
     problem: &ConicProblem,
     settings: &ConicSettings,
-    note: Option<String>,
-) -> Result<ConicSolution> {
-    let mut sol = conic::solve(problem, settings)?;
+    note: Option<Attempt>,
+) -> Result<Solution> {
+    let mut sol = clarabel::solve(problem, settings)?;
     for c in &problem.cones {
         c.project(&mut sol.x);
     }
@@ -88,15 +183,11 @@ pub(crate) fn interior_point(
 
 /// Stage 5: an interior-point answer sharpened by imposing the constraints it
 /// found tight; other answers are exact already and stay as they are.
-pub(crate) fn polish(
-    system: &System,
-    problem: &ConicProblem,
-    sol: &mut ConicSolution,
-) -> Result<()> {
+pub(crate) fn polish(pattern: &Pattern, problem: &ConicProblem, sol: &mut Solution) -> Result<()> {
     if !sol.status.is_interior_point() || sol.softened {
         return Ok(());
     }
-    if let Some(x) = polishing::polish(system, problem, &sol.x)? {
+    if let Some(x) = polishing::polish(pattern, problem, &sol.x)? {
         sol.x = x;
         sol.status = sol.status.polished();
     }
@@ -106,12 +197,12 @@ pub(crate) fn polish(
 /// What the sparse stages found.
 pub(crate) struct SparseRoute {
     /// The least squares without inequalities.
-    pub unconstrained: ConicSolution,
+    pub unconstrained: Solution,
     /// The friction-constrained optimum, when found: the unconstrained answer
     /// if admissible (status `LeastSquares`), else the converged active set.
-    pub constrained: Option<ConicSolution>,
+    pub constrained: Option<Solution>,
     /// Why the active set did not deliver, for the report.
-    pub note: Option<String>,
+    pub note: Option<Attempt>,
 }
 
 /// What one cluster keeps between its solves: the sparse factorisation and
@@ -167,40 +258,47 @@ pub(crate) struct FactorCache {
 }
 
 impl FactorCache {
-    pub(crate) fn new(assembly: &crate::assemble::Assembly) -> Self {
+    /// One slot for each of `clusters` clusters.
+    pub(crate) fn new(clusters: usize) -> Self {
         FactorCache {
-            slots: assembly
-                .systems
-                .iter()
+            slots: (0..clusters)
                 .map(|_| Mutex::new(ClusterState::default()))
                 .collect(),
         }
     }
 
-    /// One slot per cluster of `assembly` (the one this cache was made for).
-    pub(crate) fn slots(&self, assembly: &crate::assemble::Assembly) -> &[FactorSlot] {
-        debug_assert_eq!(self.slots.len(), assembly.systems.len());
+    /// One slot per cluster; `clusters` must be the count it was made for.
+    pub(crate) fn slots(&self, clusters: usize) -> &[FactorSlot] {
+        debug_assert_eq!(self.slots.len(), clusters);
         &self.slots
     }
 }
 
 /// The user's ordering, else [`Ordering::for_dim`].
-pub(crate) fn ordering(system: &System, choice: Option<Ordering>) -> Ordering {
-    choice.unwrap_or(Ordering::for_dim(system.dim))
+pub(crate) fn ordering(dim: usize, choice: Option<Ordering>) -> Ordering {
+    choice.unwrap_or(Ordering::for_dim(dim))
 }
 
 /// Stage 1 alone: the least squares without inequalities on the cluster's
 /// cached factorisation, built as the constrained stages need it so that they
 /// can follow on the same analysis. `None` when the problem has no sparse form.
 pub(crate) fn least_squares_only(
-    system: &System,
+    pattern: &Pattern,
     problem: &ConicProblem,
-    opts: &InferOptions,
+    settings: &CascadeSettings,
     slot: &FactorSlot,
-) -> Result<Option<ConicSolution>> {
+) -> Result<Option<Solution>> {
     match problem.least_squares() {
         Some(stacked) => Ok(Some(
-            sparse_route(system, stacked.view(), &problem.cones, opts, slot, false)?.unconstrained,
+            sparse_route(
+                pattern,
+                stacked.view(),
+                &problem.cones,
+                settings,
+                slot,
+                false,
+            )?
+            .unconstrained,
         )),
         None => Ok(None),
     }
@@ -209,19 +307,19 @@ pub(crate) fn least_squares_only(
 /// Stages 1–3 on the cluster's cached factorisation (stage 1 alone unless
 /// `constrained`).
 fn sparse_route(
-    system: &System,
+    pattern: &Pattern,
     p: LeastSquares,
     cone_list: &[Cone],
-    opts: &InferOptions,
+    settings: &CascadeSettings,
     slot: &FactorSlot,
     constrained: bool,
 ) -> Result<SparseRoute> {
     let start = Instant::now();
-    let use_active_set = !cone_list.is_empty() && opts.solver == ConstrainedSolver::ActiveSet;
+    let use_active_set = !cone_list.is_empty() && settings.active_set;
     // Each contact's unknowns coupled: the active set's rows then fit the
     // pattern, and nested dissection cuts contacts, not unknowns (METIS at
     // 10⁴ spheres: 0.4 s against 2.6 s on the unknowns, the same fill).
-    let coupling = system.contact_blocks();
+    let coupling = &pattern.contact_blocks;
     // A poisoned slot only means another cluster's solve panicked; its factor
     // is still a valid analysis (or is rebuilt when the pattern differs).
     let mut state = slot.lock().unwrap_or_else(|e| e.into_inner());
@@ -231,8 +329,8 @@ fn sparse_route(
         empty => empty.insert(EqualityLeastSquares::with_ordering(
             p.a,
             p.c,
-            &coupling,
-            ordering(system, opts.ordering),
+            coupling,
+            ordering(pattern.dim, settings.ordering),
         )?),
     };
     // The scan's answers (stage 1 alone) only rank λ by their wall mismatch,
@@ -250,7 +348,7 @@ fn sparse_route(
         sol = factor.solve(p.a, p.c, p.b, p.d, p.lambda)?;
     }
     let mut warnings = Vec::new();
-    let asked = ordering(system, opts.ordering);
+    let asked = ordering(pattern.dim, settings.ordering);
     let ordering_note = (factor.ordering() != asked).then(|| {
         format!(
             "ordering: {asked:?} could not order this {}-unknown system (METIS failed); {:?} used instead: the same forces, at more fill and time",
@@ -265,12 +363,7 @@ fn sparse_route(
             sol.kkt_residual
         ));
     }
-    let (unconstrained, converged) = as_solution(
-        sol,
-        start,
-        "equality-constrained least squares (faer)",
-        warnings,
-    );
+    let (unconstrained, converged) = as_solution(sol, start, warnings);
     if cone_list.is_empty() || !constrained {
         return Ok(SparseRoute {
             unconstrained,
@@ -279,7 +372,7 @@ fn sparse_route(
         });
     }
     let stages = Stages {
-        feasible_as_is: converged && opts.exact_first,
+        feasible_as_is: converged && settings.exact_first,
         active_set: use_active_set,
     };
     let (mut constrained, note) = constrained_on_factor(
@@ -289,8 +382,8 @@ fn sparse_route(
         &unconstrained,
         warm,
         stages,
-        &opts.active_set,
-        &interior_point_settings(opts),
+        &settings.active_set_settings,
+        &interior_point_settings(settings),
         start,
     )?;
     if let (Some(solution), Some(w)) = (constrained.as_mut(), ordering_note) {
@@ -303,30 +396,31 @@ fn sparse_route(
     })
 }
 
-/// Which of stages 2 and 3 to try.
+/// Whether to return an admissible least squares (stage 1) and to try the
+/// active set (stage 2).
 #[derive(Debug, Clone, Copy)]
-pub(crate) struct Stages {
-    pub feasible_as_is: bool,
-    pub active_set: bool,
+struct Stages {
+    feasible_as_is: bool,
+    active_set: bool,
 }
 
-/// Stages 2–4 from an unconstrained answer on its factorisation (which must
+/// Stages 1 (its end) to 3 from an unconstrained answer on its factorisation (which must
 /// couple each contact's unknowns): the constrained optimum when found, else
 /// why not (for the report). `warm` (from the previous solve of a nearby
 /// problem) warm-starts the active set, or skips it where it failed, and
 /// learns from this solve.
 #[allow(clippy::too_many_arguments)]
-pub(crate) fn constrained_on_factor(
+fn constrained_on_factor(
     factor: &mut EqualityLeastSquares,
     p: &LeastSquares,
     cone_list: &[Cone],
-    unconstrained: &ConicSolution,
+    unconstrained: &Solution,
     warm: &mut WarmStart,
     stages: Stages,
     settings: &ActiveSetSettings,
     ip_settings: &InteriorPointSettings,
     start: Instant,
-) -> Result<(Option<ConicSolution>, Option<String>)> {
+) -> Result<(Option<Solution>, Option<Attempt>)> {
     if stages.feasible_as_is {
         if let Some(x) = feasible_as_is(&unconstrained.x, cone_list) {
             let mut sol = unconstrained.clone();
@@ -360,8 +454,8 @@ pub(crate) fn constrained_on_factor(
             let why = match failed {
                 Some(sol) => sol
                     .reason
-                    .map_or_else(|| "not converged".to_owned(), |r| r.to_string()),
-                None => "skipped (it did not settle at a nearby λ)".to_owned(),
+                    .map_or(ActiveSetMiss::NotConverged, ActiveSetMiss::Stopped),
+                None => ActiveSetMiss::Skipped,
             };
             return Ok(sparse_interior_point(
                 factor,
@@ -369,7 +463,7 @@ pub(crate) fn constrained_on_factor(
                 cone_list,
                 unconstrained,
                 warm,
-                &why,
+                why,
                 ip_settings,
                 start,
             ));
@@ -380,15 +474,16 @@ pub(crate) fn constrained_on_factor(
         ..Default::default()
     };
     Ok((
-        Some(ConicSolution {
+        Some(Solution {
             x: sol.x,
             status: SolveStatus::ActiveSet,
             iterations: sol.iterations as u32,
             solve_time: start.elapsed().as_secs_f64(),
-            attempts: vec![format!(
-                "active set on the sparse factorisation: {} solves, {} sliding and {} open contacts",
-                sol.iterations, sol.sliding, sol.open
-            )],
+            attempts: vec![Attempt::ActiveSet {
+                solves: sol.iterations,
+                sliding: sol.sliding,
+                open: sol.open,
+            }],
             softened: false,
             warnings: Vec::new(),
         }),
@@ -396,7 +491,7 @@ pub(crate) fn constrained_on_factor(
     ))
 }
 
-/// Stage 4, after the active set did not settle (`why`): the interior point
+/// Stage 3, after the active set did not settle (`why`): the interior point
 /// on the cluster's analysis, restarted mid-path from a nearby λ's solve when
 /// there was one. Its answer, else why it failed too (clarabel follows).
 #[allow(clippy::too_many_arguments)]
@@ -404,12 +499,12 @@ fn sparse_interior_point(
     factor: &EqualityLeastSquares,
     p: &LeastSquares,
     cone_list: &[Cone],
-    unconstrained: &ConicSolution,
+    unconstrained: &Solution,
     warm: &mut WarmStart,
-    why: &str,
+    why: ActiveSetMiss,
     settings: &InteriorPointSettings,
     start: Instant,
-) -> (Option<ConicSolution>, Option<String>) {
+) -> (Option<Solution>, Option<Attempt>) {
     // Only a nearby λ's mid-path iterate is a good start.
     let restart = if warm.expects_active_set_to_fail(p.lambda) {
         warm.interior_point.take()
@@ -422,7 +517,7 @@ fn sparse_interior_point(
     };
     // A failure of this stage (e.g. its own analysis) is a reason to fall
     // back to clarabel, not an error of the inference.
-    let outcome = interior_point::solve(
+    let outcome = sparse_interior_point::solve(
         p,
         cone_list,
         &unconstrained.x,
@@ -433,29 +528,33 @@ fn sparse_interior_point(
     let mut ip = match outcome {
         Ok(ip) if ip.converged => ip,
         Ok(ip) => {
-            let reason = ip.reason.as_deref().unwrap_or("not converged");
-            let failure = format!("{reason} after {} iterations", ip.iterations);
-            return (None, Some(ip_failed(why, &failure)));
+            let failure = match ip.stop {
+                Some(stop) => InteriorPointFailure::Stopped {
+                    stop,
+                    iterations: ip.iterations,
+                    gap: ip.gap,
+                    primal_residual: ip.primal_residual,
+                    dual_residual: ip.dual_residual,
+                },
+                None => InteriorPointFailure::Error("not converged".into()),
+            };
+            return (None, Some(ip_failed(why, failure)));
         }
-        Err(e) => return (None, Some(ip_failed(why, &e.to_string()))),
+        Err(e) => {
+            let failure = InteriorPointFailure::Error(e.to_string());
+            return (None, Some(ip_failed(why, failure)));
+        }
     };
     warm.interior_point = ip.restart.take();
-    let mut attempt = format!(
-        "active set: {why}; interior point on the sparse factorisation: {} iterations (gap {:.1e})",
-        ip.iterations, ip.gap
-    );
-    if let Some(noise) = ip.noise {
-        attempt.push_str(&format!(
-            "; distance to the optimum ≤ {:.1e} against noise {noise:.1e} (fit norm){}",
-            ip.distance,
-            if ip.at_distance {
-                ", the data's accuracy"
-            } else {
-                ""
-            }
-        ));
-    }
-    let solution = ConicSolution {
+    let attempt = Attempt::SparseInteriorPoint {
+        active_set: why,
+        iterations: ip.iterations,
+        gap: ip.gap,
+        distance: ip.noise.map(|_| ip.distance),
+        noise: ip.noise,
+        at_data_accuracy: ip.at_distance,
+    };
+    let solution = Solution {
         x: ip.x,
         status: SolveStatus::SparseInteriorPoint { polished: false },
         iterations: ip.iterations as u32,
@@ -469,18 +568,19 @@ fn sparse_interior_point(
 
 /// The sparse interior point to the user's interior-point tolerance
 /// (`--tolerance`), as clarabel after it, or sooner at the data's accuracy.
-pub(crate) fn interior_point_settings(opts: &InferOptions) -> InteriorPointSettings {
+fn interior_point_settings(settings: &CascadeSettings) -> InteriorPointSettings {
     InteriorPointSettings {
-        tolerance: opts.conic.tolerance,
-        noise_share: opts.conic.noise_share,
+        tolerance: settings.interior_point.tolerance,
+        noise_share: settings.interior_point.noise_share,
         ..Default::default()
     }
 }
 
-fn ip_failed(why: &str, failure: &str) -> String {
-    format!(
-        "active set: {why}; interior point on the sparse factorisation: {failure}; solved by the interior point instead"
-    )
+fn ip_failed(why: ActiveSetMiss, failure: InteriorPointFailure) -> Attempt {
+    Attempt::SparseInteriorPointFailed {
+        active_set: why,
+        failure,
+    }
 }
 
 /// Relative size of a cone violation treated as round-off of an exact answer.
@@ -518,17 +618,16 @@ pub(crate) fn feasible_as_is(x: &[f64], cones: &[Cone]) -> Option<Vec<f64>> {
 pub(crate) fn as_solution(
     sol: sparse_ls::LsSolution,
     start: Instant,
-    attempt: &str,
     warnings: Vec<String>,
-) -> (ConicSolution, bool) {
+) -> (Solution, bool) {
     let converged = sol.converged;
     (
-        ConicSolution {
+        Solution {
             x: sol.x,
             status: SolveStatus::LeastSquares,
             iterations: sol.refinement_steps as u32,
             solve_time: start.elapsed().as_secs_f64(),
-            attempts: vec![attempt.into()],
+            attempts: vec![Attempt::LeastSquares],
             softened: false,
             warnings,
         },
