@@ -3,6 +3,7 @@
 use super::FloatImage;
 use crate::error::{Error, Result};
 use ::image::{DynamicImage, ImageBuffer, ImageError, ImageFormat, Luma};
+use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 
 /// Which part of a colour image becomes the intensity that is analysed.
@@ -94,11 +95,16 @@ pub struct ChannelChoice {
     pub background_fraction: Option<f64>,
     /// `bright` or `dark`: the disks in the searched picture.
     pub polarity: String,
+    /// The channel the photoelastic signal (G²) is read in, when chosen from
+    /// the image: green (PeGS's), unless the light leaves it nearly empty
+    /// (red light), then the channel with the widest spread.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub signal: Option<String>,
 }
 
 impl ChannelChoice {
     pub fn describe(&self) -> String {
-        match &self.background {
+        let searched = match &self.background {
             Some(b) => format!(
                 "{} from the background colour ({}; {:.0} % of the image), disks {}",
                 self.channel.replace('-', " "),
@@ -110,6 +116,10 @@ impl ChannelChoice {
                 self.polarity
             ),
             None => format!("{} channel, disks {}", self.channel, self.polarity),
+        };
+        match &self.signal {
+            Some(c) if c != "green" => format!("{searched}; G² read in {c}"),
+            _ => searched,
         }
     }
 }
@@ -158,12 +168,13 @@ pub fn read_for_detection(path: &Path, channel: Channel, polarity: &str) -> Resu
                 background: None,
                 background_fraction: None,
                 polarity: polarity.to_owned(),
+                signal: None,
             },
         });
     }
     let (w, h) = (decoded.width(), decoded.height());
     // 8-bit RGB (cameras' JPEGs) is read in place; anything else as floats.
-    let (search, signal, background, fraction) = match decoded {
+    let (search, (signal, signal_channel), background, fraction) = match decoded {
         DynamicImage::ImageRgb8(c) => colour_distance(c.as_raw(), (w, h), 255.0),
         other => colour_distance(other.to_rgb32f().as_raw(), (w, h), 1.0),
     };
@@ -175,18 +186,20 @@ pub fn read_for_detection(path: &Path, channel: Channel, polarity: &str) -> Resu
             background: Some(background.iter().map(|&v| v as f64).collect()),
             background_fraction: Some(fraction),
             polarity: "bright".to_owned(),
+            signal: Some(format!("{signal_channel:?}").to_ascii_lowercase()),
         },
     })
 }
 
 /// The colour distance of every pixel from the background colour (scaled so
-/// that the 99th percentile of the distances is 1), the green channel, the
-/// background colour and the fraction of pixels in its histogram bin.
+/// that the 99th percentile of the distances is 1), the channel the
+/// photoelastic signal is read in ([`signal_channel`]), the background colour
+/// and the fraction of pixels in its histogram bin.
 fn colour_distance<T: Copy + Into<f32> + Sync>(
     raw: &[T],
     (width, height): (u32, u32),
     full_scale: f32,
-) -> (FloatImage, FloatImage, [f32; 3], f64) {
+) -> (FloatImage, (FloatImage, Channel), [f32; 3], f64) {
     const LEVELS: usize = 16;
     let bin = |p: &[T]| -> usize {
         let q =
@@ -214,7 +227,7 @@ fn colour_distance<T: Copy + Into<f32> + Sync>(
         .expect("bins");
     let background = [0, 1, 2].map(|c| (sum[fullest][c] / n.max(1) as f64) as f32 / full_scale);
     let distance: Vec<f32> = raw
-        .chunks_exact(3)
+        .par_chunks_exact(3)
         .map(|p| {
             let d = [0, 1, 2].map(|c| Into::<f32>::into(p[c]) / full_scale - background[c]);
             (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt()
@@ -231,23 +244,64 @@ fn colour_distance<T: Copy + Into<f32> + Sync>(
     let search = FloatImage::from_raw(
         width,
         height,
-        distance.into_iter().map(|d| (d * scale).min(1.5)).collect(),
+        distance
+            .into_par_iter()
+            .map(|d| (d * scale).min(1.5))
+            .collect(),
     )
     .expect("same dimensions");
-    let signal = pick(raw, (width, height), Channel::Green, full_scale);
-    (search, signal, background, n as f64 / seen.max(1) as f64)
+    let channel = signal_channel(raw, stride);
+    let signal = pick(raw, (width, height), channel, full_scale);
+    (
+        search,
+        (signal, channel),
+        background,
+        n as f64 / seen.max(1) as f64,
+    )
+}
+
+/// The channel the photoelastic signal is read in: green, as PeGS reads it,
+/// unless the light leaves green nearly empty (red or orange light: its
+/// spread, 1st to 99th percentile, under a quarter of the widest channel's),
+/// then the channel with the widest spread.
+fn signal_channel<T: Copy + Into<f32>>(raw: &[T], stride: usize) -> Channel {
+    let spread = |c: usize| -> f32 {
+        let mut v: Vec<f32> = raw
+            .chunks_exact(3)
+            .step_by(stride.max(3))
+            .map(|p| p[c].into())
+            .collect();
+        if v.len() < 2 {
+            return 0.0;
+        }
+        let n = v.len();
+        let lo = *v.select_nth_unstable_by(n / 100, |a, b| a.total_cmp(b)).1;
+        let hi = *v
+            .select_nth_unstable_by(n * 99 / 100, |a, b| a.total_cmp(b))
+            .1;
+        hi - lo
+    };
+    let spreads = [spread(0), spread(1), spread(2)];
+    let widest = (0..3)
+        .max_by(|&a, &b| spreads[a].total_cmp(&spreads[b]))
+        .expect("3");
+    if spreads[1] >= 0.25 * spreads[widest] {
+        Channel::Green
+    } else {
+        [Channel::Red, Channel::Green, Channel::Blue][widest]
+    }
 }
 
 /// One channel (or the luma) of interleaved RGB samples, scaled to [0, 1],
 /// without an intermediate float copy of all three channels.
-fn pick<T: Copy + Into<f32>>(
+fn pick<T: Copy + Into<f32> + Sync>(
     raw: &[T],
     (width, height): (u32, u32),
     channel: Channel,
     full_scale: f32,
 ) -> FloatImage {
     let data = raw
-        .chunks_exact(3)
+        .par_chunks_exact(3)
         .map(|p| {
             let [r, g, b]: [f32; 3] = [p[0].into(), p[1].into(), p[2].into()];
             let v = match channel {
