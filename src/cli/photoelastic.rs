@@ -1,11 +1,9 @@
 //! `grainforce photoelastic`: contact forces fitted to a photoelastic
 //! photograph's fringes, all disks at once, under balance and friction.
 
-use grainforce::image::fringe_fit::{
-    fit_fringes, fit_fringes_per_disk, fitted_image, wall_scale, Balance, FringeFitSettings,
-};
-use grainforce::image::{load_channel, Channel, FloatImage, PixelFrame, FRAME_FILE};
-use grainforce::scene::{read_scene, write_file_atomically, write_forces, Forces};
+use grainforce::image::fringe_run::{self, ContactChoice, PhotoelasticConfig};
+use grainforce::image::Channel;
+use grainforce::scene::{write_file_atomically, write_forces};
 use grainforce::{Error, Result};
 use std::path::PathBuf;
 
@@ -50,6 +48,10 @@ pub struct Args {
     /// The per-disk fit (each disk alone, sides averaged) instead, for comparison.
     #[arg(long)]
     per_disk: bool,
+    /// Which contacts are fitted: `evidence` leaves out those `detect` did not
+    /// judge force-bearing (contacts-evidence.csv; all without the file).
+    #[arg(long, value_enum, default_value_t = ContactChoice::Evidence)]
+    contacts: ContactChoice,
     /// Write the photograph and the fitted fringes side by side (PNG).
     #[arg(long)]
     overlay: Option<PathBuf>,
@@ -59,123 +61,42 @@ pub struct Args {
 }
 
 pub fn run(args: Args) -> Result<()> {
-    let scene = read_scene(&args.scene)?;
-    let image = load_channel(&args.image, args.channel)?;
-    let frame = match args.scale {
-        Some(s) => PixelFrame::at_origin(s, image.width(), image.height()),
-        None => {
-            let path = args.scene.join(FRAME_FILE);
-            if !path.exists() {
-                return Err(Error::Invalid(format!(
-                    "no --scale given and no {FRAME_FILE} in {}",
-                    args.scene.display()
-                )));
-            }
-            PixelFrame::read(&path)?
-        }
+    let config = PhotoelasticConfig {
+        fsigma: args.fsigma,
+        thickness: args.thickness,
+        scale: args.scale,
+        channel: args.channel,
+        mu: args.mu,
+        balance_weight: args.balance_weight,
+        blur: args.blur,
+        edge: args.edge,
+        iterations: args.iterations,
+        per_disk: args.per_disk,
+        contacts: args.contacts,
     };
-    if (frame.width, frame.height) != image.dimensions() {
-        return Err(Error::data(
-            &args.image,
-            None,
-            None,
-            format!(
-                "the image is {}×{} px but the scene's pixel frame is {}×{}",
-                image.width(),
-                image.height(),
-                frame.width,
-                frame.height
-            ),
-        ));
-    }
-    let thickness = args.thickness.or(scene.settings.thickness);
-    if let Some(t) = thickness.filter(|t| !(t.is_finite() && *t > 0.0)) {
-        return Err(Error::Invalid(format!(
-            "--thickness: must be positive, not {t}"
-        )));
-    }
-    let walls_measured = scene.walls.iter().any(|w| w.measured_force.is_some());
-    let fringe_stress = match (args.fsigma, thickness) {
-        (Some(f), _) if !(f.is_finite() && f > 0.0) => {
-            return Err(Error::Invalid(format!(
-                "--fsigma: must be positive, not {f}"
-            )))
-        }
-        (Some(f), Some(t)) => f / t,
-        (Some(_), None) => {
-            return Err(Error::Invalid(
-                "--fsigma needs the disks' thickness: give --thickness or set it in scene.json"
-                    .into(),
-            ))
-        }
-        // Forces scale with f_σ: fit at 1 Pa, then scale to the walls.
-        (None, _) if walls_measured => 1.0,
-        (None, _) => {
-            return Err(Error::Invalid(
-                "give --fsigma, or walls.csv with the walls' measured forces to fit it".into(),
-            ))
-        }
+    let done = fringe_run::run(&args.image, &args.scene, &config).map_err(spell_flags)?;
+    // Everything that can fail is computed before the first file is written.
+    let overlay = match &args.overlay {
+        Some(_) => Some(done.overlay()?),
+        None => None,
     };
-    let mut settings = FringeFitSettings::new(fringe_stress);
-    settings.mu = args.mu;
-    settings.blur_px = args.blur;
-    settings.edge_px = args.edge;
-    settings.max_iterations = args.iterations;
-    if let Some(w) = args.balance_weight {
-        settings.balance = Balance::Penalty(w);
-    }
-    let mut fit = if args.per_disk {
-        fit_fringes_per_disk(&image, &frame, &scene, &settings)?
-    } else {
-        fit_fringes(&image, &frame, &scene, &settings)?
-    };
-    let mut fsigma_fitted = None;
-    if args.fsigma.is_none() {
-        let k = wall_scale(&scene, &fit.forces).ok_or_else(|| {
-            Error::Invalid(
-                "cannot fit f_σ: no measured wall has a contact with compressive fitted force"
-                    .into(),
-            )
-        })?;
-        for f in &mut fit.forces {
-            f[0] *= k;
-            f[1] *= k;
-        }
-        settings.fringe_stress *= k;
-        fit.report.fringe_stress = settings.fringe_stress;
-        fsigma_fitted = Some(settings.fringe_stress * thickness.unwrap_or(1.0));
-    }
-    let forces: Vec<_> = fit.forces.iter().map(|f| [f[0], f[1], 0.0]).collect();
-    write_forces(&args.output, &Forces::from_scene(&scene, &forces))?;
+    write_forces(&args.output, &done.forces())?;
     status!("wrote {}", args.output.display());
     if let Some(path) = &args.report {
-        let mut value = serde_json::to_value(&fit.report).expect("the report serialises");
-        if let Some(f) = fsigma_fitted {
-            value["fsigma_fitted_to_walls"] = serde_json::json!(f);
-            value["fsigma_thickness_assumed"] = serde_json::json!(thickness.is_none());
-        }
-        let text = serde_json::to_string_pretty(&value).expect("json");
+        let text = serde_json::to_string_pretty(&done.report_json()).expect("json");
         write_file_atomically(path, (text + "\n").as_bytes())?;
         status!("wrote {}", path.display());
     }
-    if let Some(path) = &args.overlay {
-        let fitted = fitted_image(&image, &frame, &scene, &settings, &fit.forces)?;
-        let (w, h) = image.dimensions();
-        let both = FloatImage::from_fn(2 * w, h, |x, y| {
-            if x < w {
-                *image.get_pixel(x, y)
-            } else {
-                *fitted.get_pixel(x - w, y)
-            }
-        });
-        grainforce::image::save_gray(path, &both, 8)?;
+    if let (Some(path), Some(both)) = (&args.overlay, &overlay) {
+        grainforce::image::save_gray(path, both, 8)?;
         status!("wrote {}", path.display());
     }
-    let r = &fit.report;
+    let r = &done.fit.report;
     status!(
-        "{} disks, {} contacts: fringe residual {:.4} → {:.4} in {} steps, imbalance median {:.2e}, {} disk(s) flagged, {:.2} s",
-        scene.grains.len(),
-        scene.contacts.len(),
+        "{} disks, {} contacts ({} fitted): fringe residual {:.4} → {:.4} in {} steps, imbalance median {:.2e}, {} disk(s) flagged, {:.2} s",
+        done.scene.grains.len(),
+        done.scene.contacts.len(),
+        done.scene.contacts.len() - done.left_out.len(),
         r.objective_start,
         r.objective,
         r.iterations,
@@ -184,4 +105,18 @@ pub fn run(args: Args) -> Result<()> {
         r.seconds
     );
     Ok(())
+}
+
+/// The library's `field` names as this verb's flags.
+fn spell_flags(e: Error) -> Error {
+    match e {
+        Error::Invalid(m) => {
+            let mut m = m;
+            for field in ["fsigma", "thickness", "scale"] {
+                m = m.replace(&format!("`{field}`"), &format!("--{field}"));
+            }
+            Error::Invalid(m)
+        }
+        other => other,
+    }
 }

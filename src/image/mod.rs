@@ -15,6 +15,7 @@ pub mod dic;
 pub mod elastic;
 mod font;
 pub mod fringe_fit;
+pub mod fringe_run;
 pub mod io;
 pub mod overlay;
 pub mod photoelastic;

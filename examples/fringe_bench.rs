@@ -1,0 +1,183 @@
+//! The fringe fit's speed and accuracy on the rendered photograph:
+//! the 58-disk DEM oedometer at r ≈ 40 px, blur 0.8 px, noise 2 %, JPEG q90.
+//!
+//!     cargo run --release --example fringe_bench [-- --detect] [--per-disk] [--repeat N]
+//!
+//! Without flags the disks and contacts are the DEM's; `--detect` finds them
+//! in the photograph (`detect`, walls at the DEM's lines) and scores the fit
+//! against the DEM contacts matched by disk pair (a missed contact counts as
+//! zero force). Prints relerr ‖f − f_true‖/‖f_true‖, the imbalance and the
+//! fit's time (wall and CPU).
+
+use grainforce::image::fringe_fit::{fit_fringes, fit_fringes_per_disk, FringeFitSettings};
+use grainforce::image::photoelastic::{render_photoelastic, save_jpeg, PhotoelasticOptions};
+use grainforce::image::synthetic::match_disks;
+use grainforce::image::{detect_images, load_channel, Channel, DetectSettings, WallSource};
+use grainforce::scene::{read_forces, read_scene, Body, Scene};
+use std::collections::{HashMap, HashSet};
+use std::path::Path;
+use std::time::Instant;
+
+fn cpu_seconds() -> f64 {
+    grainforce::bench::cpu_seconds().unwrap_or(f64::NAN)
+}
+
+fn main() -> grainforce::Result<()> {
+    let args: Vec<String> = std::env::args().collect();
+    let detect = args.iter().any(|a| a == "--detect");
+    let per_disk = args.iter().any(|a| a == "--per-disk");
+    let repeat: usize = args
+        .iter()
+        .position(|a| a == "--repeat")
+        .and_then(|k| args.get(k + 1))
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(1);
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/oedometer");
+    let scene = read_scene(&dir)?;
+    let rows = read_forces(&dir.join("forces.csv"))?.rows;
+    let truth: Vec<[f64; 2]> = scene
+        .contacts
+        .iter()
+        .map(|c| {
+            let r = rows.iter().find(|r| r.contact == c.id).expect("a force");
+            [r.force[0], r.force[1]]
+        })
+        .collect();
+    let mean_r: f64 = scene
+        .grains
+        .iter()
+        .map(|g| g.radius.unwrap_or(0.0))
+        .sum::<f64>()
+        / scene.grains.len() as f64;
+    let mut o = PhotoelasticOptions::new(40.0 / mean_r, 4e4);
+    o.blur_px = 0.8;
+    o.noise = 0.02;
+    o.uneven_lighting = 0.1;
+    let (rgb, frame) = render_photoelastic(&scene, &truth, &o)?;
+    let tmp = tempfile::tempdir().map_err(|e| grainforce::Error::io("a temporary folder", e))?;
+    let path = tmp.path().join("oedometer.jpg");
+    save_jpeg(&path, &rgb, 90)?;
+    let image = load_channel(&path, Channel::Green)?;
+    let mut s = FringeFitSettings::new(4e4);
+    s.blur_px = 0.8;
+    let found = if detect {
+        let px = frame.px_per_m;
+        let mut settings = DetectSettings::new(2.2e-3 * px, 4.2e-3 * px, px);
+        settings.frame = Some(frame);
+        settings.walls = WallSource::Lines(grainforce::image::contacts::walls_from_scene_contacts(
+            &scene, &frame,
+        ));
+        let detection =
+            detect_images(std::slice::from_ref(&path), &settings, &mut |_, _, _, _| {
+                Ok(())
+            })?;
+        Some(detection.frames[0].clone())
+    } else {
+        None
+    };
+    let fit_scene = found.as_ref().map_or(&scene, |f| &f.scene);
+    for _ in 0..repeat {
+        let (wall, cpu) = (Instant::now(), cpu_seconds());
+        let fit = if per_disk {
+            fit_fringes_per_disk(&image, &frame, fit_scene, &s)?
+        } else {
+            fit_fringes(&image, &frame, fit_scene, &s)?
+        };
+        let (wall, cpu) = (wall.elapsed().as_secs_f64(), cpu_seconds() - cpu);
+        let e = if let Some(found) = &found {
+            let matched = match_disks(&scene, &frame, &found.disks, |r| 0.5 * r);
+            score(
+                &scene,
+                &truth,
+                fit_scene,
+                &fit.forces,
+                &matched.disk_of_grain,
+            )
+        } else {
+            relerr(&fit.forces, &truth)
+        };
+        println!(
+            "{} disks, {} contacts{}: relerr {e:.4}, imbalance median {:.2e} max {:.2e}, {} steps, {} flagged, {wall:.2} s wall, {cpu:.2} s CPU ({} threads)",
+            fit_scene.grains.len(),
+            fit_scene.contacts.len(),
+            if detect { " (detected)" } else { "" },
+            fit.report.median_imbalance,
+            fit.report.max_imbalance,
+            fit.report.iterations,
+            fit.report.flagged.len(),
+            rayon::current_num_threads()
+        );
+        println!("  phases: {}", fit.report.timing);
+    }
+    Ok(())
+}
+
+fn relerr(fit: &[[f64; 2]], truth: &[[f64; 2]]) -> f64 {
+    let (mut num, mut den) = (0.0, 0.0);
+    for (f, t) in fit.iter().zip(truth) {
+        num += (f[0] - t[0]).powi(2) + (f[1] - t[1]).powi(2);
+        den += t[0] * t[0] + t[1] * t[1];
+    }
+    (num / den).sqrt()
+}
+
+/// relerr over the true contacts, matched by (disk, disk) or (disk, wall
+/// name); a true contact not found counts as zero force.
+fn score(
+    truth_scene: &Scene,
+    truth: &[[f64; 2]],
+    found: &Scene,
+    forces: &[[f64; 2]],
+    disk_of_grain: &[Option<usize>],
+) -> f64 {
+    type Key = (usize, String);
+    let key = |sc: &Scene, a: usize, b: &Body, disk: &dyn Fn(usize) -> Option<usize>| {
+        let da = disk(a)?;
+        match b {
+            Body::Grain(j) => {
+                let dj = disk(*j)?;
+                Some(((da.min(dj), da.max(dj).to_string()), da > dj))
+            }
+            Body::Wall(w) => Some(((da, format!("wall:{}", sc.walls[*w].name)), false)),
+        }
+    };
+    let mut fitted: HashMap<Key, [f64; 2]> = HashMap::new();
+    for (c, f) in found.contacts.iter().zip(forces) {
+        if let Some((k, flip)) = key(found, c.a, &c.b, &|g| Some(g)) {
+            fitted.insert(k, if flip { [-f[0], -f[1]] } else { *f });
+        }
+    }
+    let (mut num, mut den, mut missed) = (0.0, 0.0, 0);
+    let mut used = HashSet::new();
+    for (c, t) in truth_scene.contacts.iter().zip(truth) {
+        den += t[0] * t[0] + t[1] * t[1];
+        let f = match key(truth_scene, c.a, &c.b, &|g| disk_of_grain[g]) {
+            Some((k, flip)) => {
+                let t = if flip { [-t[0], -t[1]] } else { *t };
+                let f = fitted.get(&k).copied().unwrap_or([0.0; 2]);
+                if fitted.contains_key(&k) {
+                    used.insert(k);
+                } else {
+                    missed += 1;
+                }
+                num += (f[0] - t[0]).powi(2) + (f[1] - t[1]).powi(2);
+                continue;
+            }
+            None => [0.0; 2],
+        };
+        missed += 1;
+        num += (f[0] - t[0]).powi(2) + (f[1] - t[1]).powi(2);
+    }
+    let extra: Vec<f64> = fitted
+        .iter()
+        .filter(|(k, _)| !used.contains(*k))
+        .map(|(_, f)| f[0].hypot(f[1]))
+        .collect();
+    println!(
+        "  {missed} true contacts missed; {} extra contacts carry {:.1} N/m in all (largest {:.1})",
+        extra.len(),
+        extra.iter().sum::<f64>(),
+        extra.iter().fold(0.0f64, |m, v| m.max(*v))
+    );
+    (num / den).sqrt()
+}

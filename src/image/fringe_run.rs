@@ -1,0 +1,318 @@
+//! The photoelastic fit as one run — what `grainforce photoelastic` and
+//! Python's `grainforce.photoelastic` both do: read the photograph and the
+//! scene folder, settle the fringe stress (f_σ / t, or a unit one to be
+//! scaled to the walls' load cells), choose the contacts to fit, fit, and
+//! gather the forces and the report. The front ends only parse their
+//! arguments into [`PhotoelasticConfig`] and write what [`PhotoelasticRun`]
+//! holds.
+
+use super::fringe_fit::{
+    fit_fringes, fit_fringes_per_disk, fitted_image, wall_scale, Balance, FringeFit,
+    FringeFitSettings,
+};
+use super::{load_channel, Channel, FloatImage, PixelFrame, FRAME_FILE};
+use crate::error::{Error, Result};
+use crate::scene::{read_scene, Forces, Scene};
+use std::path::Path;
+
+/// Which of the scene's contacts are fitted.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
+pub enum ContactChoice {
+    /// Every contact of the scene.
+    All,
+    /// Those `detect` judged force-bearing (`force_bearing` in the scene's
+    /// contacts-evidence.csv: G² over the packing's floor on both disks);
+    /// the others carry zero. Every contact when the file is absent.
+    #[default]
+    Evidence,
+}
+
+/// Everything a photoelastic run can be told; [`Default`] gives the CLI's
+/// defaults.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PhotoelasticConfig {
+    /// Fringe constant f_σ [N/m]; `None`: fitted to the walls' load cells.
+    pub fsigma: Option<f64>,
+    /// Disk thickness [m]; `None`: the scene's.
+    pub thickness: Option<f64>,
+    /// Pixels per metre; `None`: the scene's image-frame.json.
+    pub scale: Option<f64>,
+    /// The channel of a colour photograph that is fitted.
+    pub channel: Channel,
+    pub mu: f64,
+    /// Balance as a weighted penalty of this weight instead of exactly.
+    pub balance_weight: Option<f64>,
+    pub blur: f64,
+    pub edge: f64,
+    pub iterations: usize,
+    /// The per-disk fit instead (each disk alone, sides averaged).
+    pub per_disk: bool,
+    pub contacts: ContactChoice,
+}
+
+impl Default for PhotoelasticConfig {
+    fn default() -> Self {
+        PhotoelasticConfig {
+            fsigma: None,
+            thickness: None,
+            scale: None,
+            channel: Channel::Green,
+            mu: 0.5,
+            balance_weight: None,
+            blur: 1.0,
+            edge: 6.0,
+            iterations: 60,
+            per_disk: false,
+            contacts: ContactChoice::default(),
+        }
+    }
+}
+
+/// What a run gives.
+pub struct PhotoelasticRun {
+    /// The scene as read (every contact, in its order).
+    pub scene: Scene,
+    pub image: FloatImage,
+    pub frame: PixelFrame,
+    /// The settings of the fit (the fringe stress scaled to the walls when
+    /// f_σ was fitted).
+    pub settings: FringeFitSettings,
+    /// Forces per contact of `scene` (zero for a contact left out).
+    pub fit: FringeFit,
+    /// Contacts left out of the fit (their ids), and why.
+    pub left_out: Vec<String>,
+    pub contacts: ContactChoice,
+    /// f_σ [N/m] fitted to the walls, and whether the thickness was assumed 1 m.
+    pub fsigma_fitted: Option<(f64, bool)>,
+}
+
+impl PhotoelasticRun {
+    /// forces.csv's rows.
+    pub fn forces(&self) -> Forces {
+        let forces: Vec<_> = self.fit.forces.iter().map(|f| [f[0], f[1], 0.0]).collect();
+        Forces::from_scene(&self.scene, &forces)
+    }
+
+    /// The report as the CLI writes it.
+    pub fn report_json(&self) -> serde_json::Value {
+        let mut value = serde_json::to_value(&self.fit.report).expect("the report serialises");
+        value["contacts"] = serde_json::json!(self.contacts);
+        value["left_out"] = serde_json::json!(self.left_out);
+        if let Some((f, assumed)) = self.fsigma_fitted {
+            value["fsigma_fitted_to_walls"] = serde_json::json!(f);
+            value["fsigma_thickness_assumed"] = serde_json::json!(assumed);
+        }
+        value
+    }
+
+    /// The photograph (left) and the fitted fringes (right) side by side.
+    pub fn overlay(&self) -> Result<FloatImage> {
+        let fitted = fitted_image(
+            &self.image,
+            &self.frame,
+            &self.scene,
+            &self.settings,
+            &self.fit.forces,
+        )?;
+        let (w, h) = self.image.dimensions();
+        Ok(FloatImage::from_fn(2 * w, h, |x, y| {
+            if x < w {
+                *self.image.get_pixel(x, y)
+            } else {
+                *fitted.get_pixel(x - w, y)
+            }
+        }))
+    }
+}
+
+/// The ids of the contacts `detect` judged force-bearing, from
+/// contacts-evidence.csv (`None` without the file).
+pub fn force_bearing_contacts(scene_dir: &Path) -> Result<Option<Vec<String>>> {
+    let path = scene_dir.join(EVIDENCE_FILE);
+    if !path.exists() {
+        return Ok(None);
+    }
+    let mut reader = csv::ReaderBuilder::new()
+        .trim(csv::Trim::All)
+        .from_path(&path)
+        .map_err(|e| Error::data(&path, None, None, e.to_string()))?;
+    let headers = reader
+        .headers()
+        .map_err(|e| Error::data(&path, Some(1), None, e.to_string()))?
+        .clone();
+    let column = |name: &str| {
+        headers
+            .iter()
+            .position(|h| h == name)
+            .ok_or_else(|| Error::data(&path, Some(1), Some(name), format!("no column `{name}`")))
+    };
+    let (id, bearing) = (column("contact")?, column("force_bearing")?);
+    let frame = headers.iter().position(|h| h == "frame");
+    let mut out = Vec::new();
+    for (k, record) in reader.records().enumerate() {
+        let line = k + 2;
+        let record = record.map_err(|e| Error::data(&path, Some(line), None, e.to_string()))?;
+        if frame.is_some_and(|f| record.get(f).is_some_and(|v| v != "0")) {
+            continue;
+        }
+        let contact = record.get(id).unwrap_or("");
+        match record.get(bearing).unwrap_or("") {
+            "yes" if !contact.is_empty() => out.push(contact.to_string()),
+            "yes" | "no" => {}
+            other => {
+                return Err(Error::data(
+                    &path,
+                    Some(line),
+                    Some("force_bearing"),
+                    format!("expected yes or no, not `{other}`"),
+                ))
+            }
+        }
+    }
+    Ok(Some(out))
+}
+
+const EVIDENCE_FILE: &str = "contacts-evidence.csv";
+
+/// Reads the photograph and the scene folder and fits (see the module).
+pub fn run(image: &Path, scene_dir: &Path, config: &PhotoelasticConfig) -> Result<PhotoelasticRun> {
+    let scene = read_scene(scene_dir)?;
+    let picture = load_channel(image, config.channel)?;
+    let frame = match config.scale {
+        Some(s) if !(s.is_finite() && s > 0.0) => {
+            return Err(Error::Invalid(format!("`scale` must be positive, not {s}")))
+        }
+        Some(s) => PixelFrame::at_origin(s, picture.width(), picture.height()),
+        None => {
+            let path = scene_dir.join(FRAME_FILE);
+            if !path.exists() {
+                return Err(Error::Invalid(format!(
+                    "no `scale` given and no {FRAME_FILE} in {}",
+                    scene_dir.display()
+                )));
+            }
+            PixelFrame::read(&path)?
+        }
+    };
+    if (frame.width, frame.height) != picture.dimensions() {
+        return Err(Error::data(
+            image,
+            None,
+            None,
+            format!(
+                "the image is {}×{} px but the scene's pixel frame is {}×{}",
+                picture.width(),
+                picture.height(),
+                frame.width,
+                frame.height
+            ),
+        ));
+    }
+    let thickness = config.thickness.or(scene.settings.thickness);
+    if let Some(t) = thickness.filter(|t| !(t.is_finite() && *t > 0.0)) {
+        return Err(Error::Invalid(format!(
+            "`thickness` must be positive, not {t}"
+        )));
+    }
+    let walls_measured = scene.walls.iter().any(|w| w.measured_force.is_some());
+    let fringe_stress = match (config.fsigma, thickness) {
+        (Some(f), _) if !(f.is_finite() && f > 0.0) => {
+            return Err(Error::Invalid(format!(
+                "`fsigma` must be positive, not {f}"
+            )))
+        }
+        (Some(f), Some(t)) => f / t,
+        (Some(_), None) => {
+            return Err(Error::Invalid(
+                "`fsigma` needs the disks' thickness: give `thickness` or set it in scene.json"
+                    .into(),
+            ))
+        }
+        // Forces scale with f_σ: fit at 1 Pa, then scale to the walls.
+        (None, _) if walls_measured => 1.0,
+        (None, _) => {
+            return Err(Error::Invalid(
+                "give `fsigma`, or walls.csv with the walls' measured forces to fit it".into(),
+            ))
+        }
+    };
+    let mut settings = FringeFitSettings::new(fringe_stress);
+    settings.mu = config.mu;
+    settings.blur_px = config.blur;
+    settings.edge_px = config.edge;
+    settings.max_iterations = config.iterations;
+    if let Some(w) = config.balance_weight {
+        settings.balance = Balance::Penalty(w);
+    }
+    // The contacts fitted: all, or detect's force-bearing ones.
+    let kept: Vec<bool> = match config.contacts {
+        ContactChoice::All => vec![true; scene.contacts.len()],
+        ContactChoice::Evidence => match force_bearing_contacts(scene_dir)? {
+            Some(ids) => {
+                let ids: std::collections::HashSet<String> = ids.into_iter().collect();
+                scene.contacts.iter().map(|c| ids.contains(&c.id)).collect()
+            }
+            None => vec![true; scene.contacts.len()],
+        },
+    };
+    let mut fitted_scene = scene.clone();
+    fitted_scene.contacts = scene
+        .contacts
+        .iter()
+        .zip(&kept)
+        .filter(|(_, k)| **k)
+        .map(|(c, _)| c.clone())
+        .collect();
+    let mut fit = if config.per_disk {
+        fit_fringes_per_disk(&picture, &frame, &fitted_scene, &settings)?
+    } else {
+        fit_fringes(&picture, &frame, &fitted_scene, &settings)?
+    };
+    // Back to the scene's contacts, zero where left out.
+    let mut all = vec![[0.0; 2]; scene.contacts.len()];
+    let mut next = fit.forces.iter();
+    for (slot, k) in all.iter_mut().zip(&kept) {
+        if *k {
+            *slot = *next.next().expect("one force per fitted contact");
+        }
+    }
+    fit.forces = all;
+    let mut fsigma_fitted = None;
+    if config.fsigma.is_none() {
+        let k = wall_scale(&scene, &fit.forces).ok_or_else(|| {
+            Error::Invalid(
+                "cannot fit f_σ: no measured wall has a contact with compressive fitted force"
+                    .into(),
+            )
+        })?;
+        for f in &mut fit.forces {
+            f[0] *= k;
+            f[1] *= k;
+        }
+        settings.fringe_stress *= k;
+        fit.report.fringe_stress = settings.fringe_stress;
+        fsigma_fitted = Some((
+            settings.fringe_stress * thickness.unwrap_or(1.0),
+            thickness.is_none(),
+        ));
+    }
+    let left_out = scene
+        .contacts
+        .iter()
+        .zip(&kept)
+        .filter(|(_, k)| !**k)
+        .map(|(c, _)| c.id.clone())
+        .collect();
+    Ok(PhotoelasticRun {
+        scene,
+        image: picture,
+        frame,
+        settings,
+        fit,
+        left_out,
+        contacts: config.contacts,
+        fsigma_fitted,
+    })
+}
