@@ -33,6 +33,19 @@ pub enum NormalMethod {
     Pca,
 }
 
+impl NormalMethod {
+    /// `fit` or `pca`.
+    pub fn parse(text: &str) -> Result<NormalMethod> {
+        match text {
+            "fit" => Ok(NormalMethod::SurfaceFit),
+            "pca" => Ok(NormalMethod::Pca),
+            other => Err(Error::Invalid(format!(
+                "normals must be fit or pca, got `{other}`"
+            ))),
+        }
+    }
+}
+
 /// A plane wall given on the command line: `NAME:AXIS=POSITION` (metres).
 #[derive(Debug, Clone, PartialEq)]
 pub struct WallPlane {
@@ -1267,6 +1280,14 @@ impl LabelScene {
     pub fn write(&self, dir: &Path) -> Result<()> {
         self.scene.validate()?;
         scene::write_scene(dir, &self.scene)?;
+        scene::write_file_atomically(
+            &dir.join("contacts_quality.csv"),
+            self.quality_csv().as_bytes(),
+        )
+    }
+
+    /// The text of `contacts_quality.csv`.
+    pub fn quality_csv(&self) -> String {
         let mut text = String::from(
             "contact,a,b,zone,kept,method,faces,area,gap,grey,x,y,z,n_x,n_y,n_z,pca_x,pca_y,pca_z,pca_n_x,pca_n_y,pca_n_z\n",
         );
@@ -1307,6 +1328,6 @@ impl LabelScene {
                 c.pca_normal[2],
             ));
         }
-        scene::write_file_atomically(&dir.join("contacts_quality.csv"), text.as_bytes())
+        text
     }
 }
