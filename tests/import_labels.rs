@@ -509,3 +509,58 @@ fn end_to_end_labels_and_dem_stresses_give_the_dem_forces() {
     );
     assert!(relerr <= 0.05, "relerr {relerr}\n{}", r.report);
 }
+
+/// The array as a source read in z order only (as a TIFF is): the surface
+/// passes run serially on it.
+struct InOrder<'a>(labels::ArraySource<'a, u32>);
+
+impl labels::SliceSource for InOrder<'_> {
+    fn shape(&self) -> [usize; 3] {
+        self.0.shape()
+    }
+    fn labels(&mut self, z: usize, out: &mut [u32]) -> grainforce::Result<()> {
+        self.0.labels(z, out)
+    }
+    fn greys(&mut self, z: usize, out: &mut [f32]) -> grainforce::Result<()> {
+        self.0.greys(z, out)
+    }
+}
+
+/// Arrays and mapped files are fitted in z-slabs on several threads: the
+/// answer is the serial one (up to the order of the sums) and the same
+/// whatever the number of threads.
+#[test]
+fn slabs_on_threads_give_the_serial_answer() {
+    let (_, _, grains, _, d) = packing();
+    let voxel = d / 15.0;
+    let grid = synth::Grid::around(&grains, voxel, 3.0);
+    // Two slabs or more (32 slices each), so that the split matters.
+    assert!(grid.shape[0] > 32, "{:?}", grid.shape);
+    let (volume, _) = synth::voxelise(&grains, &grid);
+    let options = Options {
+        voxel_size: voxel,
+        origin: grid.origin,
+        ..Options::default()
+    };
+    let pool = |threads| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+    };
+    let one = pool(1).install(|| labels::import_array(&volume, grid.shape, None, &options));
+    let two = pool(2).install(|| labels::import_array(&volume, grid.shape, None, &options));
+    let (one, two) = (one.unwrap(), two.unwrap());
+    assert_eq!(one.scene, two.scene);
+    let mut source = InOrder(labels::ArraySource::new(&volume, grid.shape).unwrap());
+    let serial = labels::import_source(&mut source, None, &options).unwrap();
+    assert_eq!(serial.scene.grains, one.scene.grains);
+    assert_eq!(serial.scene.contacts.len(), one.scene.contacts.len());
+    for (a, b) in serial.scene.contacts.iter().zip(&one.scene.contacts) {
+        assert_eq!((&a.a, &a.b), (&b.a, &b.b));
+        let gap = scene::norm(scene::sub(a.normal, b.normal));
+        assert!(gap < 1e-9, "normals differ by {gap}");
+        let shift = scene::norm(scene::sub(a.point, b.point));
+        assert!(shift < 1e-9 * voxel, "points differ by {shift}");
+    }
+}

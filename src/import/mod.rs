@@ -19,6 +19,7 @@ pub mod lammps;
 pub mod liggghts;
 pub mod mat5;
 pub mod pegs;
+pub mod register;
 pub mod stiffness;
 pub mod yade;
 

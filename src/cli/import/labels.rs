@@ -2,6 +2,7 @@
 
 use super::Args;
 use grainforce::import::labels::{self, DType, FileFormat, NormalMethod, Options, WallPlane};
+use grainforce::import::register::{self, MatchOptions, TransformModel};
 use grainforce::{Error, Result};
 use std::path::PathBuf;
 
@@ -52,6 +53,19 @@ pub struct LabelArgs {
     /// of the way from void grey to solid grey.
     #[arg(long, default_value_t = 0.9)]
     min_grey: f64,
+    /// labels: per-grain stresses to attach by position: a scene folder from
+    /// `import gff`/`import imaged11`, or a CSV id,x,y,z,s_xx,…,s_yz (SI); the
+    /// rigid transform between the two instruments' frames is fitted.
+    #[arg(long, value_name = "GRAINS")]
+    stresses: Option<PathBuf>,
+    /// labels: with --stresses, the largest distance between matched centroids
+    /// once transformed [m] (default 0.4 × the CT grains' median spacing).
+    #[arg(long)]
+    match_distance: Option<f64>,
+    /// labels: with --stresses, `rigid` fits the transform between the frames;
+    /// `none` takes them as the same frame.
+    #[arg(long, default_value = "rigid")]
+    match_transform: String,
 }
 
 pub fn run(args: &Args, gravity: Option<[f64; 3]>) -> Result<()> {
@@ -95,15 +109,12 @@ pub fn run(args: &Args, gravity: Option<[f64; 3]>) -> Result<()> {
         .iter()
         .map(|w| WallPlane::parse(w))
         .collect::<Result<Vec<_>>>()?;
-    let normals = match la.normals.as_str() {
-        "fit" => NormalMethod::SurfaceFit,
-        "pca" => NormalMethod::Pca,
-        other => {
-            return Err(Error::Invalid(format!(
-                "--normals must be fit or pca, got `{other}`"
-            )))
-        }
-    };
+    let normals = NormalMethod::parse(&la.normals).map_err(|_| {
+        Error::Invalid(format!(
+            "--normals must be fit or pca, got `{}`",
+            la.normals
+        ))
+    })?;
     let max_gap = match la.max_gap.as_str() {
         "none" => None,
         text => match text.parse::<f64>() {
@@ -126,17 +137,72 @@ pub fn run(args: &Args, gravity: Option<[f64; 3]>) -> Result<()> {
         min_grey: la.min_grey,
         ..Options::default()
     };
+    let transform = TransformModel::parse(&la.match_transform).map_err(|_| {
+        Error::Invalid(format!(
+            "--match-transform must be rigid or none, got `{}`",
+            la.match_transform
+        ))
+    })?;
+    // Read before the volume: a bad stress file fails fast.
+    let stressed = match &la.stresses {
+        Some(p) => Some(register::read_stressed_grains(p)?),
+        None => None,
+    };
     let grey = la.grey.as_ref().map(|g| (g.as_path(), &format));
     let mut imported = labels::import_file(&args.inputs[0], &format, grey, &options)?;
+    let matched = match &stressed {
+        Some(source) => Some(register::attach_stresses(
+            &mut imported.scene,
+            source,
+            &MatchOptions {
+                max_distance: la.match_distance,
+                transform,
+                ..MatchOptions::default()
+            },
+        )?),
+        None => None,
+    };
     if let Some(g) = gravity {
         imported.scene.settings.gravity = Some(g.to_vec());
     }
-    imported.scene.settings.description = Some(format!(
-        "grainforce import labels {} (voxel {voxel_size} m): grains and contacts from a label \
-         volume; stresses are zero until attached",
-        args.inputs[0].display()
-    ));
+    imported.scene.settings.description = Some(match (&la.stresses, &matched) {
+        (Some(p), Some(m)) => format!(
+            "grainforce import labels {} (voxel {voxel_size} m): grains and contacts from a label \
+             volume; stresses of {} grains from {} by position (rms distance {:.3e} m)",
+            args.inputs[0].display(),
+            m.matches.len(),
+            p.display(),
+            m.registration.rms
+        ),
+        _ => format!(
+            "grainforce import labels {} (voxel {voxel_size} m): grains and contacts from a label \
+             volume; stresses are zero until attached",
+            args.inputs[0].display()
+        ),
+    });
     imported.write(&args.output)?;
+    if let Some(m) = &matched {
+        m.write(&args.output)?;
+        let r = &m.registration;
+        status!(
+            "stresses: {} grains matched (rms distance {:.3e} m, {:.2} of the spacing; largest \
+             {:.3e} m), rotation {:.2}°, translation ({:.3e}, {:.3e}, {:.3e}) m; {} label grain(s) \
+             and {} stressed grain(s) unmatched (stress_match.csv, stress_match.json)",
+            m.matches.len(),
+            r.rms,
+            r.rms / r.spacing,
+            r.residuals.iter().cloned().fold(0.0, f64::max),
+            r.angle_degrees(),
+            r.translation[0],
+            r.translation[1],
+            r.translation[2],
+            m.unmatched_scene.len(),
+            m.unmatched_source.len()
+        );
+        for w in &m.warnings {
+            eprintln!("warning: {w}");
+        }
+    }
     let s = &imported.scene;
     let dropped = imported.detected.iter().filter(|c| !c.kept).count();
     status!(

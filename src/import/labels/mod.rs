@@ -20,9 +20,10 @@ pub mod volume;
 
 use crate::error::{Error, Result};
 use crate::scene::{self, Body, Contact, Grain, Inertia, Scene, Sym, Vec3, Wall};
+use rayon::prelude::*;
 use std::collections::HashMap;
 use std::path::Path;
-pub use volume::{ArraySource, DType, FileFormat, LabelValue, SliceSource};
+pub use volume::{ArraySource, DType, FileFormat, LabelValue, SharedSource, SliceSource};
 
 /// How contact normals are estimated.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -31,6 +32,19 @@ pub enum NormalMethod {
     SurfaceFit,
     /// The field's standard: least-variance direction of the interface faces.
     Pca,
+}
+
+impl NormalMethod {
+    /// `fit` or `pca`.
+    pub fn parse(text: &str) -> Result<NormalMethod> {
+        match text {
+            "fit" => Ok(NormalMethod::SurfaceFit),
+            "pca" => Ok(NormalMethod::Pca),
+            other => Err(Error::Invalid(format!(
+                "normals must be fit or pca, got `{other}`"
+            ))),
+        }
+    }
 }
 
 /// A plane wall given on the command line: `NAME:AXIS=POSITION` (metres).
@@ -842,6 +856,17 @@ impl SphereFit {
         self.n += 1;
     }
 
+    /// Adds another accumulation with the same origin.
+    fn merge(&mut self, other: &SphereFit) {
+        for i in 0..4 {
+            for j in 0..4 {
+                self.ata[i][j] += other.ata[i][j];
+            }
+            self.atb[i] += other.atb[i];
+        }
+        self.n += other.n;
+    }
+
     /// Centre and radius, when well determined.
     fn solve(&self, min_faces: usize) -> Option<([f64; 3], f64)> {
         if self.n < min_faces.max(4) {
@@ -912,102 +937,156 @@ fn surface_pass(
             }
         }
     }
-    let mut patches = vec![([0.0; 3], 0.0); plane_hits.len()];
     let mut hits_by_grain: Vec<Vec<usize>> = vec![Vec::new(); grains.len()];
     for (h, &(g, _, _)) in plane_hits.iter().enumerate() {
         hits_by_grain[g].push(h);
     }
     if by_grain.iter().all(Vec::is_empty) && plane_hits.is_empty() {
-        return Ok(Fits { sides, patches });
+        return Ok(Fits {
+            sides,
+            patches: Vec::new(),
+        });
     }
-    let mut slices = [vec![0u32; n], vec![0u32; n], vec![0u32; n]];
-    labels.labels(0, &mut slices[1])?;
-    if nz > 1 {
-        labels.labels(1, &mut slices[2])?;
-    }
-    for z in 0..nz {
-        if z > 0 {
-            slices.rotate_left(1);
-            if z + 1 < nz {
-                labels.labels(z + 1, &mut slices[2])?;
-            }
+    // Slices z0 … z1−1 (with one on either side as neighbours): the faces
+    // they add to each side's fit and each wall patch.
+    let template = sides;
+    type Sums = (Vec<[SphereFit; 2]>, Vec<([f64; 3], f64)>);
+    let slab = |z0: usize,
+                z1: usize,
+                read: &mut dyn FnMut(usize, &mut [u32]) -> Result<()>|
+     -> Result<Sums> {
+        let mut sides = template.clone();
+        let mut patches = vec![([0.0; 3], 0.0); plane_hits.len()];
+        let mut slices = [vec![0u32; n], vec![0u32; n], vec![0u32; n]];
+        if z0 > 0 {
+            read(z0 - 1, &mut slices[0])?;
         }
-        let [below, here, above] = &slices;
-        for y in 0..ny {
-            for x in 0..nx {
-                let i = y * nx + x;
-                let l = here[i];
-                if l == 0 || l == container {
-                    continue;
+        read(z0, &mut slices[1])?;
+        if z0 + 1 < nz {
+            read(z0 + 1, &mut slices[2])?;
+        }
+        for z in z0..z1 {
+            if z > z0 {
+                slices.rotate_left(1);
+                if z + 1 < nz {
+                    read(z + 1, &mut slices[2])?;
                 }
-                // A label pass 1 did not see: the file changed under us.
-                let Some(g) = scan
-                    .index
-                    .get(l as usize)
-                    .and_then(|&i| (i as usize).checked_sub(1))
-                else {
-                    return Err(Error::Invalid(format!(
+            }
+            let [below, here, above] = &slices;
+            for y in 0..ny {
+                for x in 0..nx {
+                    let i = y * nx + x;
+                    let l = here[i];
+                    if l == 0 || l == container {
+                        continue;
+                    }
+                    // A label pass 1 did not see: the file changed under us.
+                    let Some(g) = scan
+                        .index
+                        .get(l as usize)
+                        .and_then(|&i| (i as usize).checked_sub(1))
+                    else {
+                        return Err(Error::Invalid(format!(
                         "label {l} at voxel z={z} y={y} x={x} appeared between two reads of the volume: was the file modified during the import?"
                     )));
-                };
-                for &h in &hits_by_grain[g] {
-                    let (_, w, towards_high) = plane_hits[h];
-                    let axis = options.walls[w].axis;
-                    let m = &scan.moments[g];
-                    let at = [x, y, z][axis];
-                    let extreme = if towards_high { m.hi[axis] } else { m.lo[axis] };
-                    if at == extreme {
-                        let p = &mut patches[h];
-                        p.0[0] += x as f64;
-                        p.0[1] += y as f64;
-                        p.0[2] += z as f64;
-                        p.1 += 1.0;
-                    }
-                }
-                let tests = &by_grain[g];
-                if tests.is_empty() {
-                    continue;
-                }
-                let mut void_face = |d: [f64; 3]| {
-                    let f = [x as f64 + d[0], y as f64 + d[1], z as f64 + d[2]];
-                    for &(k, side, inner2, outer2, before) in tests {
-                        let c = zones[k].centre;
-                        let r2 =
-                            (f[0] - c[0]).powi(2) + (f[1] - c[1]).powi(2) + (f[2] - c[2]).powi(2);
-                        if r2 < inner2 || r2 > outer2 {
-                            continue;
+                    };
+                    for &h in &hits_by_grain[g] {
+                        let (_, w, towards_high) = plane_hits[h];
+                        let axis = options.walls[w].axis;
+                        let m = &scan.moments[g];
+                        let at = [x, y, z][axis];
+                        let extreme = if towards_high { m.hi[axis] } else { m.lo[axis] };
+                        if at == extreme {
+                            let p = &mut patches[h];
+                            p.0[0] += x as f64;
+                            p.0[1] += y as f64;
+                            p.0[2] += z as f64;
+                            p.1 += 1.0;
                         }
-                        if let Some((centre, radius)) = before {
-                            if (scene::norm(scene::sub(f, centre)) - radius).abs() > gate {
+                    }
+                    let tests = &by_grain[g];
+                    if tests.is_empty() {
+                        continue;
+                    }
+                    let mut void_face = |d: [f64; 3]| {
+                        let f = [x as f64 + d[0], y as f64 + d[1], z as f64 + d[2]];
+                        for &(k, side, inner2, outer2, before) in tests {
+                            let c = zones[k].centre;
+                            let r2 = (f[0] - c[0]).powi(2)
+                                + (f[1] - c[1]).powi(2)
+                                + (f[2] - c[2]).powi(2);
+                            if r2 < inner2 || r2 > outer2 {
                                 continue;
                             }
+                            if let Some((centre, radius)) = before {
+                                if (scene::norm(scene::sub(f, centre)) - radius).abs() > gate {
+                                    continue;
+                                }
+                            }
+                            sides[k][side].add(f);
                         }
-                        sides[k][side].add(f);
+                    };
+                    if x > 0 && here[i - 1] == 0 {
+                        void_face([-0.5, 0.0, 0.0]);
                     }
-                };
-                if x > 0 && here[i - 1] == 0 {
-                    void_face([-0.5, 0.0, 0.0]);
-                }
-                if x + 1 < nx && here[i + 1] == 0 {
-                    void_face([0.5, 0.0, 0.0]);
-                }
-                if y > 0 && here[i - nx] == 0 {
-                    void_face([0.0, -0.5, 0.0]);
-                }
-                if y + 1 < ny && here[i + nx] == 0 {
-                    void_face([0.0, 0.5, 0.0]);
-                }
-                if z > 0 && below[i] == 0 {
-                    void_face([0.0, 0.0, -0.5]);
-                }
-                if z + 1 < nz && above[i] == 0 {
-                    void_face([0.0, 0.0, 0.5]);
+                    if x + 1 < nx && here[i + 1] == 0 {
+                        void_face([0.5, 0.0, 0.0]);
+                    }
+                    if y > 0 && here[i - nx] == 0 {
+                        void_face([0.0, -0.5, 0.0]);
+                    }
+                    if y + 1 < ny && here[i + nx] == 0 {
+                        void_face([0.0, 0.5, 0.0]);
+                    }
+                    if z > 0 && below[i] == 0 {
+                        void_face([0.0, 0.0, -0.5]);
+                    }
+                    if z + 1 < nz && above[i] == 0 {
+                        void_face([0.0, 0.0, 0.5]);
+                    }
                 }
             }
         }
+        Ok((sides, patches))
+    };
+    let mut sides = template.clone();
+    let mut patches = vec![([0.0; 3], 0.0); plane_hits.len()];
+    let mut add = |(s, p): Sums| {
+        for (into, from) in sides.iter_mut().zip(&s) {
+            into[0].merge(&from[0]);
+            into[1].merge(&from[1]);
+        }
+        for (into, from) in patches.iter_mut().zip(&p) {
+            for k in 0..3 {
+                into.0[k] += from.0[k];
+            }
+            into.1 += from.1;
+        }
+    };
+    if let Some(shared) = labels.shared() {
+        // Fixed slabs, summed in z order: the answer does not depend on the
+        // number of threads.
+        let slabs: Vec<(usize, usize)> = (0..nz)
+            .step_by(SLAB)
+            .map(|z0| (z0, (z0 + SLAB).min(nz)))
+            .collect();
+        for batch in slabs.chunks(rayon::current_num_threads().max(1)) {
+            let sums: Vec<Result<Sums>> = batch
+                .par_iter()
+                .map(|&(z0, z1)| slab(z0, z1, &mut |z, out| shared.labels_at(z, out)))
+                .collect();
+            for s in sums {
+                add(s?);
+            }
+        }
+    } else {
+        add(slab(0, nz, &mut |z, out| labels.labels(z, out))?);
     }
     Ok(Fits { sides, patches })
 }
+
+/// Slices per slab of the parallel surface passes.
+const SLAB: usize = 32;
 
 fn to_metres(p: [f64; 3], options: &Options) -> Vec3 {
     let s = options.voxel_size;
@@ -1267,6 +1346,14 @@ impl LabelScene {
     pub fn write(&self, dir: &Path) -> Result<()> {
         self.scene.validate()?;
         scene::write_scene(dir, &self.scene)?;
+        scene::write_file_atomically(
+            &dir.join("contacts_quality.csv"),
+            self.quality_csv().as_bytes(),
+        )
+    }
+
+    /// The text of `contacts_quality.csv`.
+    pub fn quality_csv(&self) -> String {
         let mut text = String::from(
             "contact,a,b,zone,kept,method,faces,area,gap,grey,x,y,z,n_x,n_y,n_z,pca_x,pca_y,pca_z,pca_n_x,pca_n_y,pca_n_z\n",
         );
@@ -1307,6 +1394,6 @@ impl LabelScene {
                 c.pca_normal[2],
             ));
         }
-        scene::write_file_atomically(&dir.join("contacts_quality.csv"), text.as_bytes())
+        text
     }
 }

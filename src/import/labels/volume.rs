@@ -128,6 +128,17 @@ pub trait SliceSource {
     fn labels(&mut self, z: usize, out: &mut [u32]) -> Result<()>;
     /// Slice `z` as grey levels.
     fn greys(&mut self, z: usize, out: &mut [f32]) -> Result<()>;
+    /// The same volume readable from several threads at once (arrays and
+    /// memory-mapped files), so that passes can split it into z-slabs.
+    fn shared(&self) -> Option<&dyn SharedSource> {
+        None
+    }
+}
+
+/// A volume whose slices can be read in any order from any thread.
+pub trait SharedSource: Sync {
+    /// As [`SliceSource::labels`].
+    fn labels_at(&self, z: usize, out: &mut [u32]) -> Result<()>;
 }
 
 fn not_a_label(origin: &Path, z: usize, index: usize, nx: usize, value: f64) -> Error {
@@ -168,20 +179,30 @@ impl<T: LabelValue> SliceSource for ArraySource<'_, T> {
     }
 
     fn labels(&mut self, z: usize, out: &mut [u32]) -> Result<()> {
-        let n = self.shape[1] * self.shape[2];
-        let slice = &self.data[z * n..(z + 1) * n];
-        for (i, (o, v)) in out.iter_mut().zip(slice).enumerate() {
-            *o = v.label().ok_or_else(|| {
-                not_a_label(Path::new("<array>"), z, i, self.shape[2], v.grey() as f64)
-            })?;
-        }
-        Ok(())
+        self.labels_at(z, out)
     }
 
     fn greys(&mut self, z: usize, out: &mut [f32]) -> Result<()> {
         let n = self.shape[1] * self.shape[2];
         for (o, v) in out.iter_mut().zip(&self.data[z * n..(z + 1) * n]) {
             *o = v.grey();
+        }
+        Ok(())
+    }
+
+    fn shared(&self) -> Option<&dyn SharedSource> {
+        Some(self)
+    }
+}
+
+impl<T: LabelValue> SharedSource for ArraySource<'_, T> {
+    fn labels_at(&self, z: usize, out: &mut [u32]) -> Result<()> {
+        let n = self.shape[1] * self.shape[2];
+        let slice = &self.data[z * n..(z + 1) * n];
+        for (i, (o, v)) in out.iter_mut().zip(slice).enumerate() {
+            *o = v.label().ok_or_else(|| {
+                not_a_label(Path::new("<array>"), z, i, self.shape[2], v.grey() as f64)
+            })?;
         }
         Ok(())
     }
@@ -269,6 +290,25 @@ impl SliceSource for MappedSource {
     }
 
     fn labels(&mut self, z: usize, out: &mut [u32]) -> Result<()> {
+        self.labels_at(z, out)
+    }
+
+    fn greys(&mut self, z: usize, out: &mut [f32]) -> Result<()> {
+        let size = self.dtype.size();
+        let bytes = self.slice_bytes(z);
+        for (o, b) in out.iter_mut().zip(bytes.chunks_exact(size)) {
+            *o = element(b, self.dtype, self.little) as f32;
+        }
+        Ok(())
+    }
+
+    fn shared(&self) -> Option<&dyn SharedSource> {
+        Some(self)
+    }
+}
+
+impl SharedSource for MappedSource {
+    fn labels_at(&self, z: usize, out: &mut [u32]) -> Result<()> {
         let size = self.dtype.size();
         let bytes = self.slice_bytes(z);
         // The common cases without the per-element conversion.
@@ -308,15 +348,6 @@ impl SliceSource for MappedSource {
                 });
             }
             *o = v as u32;
-        }
-        Ok(())
-    }
-
-    fn greys(&mut self, z: usize, out: &mut [f32]) -> Result<()> {
-        let size = self.dtype.size();
-        let bytes = self.slice_bytes(z);
-        for (o, b) in out.iter_mut().zip(bytes.chunks_exact(size)) {
-            *o = element(b, self.dtype, self.little) as f32;
         }
         Ok(())
     }
