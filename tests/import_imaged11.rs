@@ -161,4 +161,14 @@ fn cli_writes_grains_and_reads_contacts() {
     std::fs::write(&bad, "#translation: 1 2 3\n#UBI:\n1 0 0\n0 1 x\n0 0 1\n").unwrap();
     let e = imaged11::read_map(&bad).unwrap_err().to_string();
     assert!(e.contains("bad.map") && e.contains("line 4"), "{e}");
+    // Rows are exactly three finite numbers; a translation too.
+    for (text, line) in [
+        ("#UBI:\n1 0 0\n0 1 0 7\n0 0 1\n", "line 3"),
+        ("#UBI:\n1 0 0\n0 1 0\n0 0 inf\n", "line 4"),
+        ("#translation: 1 2\n#UBI:\n1 0 0\n0 1 0\n0 0 1\n", "line 1"),
+    ] {
+        std::fs::write(&bad, text).unwrap();
+        let e = imaged11::read_map(&bad).unwrap_err().to_string();
+        assert!(e.contains("bad.map") && e.contains(line), "{text:?}: {e}");
+    }
 }

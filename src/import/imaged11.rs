@@ -53,21 +53,15 @@ pub fn read_map(path: &Path) -> Result<Vec<MapGrain>> {
             continue;
         }
         if let Some(rest) = t.strip_prefix("#translation:") {
-            let v: Vec<f64> = rest
-                .split_whitespace()
-                .map(|x| x.parse::<f64>())
-                .collect::<std::result::Result<_, _>>()
-                .ok()
-                .filter(|v: &Vec<f64>| v.len() == 3 && v.iter().all(|x| x.is_finite()))
-                .ok_or_else(|| {
-                    Error::data(
-                        path,
-                        Some(n),
-                        Some("#translation"),
-                        "expected three numbers (µm)",
-                    )
-                })?;
-            translation = Some([v[0], v[1], v[2]]);
+            let v = three_numbers(rest).ok_or_else(|| {
+                Error::data(
+                    path,
+                    Some(n),
+                    Some("#translation"),
+                    "expected three numbers (µm)",
+                )
+            })?;
+            translation = Some(v);
             continue;
         }
         if t.starts_with("#UBI") {
@@ -86,21 +80,15 @@ pub fn read_map(path: &Path) -> Result<Vec<MapGrain>> {
                 "numbers before a `#UBI:` line",
             ));
         };
-        let v: Vec<f64> = t
-            .split_whitespace()
-            .map(|x| x.parse::<f64>())
-            .collect::<std::result::Result<_, _>>()
-            .ok()
-            .filter(|v: &Vec<f64>| v.len() == 3 && v.iter().all(|x| x.is_finite()))
-            .ok_or_else(|| {
-                Error::data(
-                    path,
-                    Some(n),
-                    Some("UBI"),
-                    "a UBI row is three finite numbers",
-                )
-            })?;
-        rows.push([v[0], v[1], v[2]]);
+        let v = three_numbers(t).ok_or_else(|| {
+            Error::data(
+                path,
+                Some(n),
+                Some("UBI"),
+                "a UBI row is three finite numbers",
+            )
+        })?;
+        rows.push(v);
         if rows.len() == 3 {
             grains.push(MapGrain {
                 index: grains.len(),
@@ -289,4 +277,14 @@ pub fn import(map: &Path, contacts: Option<&Path>, options: &Options) -> Result<
         forces: None,
         warnings: Vec::new(),
     })
+}
+
+/// Exactly three finite numbers separated by white space.
+fn three_numbers(text: &str) -> Option<[f64; 3]> {
+    let mut words = text.split_whitespace();
+    let mut v = [0.0; 3];
+    for x in &mut v {
+        *x = words.next()?.parse().ok().filter(|x: &f64| x.is_finite())?;
+    }
+    words.next().is_none().then_some(v)
 }
