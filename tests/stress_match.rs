@@ -263,24 +263,31 @@ fn stresses_and_their_errors_rotate_with_the_frame() {
     assert_eq!(rotate_stress(&r, &s, None).1, None);
 }
 
+/// The regression DEM box voxelised at `per_diameter` voxels per mean grain
+/// diameter: (scene, that diameter, voxel size, grid, labels).
+fn voxelised_box(per_diameter: f64) -> (scene::Scene, f64, f64, synth::Grid, Vec<u32>) {
+    let (dem, _) = fixture("regression/box3d_gated");
+    let (grains, _) = synth::spheres_of(&dem);
+    let diameter = 2.0
+        * dem
+            .grains
+            .iter()
+            .map(|g| g.equivalent_radius(3))
+            .sum::<f64>()
+        / dem.grains.len() as f64;
+    let voxel = diameter / per_diameter;
+    let grid = synth::Grid::around(&grains, voxel, 3.0);
+    let (volume, _) = synth::voxelise(&grains, &grid);
+    (dem, diameter, voxel, grid, volume)
+}
+
 /// The DEM's 60 grains voxelised (15 voxels per diameter) and imported; the
 /// DEM's stresses seen from another frame (turned 120° about a tilted axis,
 /// shifted, noisy positions, 3 grains missing) come back onto the right
 /// labels, rotated into the CT frame.
 #[test]
 fn diffraction_stresses_land_on_the_label_grains() {
-    let (dem, _) = fixture("regression/box3d_gated");
-    let (grains, _) = synth::spheres_of(&dem);
-    let d = 2.0
-        * dem
-            .grains
-            .iter()
-            .map(|g| g.equivalent_radius(3))
-            .sum::<f64>()
-        / 60.0;
-    let voxel = d / 15.0;
-    let grid = synth::Grid::around(&grains, voxel, 3.0);
-    let (volume, _) = synth::voxelise(&grains, &grid);
+    let (dem, d, voxel, grid, volume) = voxelised_box(15.0);
     let options = Options {
         voxel_size: voxel,
         origin: grid.origin,
@@ -341,18 +348,7 @@ fn diffraction_stresses_land_on_the_label_grains() {
 
 #[test]
 fn the_cli_attaches_stresses_and_refuses_bad_files() {
-    let (dem, _) = fixture("regression/box3d_gated");
-    let (grains, _) = synth::spheres_of(&dem);
-    let d = 2.0
-        * dem
-            .grains
-            .iter()
-            .map(|g| g.equivalent_radius(3))
-            .sum::<f64>()
-        / 60.0;
-    let voxel = d / 12.0;
-    let grid = synth::Grid::around(&grains, voxel, 3.0);
-    let (volume, _) = synth::voxelise(&grains, &grid);
+    let (dem, _, voxel, grid, volume) = voxelised_box(12.0);
     let volume: Vec<u16> = volume.iter().map(|&l| l as u16).collect();
     let dir = tempfile::tempdir().unwrap();
     let npy = dir.path().join("labels.npy");
