@@ -318,9 +318,11 @@ fn coloured_light_at_the_defaults() {
     };
     let dir_out = tempfile::tempdir().unwrap();
     let mut failed = Vec::new();
-    // Disk recall and precision asserted per photo: the target, or (where
-    // one disk of 21 or 48 is lost) the level measured, as a floor.
-    for (case, disks) in CASES.iter().zip([0.98, 0.95, 0.9, 0.98, 0.97]) {
+    // Disk recall and precision asserted per photo: the target, or (jlin-
+    // fixed48 under red light: 47 of 48, its disk against the container's
+    // corner keeps too few outline rays in the noise) the level measured, as
+    // a floor.
+    for (case, disks) in CASES.iter().zip([0.98, 0.97, 0.98, 0.98, 0.98]) {
         let dir = root.join(case.folder);
         let photo = image::open(dir.join(case.image)).unwrap().to_rgb8();
         for (light, gains) in [

@@ -78,6 +78,10 @@ pub struct DetectionImage {
     pub search: FloatImage,
     pub signal: FloatImage,
     pub choice: ChannelChoice,
+    /// How far the background's own pixels are from the background colour
+    /// in `search` (the 90th percentile over its histogram bin: noise, light
+    /// falling off); 0 when no background was estimated.
+    pub background_level: f64,
 }
 
 /// How the searched picture was made (reported in the run summary and in
@@ -170,11 +174,12 @@ pub fn read_for_detection(path: &Path, channel: Channel, polarity: &str) -> Resu
                 polarity: polarity.to_owned(),
                 signal: None,
             },
+            background_level: 0.0,
         });
     }
     let (w, h) = (decoded.width(), decoded.height());
     // 8-bit RGB (cameras' JPEGs) is read in place; anything else as floats.
-    let (search, (signal, signal_channel), background, fraction) = match decoded {
+    let (search, (signal, signal_channel), background, fraction, background_level) = match decoded {
         DynamicImage::ImageRgb8(c) => colour_distance(c.as_raw(), (w, h), 255.0),
         other => colour_distance(other.to_rgb32f().as_raw(), (w, h), 1.0),
     };
@@ -188,18 +193,21 @@ pub fn read_for_detection(path: &Path, channel: Channel, polarity: &str) -> Resu
             polarity: "bright".to_owned(),
             signal: Some(format!("{signal_channel:?}").to_ascii_lowercase()),
         },
+        background_level,
     })
 }
 
 /// The colour distance of every pixel from the background colour (scaled so
 /// that the 99th percentile of the distances is 1), the channel the
 /// photoelastic signal is read in ([`signal_channel`]), the background colour
-/// and the fraction of pixels in its histogram bin.
+/// the fraction of pixels in its histogram bin, and the background's own
+/// level in the search picture (the 90th percentile over that bin).
+#[allow(clippy::type_complexity)]
 fn colour_distance<T: Copy + Into<f32> + Sync>(
     raw: &[T],
     (width, height): (u32, u32),
     full_scale: f32,
-) -> (FloatImage, (FloatImage, Channel), [f32; 3], f64) {
+) -> (FloatImage, (FloatImage, Channel), [f32; 3], f64, f64) {
     const LEVELS: usize = 16;
     let bin = |p: &[T]| -> usize {
         let q =
@@ -226,6 +234,7 @@ fn colour_distance<T: Copy + Into<f32> + Sync>(
         .max_by_key(|&(_, &n)| n)
         .expect("bins");
     let background = [0, 1, 2].map(|c| (sum[fullest][c] / n.max(1) as f64) as f32 / full_scale);
+    let spreads = channel_spreads(raw, stride);
     let distance: Vec<f32> = raw
         .par_chunks_exact(3)
         .map(|p| {
@@ -241,6 +250,20 @@ fn colour_distance<T: Copy + Into<f32> + Sync>(
         *sample.select_nth_unstable_by(k, |a, b| a.total_cmp(b)).1
     };
     let scale = if top > 1e-6 { 1.0 / top } else { 1.0 };
+    // The background bin's own distances (noise, shading), sampled.
+    let mut own: Vec<f32> = raw
+        .chunks_exact(3)
+        .zip(&distance)
+        .step_by(stride.max(3))
+        .filter(|(p, _)| bin(p) == fullest)
+        .map(|(_, &d)| d * scale)
+        .collect();
+    let background_level = if own.is_empty() {
+        0.0
+    } else {
+        let k = (own.len() * 9 / 10).min(own.len() - 1);
+        *own.select_nth_unstable_by(k, |a, b| a.total_cmp(b)).1 as f64
+    };
     let search = FloatImage::from_raw(
         width,
         height,
@@ -250,21 +273,20 @@ fn colour_distance<T: Copy + Into<f32> + Sync>(
             .collect(),
     )
     .expect("same dimensions");
-    let channel = signal_channel(raw, stride);
+    let channel = signal_channel(spreads);
     let signal = pick(raw, (width, height), channel, full_scale);
     (
         search,
         (signal, channel),
         background,
         n as f64 / seen.max(1) as f64,
+        background_level,
     )
 }
 
-/// The channel the photoelastic signal is read in: green, as PeGS reads it,
-/// unless the light leaves green nearly empty (red or orange light: its
-/// spread, 1st to 99th percentile, under a quarter of the widest channel's),
-/// then the channel with the widest spread.
-fn signal_channel<T: Copy + Into<f32>>(raw: &[T], stride: usize) -> Channel {
+/// The spread of each channel (1st to 99th percentile of a sample of every
+/// `stride`-th pixel): how much of the picture the light puts in it.
+fn channel_spreads<T: Copy + Into<f32>>(raw: &[T], stride: usize) -> [f32; 3] {
     let spread = |c: usize| -> f32 {
         let mut v: Vec<f32> = raw
             .chunks_exact(3)
@@ -281,7 +303,14 @@ fn signal_channel<T: Copy + Into<f32>>(raw: &[T], stride: usize) -> Channel {
             .1;
         hi - lo
     };
-    let spreads = [spread(0), spread(1), spread(2)];
+    [spread(0), spread(1), spread(2)]
+}
+
+/// The channel the photoelastic signal is read in: green, as PeGS reads it,
+/// unless the light leaves green nearly empty (red or orange light: its
+/// spread under a quarter of the widest channel's), then the channel with the
+/// widest spread.
+fn signal_channel(spreads: [f32; 3]) -> Channel {
     let widest = (0..3)
         .max_by(|&a, &b| spreads[a].total_cmp(&spreads[b]))
         .expect("3");

@@ -262,11 +262,18 @@ const COLOUR_EDGE_MARGIN: f64 = 0.1;
 /// How far (a fraction of the radius) the outlines of two disks may cross
 /// in a photograph: loaded photoelastic disks flatten where they press into
 /// each other, and a disk seen slightly from the side shows its wall.
-const COLOUR_OVERLAP: f64 = 0.3;
+const COLOUR_OVERLAP: f64 = 0.35;
 
 /// The support a disk needs in the colour distance (confident, and confirmed
 /// by the model fit), below the defaults'.
 const COLOUR_SUPPORT: [f64; 2] = [0.35, 0.25];
+
+/// A disk's median colour distance over its inner 0.8 R must be at least
+/// this multiple of the background's own level (its noise) and this
+/// fraction of the 99th percentile. Measured: real disks 0.10–0.9 (the
+/// dimmest, jlin-step83's unloaded disks, 0.10), circles fitted to a
+/// piston's edges 0.01–0.02 under red light with noise (background 0.023).
+const COLOUR_FILL: [f64; 2] = [2.5, 0.04];
 
 /// How far apart (a fraction of the smaller radius) two outlines may be
 /// and still count for the gap between touching disks: two rims of up to
@@ -352,6 +359,7 @@ pub fn detect_images(
             search,
             signal,
             choice,
+            background_level,
         } = read_for_detection(path, settings.channel, polarity)?;
         let by_colour = choice.background.is_some();
         let image = signal;
@@ -407,6 +415,12 @@ pub fn detect_images(
             // dense real packing fewer of them show it.
             o.min_support = o.min_support.min(COLOUR_SUPPORT[0]);
             o.min_support_confirmed = o.min_support_confirmed.min(COLOUR_SUPPORT[1]);
+            // A disk differs from the background inside, not only at its
+            // outline: a circle on a wall's or a piston's edges is empty.
+            o.min_fill = o
+                .min_fill
+                .max(COLOUR_FILL[0] * background_level)
+                .max(COLOUR_FILL[1]);
             detect::detect_disks_shrunk(&search, &o, colour_search_factor(&o))?
         } else {
             detect_disks(&search, &settings.detect)?

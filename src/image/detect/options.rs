@@ -48,6 +48,11 @@ pub struct DetectOptions {
     /// 3 px) before the less supported one is dropped: fitted outlines of
     /// real, loaded disks overlap where the disks press into each other.
     pub overlap: f64,
+    /// Smallest median intensity (signed by the polarity) over the inner
+    /// 0.8 R of a disk: in a colour distance a disk is a region that differs
+    /// from the background, and a circle whose inside is background (fitted
+    /// to a wall's or a piston's edges) is none. 0: not checked.
+    pub min_fill: f64,
 }
 
 impl DetectOptions {
@@ -66,6 +71,7 @@ impl DetectOptions {
             classes: Vec::new(),
             find_by_rims: true,
             overlap: 0.15,
+            min_fill: 0.0,
         }
     }
 

@@ -108,6 +108,9 @@ pub(crate) fn refine(
     if contrast <= o.min_contrast.max(0.0) {
         return None;
     }
+    if o.min_fill > 0.0 && interior_median(img, c, 0.8 * r).is_some_and(|m| sign * m < o.min_fill) {
+        return None;
+    }
     let rms = (residuals.iter().map(|v| v * v).sum::<f64>() / residuals.len() as f64).sqrt();
     // The smoothed edge of a disk peaks σ²/(2r) inside the true one.
     let r = r + sigma * sigma / (2.0 * r);
@@ -289,6 +292,27 @@ pub(crate) fn ray_edges(
         });
     }
     (edges, rays, visible)
+}
+
+/// The median intensity over a disk of radius `r` around `c` (a grid of
+/// about 500 points); `None` when fewer than 16 of them lie in the image.
+pub(crate) fn interior_median(img: &Plane, c: [f64; 2], r: f64) -> Option<f64> {
+    let step = (r / 12.0).max(1.0);
+    let n = (r / step).floor() as i64;
+    let mut values = Vec::with_capacity(((2 * n + 1) * (2 * n + 1)) as usize);
+    for i in -n..=n {
+        for j in -n..=n {
+            let (dx, dy) = (j as f64 * step, i as f64 * step);
+            if dx.hypot(dy) <= r {
+                values.extend(img.sample(c[0] + dx, c[1] + dy));
+            }
+        }
+    }
+    if values.len() < 16 {
+        return None;
+    }
+    let k = values.len() / 2;
+    Some(*values.select_nth_unstable_by(k, f64::total_cmp).1)
 }
 
 /// The intensity inside minus outside the circle, sampled beyond the
