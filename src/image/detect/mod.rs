@@ -220,8 +220,8 @@ pub fn detect_disks_shrunk(
 
 /// Refines the candidates (strongest first) in batches, skipping those that
 /// lie inside a disk already found with confidence. Outlines cross by at
-/// most 0.3 R, so the centres of two disks are at least 1.7 R apart and any
-/// other disk's centre is at least 0.7 R away from such a candidate, beyond what refining recovers from (a quarter
+/// most 0.35 R, so the centres of two disks are at least 1.65 R apart and any
+/// other disk's centre is at least 0.65 R away from such a candidate, beyond what refining recovers from (a quarter
 /// radius): the candidate can only give the same disk again or a circle the
 /// overlap rule removes. Most candidates are such echoes (of fringes inside
 /// loaded disks), and refining is the costliest step of the search. The
