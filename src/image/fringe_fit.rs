@@ -1153,6 +1153,7 @@ impl Stepper<'_> {
         mut x: Vec<f64>,
         optics: &Optics,
         max_iterations: usize,
+        tolerance: f64,
         timing: &mut FitTiming,
     ) -> Result<LmOutcome> {
         let p = self.p;
@@ -1254,7 +1255,7 @@ impl Stepper<'_> {
                     current = trial;
                     damping = (damping / 3.0).max(1e-9);
                     accepted = true;
-                    stalls = if gain < 1e-5 { stalls + 1 } else { 0 };
+                    stalls = if gain < tolerance { stalls + 1 } else { 0 };
                     break;
                 }
                 damping *= 6.0;
@@ -1385,6 +1386,36 @@ impl StepSolver {
 /// the coarse fringes (a smoother objective, fewer local minima).
 const STAGES: [f64; 3] = [0.08, 0.04, 0.0];
 
+/// A stage ends after two steps in a row that lower the objective by less
+/// than this share: the coarse stages (envelope, smoothed) only lead into
+/// the final stage's basin, so they stop early; the final one converges.
+const COARSE_TOLERANCE: f64 = 1e-3;
+const FINAL_TOLERANCE: f64 = 1e-5;
+
+/// Every `stride`-th pixel in x and y of each disk: a smoothed stage's data
+/// (Gaussian σ ≥ 1.5 stride px) is band-limited, so the coarse stages fit
+/// on a quarter of the pixels at stride 2 (the smoothing itself is done on
+/// all of them first).
+fn thinned(mut p: Prepared, stride: u32) -> Prepared {
+    if stride <= 1 {
+        return p;
+    }
+    for d in &mut p.disks {
+        let keep: Vec<usize> = (0..d.pixels.len())
+            .filter(|&i| d.pixels[i].0 % stride == 0 && d.pixels[i].1 % stride == 0)
+            .collect();
+        d.points = keep.iter().map(|&i| d.points[i]).collect();
+        d.intensity = keep.iter().map(|&i| d.intensity[i]).collect();
+        d.pixels = keep.iter().map(|&i| d.pixels[i]).collect();
+    }
+    p
+}
+
+/// The pixel stride a stage smoothed by `sigma_px` can be fitted on.
+fn stride_for(sigma_px: f64) -> u32 {
+    ((sigma_px / 1.5).floor() as u32).clamp(1, 4)
+}
+
 /// The problem with each disk's intensities smoothed by `sigma_px`.
 fn smoothed(p: &Prepared, sigma_px: f64) -> Prepared {
     Prepared {
@@ -1448,7 +1479,8 @@ pub fn fit_fringes(
         // The envelope first: smooth in the forces, its minimum near the
         // intensity fit's basin.
         let clock = std::time::Instant::now();
-        let env = enveloped(&p, (0.08 * radius_px).max(2.0));
+        let sigma = (0.08 * radius_px).max(2.0);
+        let env = thinned(enveloped(&p, sigma), stride_for(sigma));
         timing.smoothing += clock.elapsed().as_secs_f64();
         let optics = Optics {
             envelope: Some(frame.px_per_m),
@@ -1459,7 +1491,13 @@ pub fn fit_fringes(
             scene: Some(scene),
             settings,
         };
-        let out = stepper.run(x, &optics, settings.max_iterations / 3, &mut timing)?;
+        let out = stepper.run(
+            x,
+            &optics,
+            settings.max_iterations / 3,
+            COARSE_TOLERANCE,
+            &mut timing,
+        )?;
         x = out.x;
         iterations += out.iterations;
         timing.steps.push(out.iterations);
@@ -1477,7 +1515,7 @@ pub fn fit_fringes(
         let sigma = extra * radius_px;
         let clock = std::time::Instant::now();
         let stage = if sigma > 0.5 {
-            Some(smoothed(&p, sigma))
+            Some(thinned(smoothed(&p, sigma), stride_for(sigma)))
         } else {
             None
         };
@@ -1493,7 +1531,12 @@ pub fn fit_fringes(
             settings,
             if stage.is_some() { sigma } else { 0.0 },
         );
-        let out = stepper.run(x, &optics, budget, &mut timing)?;
+        let tolerance = if i + 1 == STAGES.len() {
+            FINAL_TOLERANCE
+        } else {
+            COARSE_TOLERANCE
+        };
+        let out = stepper.run(x, &optics, budget, tolerance, &mut timing)?;
         x = out.x;
         iterations += out.iterations;
         damping = out.damping;
@@ -1578,6 +1621,7 @@ pub fn fit_fringes_per_disk(
                 u0,
                 &optics,
                 settings.max_iterations,
+                FINAL_TOLERANCE,
                 &mut FitTiming::default(),
             )?;
             Ok((out.x, out.iterations))
