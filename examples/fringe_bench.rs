@@ -71,7 +71,27 @@ fn main() -> grainforce::Result<()> {
             detect_images(std::slice::from_ref(&path), &settings, &mut |_, _, _, _| {
                 Ok(())
             })?;
-        Some(detection.frames[0].clone())
+        let found = detection.frames[0].clone();
+        let walls = found
+            .scene
+            .contacts
+            .iter()
+            .filter(|c| matches!(c.b, Body::Wall(_)))
+            .count();
+        println!(
+            "  detected: {} disks, {} contacts ({walls} with walls, {} walls)",
+            found.scene.grains.len(),
+            found.scene.contacts.len(),
+            found.scene.walls.len()
+        );
+        if let Some(k) = args.iter().position(|a| a == "--dump") {
+            let out = Path::new(&args[k + 1]);
+            grainforce::scene::write_scene(out, &found.scene)?;
+            frame.write(&out.join("image-frame.json"))?;
+            std::fs::copy(&path, out.join("photo.jpg"))
+                .map_err(|e| grainforce::Error::io(out, e))?;
+        }
+        Some(found)
     } else {
         None
     };

@@ -104,6 +104,13 @@ pub fn run(args: Args) -> Result<()> {
         r.flagged.len(),
         r.seconds
     );
+    if !r.balance_left_out.is_empty() {
+        status!(
+            "balance left out for {} disk(s) whose contacts cannot carry a balanced load (a contact missed?): {}",
+            r.balance_left_out.len(),
+            r.balance_left_out.join(", ")
+        );
+    }
     Ok(())
 }
 

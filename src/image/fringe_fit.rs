@@ -183,8 +183,14 @@ pub struct FringeFitReport {
     pub objective: f64,
     /// The Levenberg–Marquardt damping of the last step.
     pub damping: f64,
+    /// Median and largest imbalance over the disks whose balance was imposed.
     pub median_imbalance: f64,
     pub max_imbalance: f64,
+    /// Disks whose contacts admit no balanced, compressive,
+    /// friction-admissible load set (one contact, or two not within the
+    /// friction angle of opposite: a contact missed by detection): their
+    /// balance is left out of the fit, their loads are the fringes' alone.
+    pub balance_left_out: Vec<String>,
     pub flagged: Vec<String>,
     pub seconds: f64,
     pub timing: FitTiming,
@@ -537,6 +543,11 @@ struct Prepared {
     optics: Optics,
     /// One pixel [m].
     pixel: f64,
+    /// Disks whose balance is imposed (or penalised); a disk whose contacts
+    /// admit no balanced compressive, friction-admissible load set (a
+    /// contact missed by detection) is left out, else its zero would spread
+    /// through its neighbours to the whole packing.
+    balanced: Vec<bool>,
 }
 
 fn prepare(
@@ -659,12 +670,14 @@ fn prepare(
         contrast: contrast_estimate(&disks),
         envelope: None,
     };
+    let balanced = vec![true; disks.len()];
     Ok(Prepared {
         disks,
         unknowns,
         scale,
         optics,
         pixel: 1.0 / s,
+        balanced,
     })
 }
 
@@ -864,6 +877,7 @@ fn enveloped(p: &Prepared, sigma_px: f64) -> Prepared {
         scale: p.scale,
         optics: p.optics,
         pixel: p.pixel,
+        balanced: p.balanced.clone(),
     }
 }
 
@@ -945,10 +959,13 @@ fn load_levels(p: &Prepared) -> Vec<Vec<f64>> {
         .collect()
 }
 
-/// K_eq: per grain, Σ F = 0 and Σ r × F / R = 0 (3 rows), over the unknowns.
+/// K_eq: per balanced grain, Σ F = 0 and Σ r × F / R = 0 (3 rows), over
+/// the unknowns.
 fn balance_rows(p: &Prepared) -> Triplets {
-    let mut k = Triplets::new(3 * p.disks.len(), 2 * p.unknowns);
-    for (g, d) in p.disks.iter().enumerate() {
+    let count = p.balanced.iter().filter(|b| **b).count();
+    let mut k = Triplets::new(3 * count, 2 * p.unknowns);
+    let kept = p.disks.iter().zip(&p.balanced).filter(|(_, b)| **b);
+    for (g, (d, _)) in kept.enumerate() {
         for l in &d.loads {
             let dirs = l.directions();
             let r = [
@@ -964,6 +981,62 @@ fn balance_rows(p: &Prepared) -> Triplets {
         }
     }
     k
+}
+
+/// Whether disk `d` alone can carry a balanced set of compressive,
+/// friction-admissible loads at its contacts: the loads nearest unit normal
+/// ones under its own balance and wedges, not all zero. A disk with one
+/// contact, or two not within the friction angle of opposite, cannot.
+fn can_balance(d: &DiskData, cones: &[Cone]) -> Result<bool> {
+    let k = d.loads.len();
+    if k < 2 {
+        return Ok(false);
+    }
+    let mut balance = Triplets::new(3, 2 * k);
+    let mut target = Triplets::new(2 * k, 2 * k);
+    let mut rhs = vec![0.0; 2 * k];
+    let mut wedges = Vec::with_capacity(k);
+    for (i, l) in d.loads.iter().enumerate() {
+        let r = [
+            (l.point[0] - d.centre[0]) / d.radius,
+            (l.point[1] - d.centre[1]) / d.radius,
+        ];
+        for (j, dir) in l.directions().iter().enumerate() {
+            balance.push(0, 2 * i + j, dir[0]);
+            balance.push(1, 2 * i + j, dir[1]);
+            balance.push(2, 2 * i + j, r[0] * dir[1] - r[1] * dir[0]);
+        }
+        target.push(2 * i, 2 * i, 1.0);
+        target.push(2 * i + 1, 2 * i + 1, 0.1);
+        rhs[2 * i] = 1.0;
+        let mu = match cones.get(l.unknown) {
+            Some(Cone::Wedge { mu, .. }) => *mu,
+            _ => 0.0,
+        };
+        wedges.push(Cone::Wedge {
+            normal: 2 * i,
+            tangent: 2 * i + 1,
+            mu,
+        });
+    }
+    let zeros = [0.0; 3];
+    let problem = ConicProblem {
+        n: 2 * k,
+        terms: vec![Term {
+            matrix: &target,
+            rhs: &rhs,
+            weight: 1.0,
+        }],
+        equalities: vec![(&balance, &zeros)],
+        lambda: 0.0,
+        regularized: 0,
+        cones: wedges,
+    };
+    let x = cascade::solve(&problem, None, &CascadeSettings::default())?
+        .solution
+        .x;
+    let carried: f64 = (0..k).map(|i| x[2 * i]).sum();
+    Ok(carried > 1e-3 * k as f64)
 }
 
 fn friction_cones(scene: &Scene, mu: f64) -> Vec<Cone> {
@@ -1080,6 +1153,7 @@ impl Stepper<'_> {
         mut x: Vec<f64>,
         optics: &Optics,
         max_iterations: usize,
+        tolerance: f64,
         timing: &mut FitTiming,
     ) -> Result<LmOutcome> {
         let p = self.p;
@@ -1181,7 +1255,7 @@ impl Stepper<'_> {
                     current = trial;
                     damping = (damping / 3.0).max(1e-9);
                     accepted = true;
-                    stalls = if gain < 1e-5 { stalls + 1 } else { 0 };
+                    stalls = if gain < tolerance { stalls + 1 } else { 0 };
                     break;
                 }
                 damping *= 6.0;
@@ -1312,6 +1386,36 @@ impl StepSolver {
 /// the coarse fringes (a smoother objective, fewer local minima).
 const STAGES: [f64; 3] = [0.08, 0.04, 0.0];
 
+/// A stage ends after two steps in a row that lower the objective by less
+/// than this share: the coarse stages (envelope, smoothed) only lead into
+/// the final stage's basin, so they stop early; the final one converges.
+const COARSE_TOLERANCE: f64 = 1e-3;
+const FINAL_TOLERANCE: f64 = 1e-5;
+
+/// Every `stride`-th pixel in x and y of each disk: a smoothed stage's data
+/// (Gaussian σ ≥ 1.5 stride px) is band-limited, so the coarse stages fit
+/// on a quarter of the pixels at stride 2 (the smoothing itself is done on
+/// all of them first).
+fn thinned(mut p: Prepared, stride: u32) -> Prepared {
+    if stride <= 1 {
+        return p;
+    }
+    for d in &mut p.disks {
+        let keep: Vec<usize> = (0..d.pixels.len())
+            .filter(|&i| d.pixels[i].0 % stride == 0 && d.pixels[i].1 % stride == 0)
+            .collect();
+        d.points = keep.iter().map(|&i| d.points[i]).collect();
+        d.intensity = keep.iter().map(|&i| d.intensity[i]).collect();
+        d.pixels = keep.iter().map(|&i| d.pixels[i]).collect();
+    }
+    p
+}
+
+/// The pixel stride a stage smoothed by `sigma_px` can be fitted on.
+fn stride_for(sigma_px: f64) -> u32 {
+    ((sigma_px / 1.5).floor() as u32).clamp(1, 4)
+}
+
 /// The problem with each disk's intensities smoothed by `sigma_px`.
 fn smoothed(p: &Prepared, sigma_px: f64) -> Prepared {
     Prepared {
@@ -1324,6 +1428,7 @@ fn smoothed(p: &Prepared, sigma_px: f64) -> Prepared {
         scale: p.scale,
         optics: p.optics,
         pixel: p.pixel,
+        balanced: p.balanced.clone(),
     }
 }
 
@@ -1351,9 +1456,15 @@ pub fn fit_fringes(
 ) -> Result<FringeFit> {
     let started = std::time::Instant::now();
     let mut timing = FitTiming::default();
-    let p = prepare(image, frame, scene, settings, false)?;
+    let mut p = prepare(image, frame, scene, settings, false)?;
     timing.prepare = started.elapsed().as_secs_f64();
     let clock = std::time::Instant::now();
+    let cones = friction_cones(scene, settings.mu);
+    p.balanced = p
+        .disks
+        .par_iter()
+        .map(|d| can_balance(d, &cones))
+        .collect::<Result<_>>()?;
     let levels = load_levels(&p);
     let mut x = match &settings.start {
         Some(forces) => to_unknowns(scene, forces, p.scale)?,
@@ -1368,7 +1479,8 @@ pub fn fit_fringes(
         // The envelope first: smooth in the forces, its minimum near the
         // intensity fit's basin.
         let clock = std::time::Instant::now();
-        let env = enveloped(&p, (0.08 * radius_px).max(2.0));
+        let sigma = (0.08 * radius_px).max(2.0);
+        let env = thinned(enveloped(&p, sigma), stride_for(sigma));
         timing.smoothing += clock.elapsed().as_secs_f64();
         let optics = Optics {
             envelope: Some(frame.px_per_m),
@@ -1379,7 +1491,13 @@ pub fn fit_fringes(
             scene: Some(scene),
             settings,
         };
-        let out = stepper.run(x, &optics, settings.max_iterations / 3, &mut timing)?;
+        let out = stepper.run(
+            x,
+            &optics,
+            settings.max_iterations / 3,
+            COARSE_TOLERANCE,
+            &mut timing,
+        )?;
         x = out.x;
         iterations += out.iterations;
         timing.steps.push(out.iterations);
@@ -1397,7 +1515,7 @@ pub fn fit_fringes(
         let sigma = extra * radius_px;
         let clock = std::time::Instant::now();
         let stage = if sigma > 0.5 {
-            Some(smoothed(&p, sigma))
+            Some(thinned(smoothed(&p, sigma), stride_for(sigma)))
         } else {
             None
         };
@@ -1413,7 +1531,12 @@ pub fn fit_fringes(
             settings,
             if stage.is_some() { sigma } else { 0.0 },
         );
-        let out = stepper.run(x, &optics, budget, &mut timing)?;
+        let tolerance = if i + 1 == STAGES.len() {
+            FINAL_TOLERANCE
+        } else {
+            COARSE_TOLERANCE
+        };
+        let out = stepper.run(x, &optics, budget, tolerance, &mut timing)?;
         x = out.x;
         iterations += out.iterations;
         damping = out.damping;
@@ -1483,6 +1606,7 @@ pub fn fit_fringes_per_disk(
                 scale: p.scale,
                 optics: p.optics,
                 pixel: p.pixel,
+                balanced: vec![false],
             };
             let u0 = d.gather(&x);
             if u0.is_empty() {
@@ -1497,6 +1621,7 @@ pub fn fit_fringes_per_disk(
                 u0,
                 &optics,
                 settings.max_iterations,
+                FINAL_TOLERANCE,
                 &mut FitTiming::default(),
             )?;
             Ok((out.x, out.iterations))
@@ -1661,7 +1786,12 @@ fn report(
             }
         })
         .collect();
-    let mut sorted = imbalance.clone();
+    let mut sorted: Vec<f64> = imbalance
+        .iter()
+        .zip(&p.balanced)
+        .filter(|(_, b)| **b)
+        .map(|(v, _)| *v)
+        .collect();
     sorted.sort_by(f64::total_cmp);
     FringeFitReport {
         method,
@@ -1675,6 +1805,13 @@ fn report(
         damping,
         median_imbalance: sorted.get(sorted.len() / 2).copied().unwrap_or(0.0),
         max_imbalance: sorted.last().copied().unwrap_or(0.0),
+        balance_left_out: p
+            .disks
+            .iter()
+            .zip(&p.balanced)
+            .filter(|(_, b)| !**b)
+            .map(|(d, _)| scene.grains[d.grain].id.clone())
+            .collect(),
         flagged: disks
             .iter()
             .filter(|d| d.flagged)
