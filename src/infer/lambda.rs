@@ -20,13 +20,10 @@
 
 use std::cell::Cell;
 
-use super::{
-    collect_forces, solve_all, solve_all_least_squares, wall_totals, FactorCache, InferOptions,
-    InferenceReport,
-};
-use crate::assemble::Assembly;
+use super::context::Context;
+use super::qs::{solve_all, solve_all_least_squares};
+use super::{collect_forces, wall_totals, InferenceReport};
 use crate::error::{Error, Result};
-use crate::scene::Scene;
 
 /// The search range is dimensionless (λ / length scale), where ‖K f − b‖ and
 /// λ‖f‖ compare as numbers of order one.
@@ -174,12 +171,10 @@ const TOLERANCE: f64 = 2e-3;
 /// The dimensionless λ, the trace, and the constrained solution at that λ
 /// (every cluster's unknowns), so that the caller need not solve again.
 pub(crate) fn search(
-    scene: &Scene,
-    assembly: &Assembly,
-    opts: &InferOptions,
-    factors: &FactorCache,
+    cx: &Context,
     report: &mut InferenceReport,
 ) -> Result<(f64, LambdaTrace, Vec<Vec<f64>>)> {
+    let (scene, assembly, opts) = (cx.scene, cx.assembly, cx.opts);
     let s = &opts.lambda_search;
     if !(s.min > 0.0 && s.max > s.min && s.grid >= 3 && s.max.is_finite()) {
         return Err(Error::Invalid(format!(
@@ -241,30 +236,36 @@ pub(crate) fn search(
         unconstrained: Vec::new(),
         best: None,
     };
-    let mut probe =
-        |log_lambda: f64, constrained: bool, report: &mut InferenceReport| -> Result<f64> {
-            let lambda = 10f64.powf(log_lambda);
-            if constrained {
-                let solve_opts = if loosened.get() { &ranking_opts } else { opts };
-                let xs = solve_all(assembly, solve_opts, lambda, factors, report)?;
-                let j = mismatch(&xs);
-                search.points.push((lambda * length, j.sqrt()));
-                if search.best.as_ref().is_none_or(|b| j < b.1) {
-                    search.best = Some((log_lambda, j, xs));
-                }
-                Ok(j)
-            } else {
-                let xs = solve_all_least_squares(assembly, opts, lambda, factors, report)?
-                    .ok_or_else(|| {
-                        Error::Invalid(
-                            "the λ scan needs the sparse least squares of every cluster".into(),
-                        )
-                    })?;
-                let j = mismatch(&xs);
-                search.unconstrained.push((lambda * length, j.sqrt()));
-                Ok(j)
+    let mut probe = |log_lambda: f64,
+                     constrained: bool,
+                     report: &mut InferenceReport|
+     -> Result<f64> {
+        let lambda = 10f64.powf(log_lambda);
+        if constrained {
+            let solve_opts = if loosened.get() { &ranking_opts } else { opts };
+            let xs = solve_all(
+                &Context {
+                    opts: solve_opts,
+                    ..*cx
+                },
+                lambda,
+                report,
+            )?;
+            let j = mismatch(&xs);
+            search.points.push((lambda * length, j.sqrt()));
+            if search.best.as_ref().is_none_or(|b| j < b.1) {
+                search.best = Some((log_lambda, j, xs));
             }
-        };
+            Ok(j)
+        } else {
+            let xs = solve_all_least_squares(cx, lambda, report)?.ok_or_else(|| {
+                Error::Invalid("the λ scan needs the sparse least squares of every cluster".into())
+            })?;
+            let j = mismatch(&xs);
+            search.unconstrained.push((lambda * length, j.sqrt()));
+            Ok(j)
+        }
+    };
 
     let (lo, hi) = (s.min.log10(), s.max.log10());
     let step = (hi - lo) / (s.grid - 1) as f64;
@@ -390,7 +391,7 @@ pub(crate) fn search(
     // Active-set answers are exact whatever the tolerance; an interior
     // point's is sharpened (restarted mid-path from the last λ's iterate).
     if loosened.get() && report.solver_status.is_interior_point() {
-        xs = solve_all(assembly, opts, 10f64.powf(best_log), factors, report)?;
+        xs = solve_all(cx, 10f64.powf(best_log), report)?;
         report.solver_attempts.push(format!(
             "λ search: λ ranked with the interior point at tolerance {SEARCH_TOLERANCE:.0e}, the chosen λ solved again at {:.0e}",
             opts.conic.tolerance
