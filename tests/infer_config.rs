@@ -203,3 +203,107 @@ fn wall_mu_sets_the_friction_of_the_wall_contacts_only() {
     .unwrap_err();
     assert!(e.to_string().contains("`wall_mu`"), "{e}");
 }
+
+/// The options bench's method names stood for before they became presets of
+/// the configuration (the former `method_spec`, written out).
+fn former_spec(name: &str) -> grainforce::infer::InferOptions {
+    use grainforce::infer::{
+        ConeModel, ConstrainedSolver, InferOptions, LambdaPrecision, StressNoise,
+    };
+    let mut o = InferOptions::default();
+    match name {
+        "qs" => o.method = Method::Qs,
+        "tikhonov" => {
+            o.method = Method::Tikhonov;
+            o.lambda = Some(0.25);
+        }
+        "tikhonov-coarse" => {
+            o.method = Method::Tikhonov;
+            o.lambda_search.precision = LambdaPrecision::Coarse;
+        }
+        "qs-pyr8" => {
+            o.method = Method::Qs;
+            o.cone = ConeModel::Pyramid(8);
+        }
+        "tikhonov-relaxed-relative-nocheck" => {
+            o.method = Method::Tikhonov;
+            o.lambda = Some(0.25);
+            o.conic.tolerance = 1e-4;
+            o.conic.noise_share = None;
+            o.solver = ConstrainedSolver::InteriorPoint;
+            o.stress_noise = StressNoise::Relative;
+            o.identifiability_limit = 0;
+        }
+        "ls-nocheck" => {
+            o.method = Method::Ls;
+            o.identifiability_limit = 0;
+        }
+        "soft" => o.method = Method::Soft,
+        _ => panic!("no former spec for {name}"),
+    }
+    o
+}
+
+#[test]
+fn bench_names_are_presets_of_the_configuration() {
+    use grainforce::bench;
+    for name in [
+        "qs",
+        "tikhonov",
+        "tikhonov-coarse",
+        "qs-pyr8",
+        "tikhonov-relaxed-relative-nocheck",
+        "ls-nocheck",
+        "soft",
+    ] {
+        let preset = bench::preset(name, 0.25).unwrap();
+        preset.validate().unwrap();
+        // A preset is a configuration like any other: it survives a file.
+        let text = serde_json::to_string(&preset).unwrap();
+        assert_eq!(InferConfig::from_json(&text).unwrap(), preset);
+        let (options, _) = preset.options().unwrap();
+        assert_eq!(
+            format!("{options:?}"),
+            format!("{:?}", former_spec(name)),
+            "{name}"
+        );
+        assert_eq!(bench::method_spec(name, 0.25).unwrap().name, name);
+    }
+    for bad in [
+        "ls-ip",
+        "scaled-relaxed",
+        "qs-pyr2",
+        "qs-nocheck-relative",
+        "lasso",
+    ] {
+        let e = bench::preset(bad, 0.25).unwrap_err().to_string();
+        assert!(e.contains(&format!("unknown bench method `{bad}`")), "{e}");
+    }
+}
+
+#[test]
+fn uniqueness_limit_skips_the_check_and_is_a_checked_field() {
+    let config = InferConfig::from_json(r#"{"method": "qs", "uniqueness_limit": 0}"#).unwrap();
+    assert_eq!(config.options().unwrap().0.identifiability_limit, 0);
+    let skipped = run::run(Source::Folder(Path::new(OEDOMETER)), &config, None).unwrap();
+    assert_eq!(skipped.results[0].report.unique, None);
+    let checked = run::run(
+        Source::Folder(Path::new(OEDOMETER)),
+        &InferConfig {
+            method: Some(Method::Qs),
+            ..Default::default()
+        },
+        None,
+    )
+    .unwrap();
+    assert_eq!(checked.results[0].report.unique, Some(true));
+    // The same answer either way: the check only reports.
+    assert_eq!(skipped.forces().rows, checked.forces().rows);
+    for bad in [
+        r#"{"uniqueness_limit": -1}"#,
+        r#"{"uniqueness_limit": 1.5}"#,
+    ] {
+        let e = InferConfig::from_json(bad).unwrap_err().to_string();
+        assert!(e.contains("field `uniqueness_limit`: invalid"), "{e}");
+    }
+}
