@@ -203,3 +203,236 @@ fn wall_mu_sets_the_friction_of_the_wall_contacts_only() {
     .unwrap_err();
     assert!(e.to_string().contains("`wall_mu`"), "{e}");
 }
+
+/// The options bench's method names stood for before they became presets of
+/// the configuration (the former `method_spec`, written out).
+fn former_spec(name: &str) -> grainforce::infer::InferOptions {
+    use grainforce::infer::{
+        ConeModel, ConstrainedSolver, InferOptions, LambdaPrecision, StressNoise,
+    };
+    let mut o = InferOptions::default();
+    match name {
+        "qs" => o.method = Method::Qs,
+        "tikhonov" => {
+            o.method = Method::Tikhonov;
+            o.lambda = Some(0.25);
+        }
+        "tikhonov-coarse" => {
+            o.method = Method::Tikhonov;
+            o.lambda_search.precision = LambdaPrecision::Coarse;
+        }
+        "qs-pyr8" => {
+            o.method = Method::Qs;
+            o.cone = ConeModel::Pyramid(8);
+        }
+        "tikhonov-relaxed-relative-nocheck" => {
+            o.method = Method::Tikhonov;
+            o.lambda = Some(0.25);
+            o.conic.tolerance = 1e-4;
+            o.conic.noise_share = None;
+            o.solver = ConstrainedSolver::InteriorPoint;
+            o.stress_noise = StressNoise::Relative;
+            o.identifiability_limit = 0;
+        }
+        "ls-nocheck" => {
+            o.method = Method::Ls;
+            o.identifiability_limit = 0;
+        }
+        "soft" => o.method = Method::Soft,
+        _ => panic!("no former spec for {name}"),
+    }
+    o
+}
+
+#[test]
+fn bench_names_are_presets_of_the_configuration() {
+    use grainforce::bench;
+    for name in [
+        "qs",
+        "tikhonov",
+        "tikhonov-coarse",
+        "qs-pyr8",
+        "tikhonov-relaxed-relative-nocheck",
+        "ls-nocheck",
+        "soft",
+    ] {
+        let preset = bench::preset(name, 0.25).unwrap();
+        preset.validate().unwrap();
+        // A preset is a configuration like any other: it survives a file.
+        let text = serde_json::to_string(&preset).unwrap();
+        assert_eq!(InferConfig::from_json(&text).unwrap(), preset);
+        let (options, _) = preset.options().unwrap();
+        assert_eq!(
+            format!("{options:?}"),
+            format!("{:?}", former_spec(name)),
+            "{name}"
+        );
+        assert_eq!(bench::method_spec(name, 0.25).unwrap().name, name);
+    }
+    for bad in [
+        "ls-ip",
+        "scaled-relaxed",
+        "qs-pyr2",
+        "qs-nocheck-relative",
+        "lasso",
+    ] {
+        let e = bench::preset(bad, 0.25).unwrap_err().to_string();
+        assert!(e.contains(&format!("unknown bench method `{bad}`")), "{e}");
+    }
+}
+
+#[test]
+fn uniqueness_limit_skips_the_check_and_is_a_checked_field() {
+    let config = InferConfig::from_json(r#"{"method": "qs", "uniqueness_limit": 0}"#).unwrap();
+    assert_eq!(config.options().unwrap().0.identifiability_limit, 0);
+    let skipped = run::run(Source::Folder(Path::new(OEDOMETER)), &config, None).unwrap();
+    assert_eq!(skipped.results[0].report.unique, None);
+    let checked = run::run(
+        Source::Folder(Path::new(OEDOMETER)),
+        &InferConfig {
+            method: Some(Method::Qs),
+            ..Default::default()
+        },
+        None,
+    )
+    .unwrap();
+    assert_eq!(checked.results[0].report.unique, Some(true));
+    // The same answer either way: the check only reports.
+    assert_eq!(skipped.forces().rows, checked.forces().rows);
+    for bad in [
+        r#"{"uniqueness_limit": -1}"#,
+        r#"{"uniqueness_limit": 1.5}"#,
+    ] {
+        let e = InferConfig::from_json(bad).unwrap_err().to_string();
+        assert!(e.contains("field `uniqueness_limit`: invalid"), "{e}");
+    }
+}
+
+#[test]
+fn a_config_file_fills_the_configuration_and_flags_override_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("config.json");
+    std::fs::write(
+        &file,
+        r#"{"method": "tikhonov", "lambda_precision": "coarse", "mu": 0.3}"#,
+    )
+    .unwrap();
+    let run_cli = |extra: &[&str], out: &Path| {
+        let mut args = vec!["-q", "infer", OEDOMETER, "-o", out.to_str().unwrap()];
+        args.extend_from_slice(extra);
+        let o = cli(&args);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    };
+    // The file alone is its fields as flags.
+    let (from_file, as_flags) = (dir.path().join("file.csv"), dir.path().join("flags.csv"));
+    run_cli(&["--config", file.to_str().unwrap()], &from_file);
+    run_cli(
+        &[
+            "-m",
+            "tikhonov",
+            "--lambda-precision",
+            "coarse",
+            "--mu",
+            "0.3",
+        ],
+        &as_flags,
+    );
+    assert_eq!(
+        std::fs::read(&from_file).unwrap(),
+        std::fs::read(&as_flags).unwrap()
+    );
+    // A flag given on the command line wins over the file; the others stay.
+    let (overridden, expected) = (dir.path().join("over.csv"), dir.path().join("exp.csv"));
+    run_cli(
+        &["--config", file.to_str().unwrap(), "-m", "qs"],
+        &overridden,
+    );
+    run_cli(
+        &["-m", "qs", "--lambda-precision", "coarse", "--mu", "0.3"],
+        &expected,
+    );
+    assert_eq!(
+        std::fs::read(&overridden).unwrap(),
+        std::fs::read(&expected).unwrap()
+    );
+    assert_ne!(
+        std::fs::read(&overridden).unwrap(),
+        std::fs::read(&from_file).unwrap()
+    );
+}
+
+#[test]
+fn config_file_errors_name_the_file_and_the_field() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("forces.csv");
+    let cases = [
+        (
+            r#"{"method": "qs", "colour": "red"}"#,
+            "field `colour`: unknown field `colour`",
+        ),
+        (
+            r#"{"mu": "high"}"#,
+            "field `mu`: invalid type: string \"high\"",
+        ),
+        (
+            r#"{"solver": "active-set"}"#,
+            "field `solver`: unknown variant `active-set`",
+        ),
+        (r#"{"tolerance": 2.0}"#, "`tolerance` in "),
+        (
+            r#"{"method": "qs""#,
+            "not JSON: EOF while parsing an object at line 1",
+        ),
+        (r#"["qs"]"#, "a configuration is a JSON object of fields"),
+        (r#"{"impulse": true}"#, "give --impulse FILE"),
+    ];
+    for (text, expected) in cases {
+        let file = dir.path().join("bad.json");
+        std::fs::write(&file, text).unwrap();
+        let o = cli(&[
+            "infer",
+            OEDOMETER,
+            "-o",
+            out.to_str().unwrap(),
+            "--config",
+            file.to_str().unwrap(),
+        ]);
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{text}");
+        assert!(stderr.contains(file.to_str().unwrap()), "{text}: {stderr}");
+        assert!(stderr.contains(expected), "{text}: {stderr}");
+        assert!(!out.exists(), "{text}: no output on an error");
+    }
+    // A bad value given as a flag is still spelled as the flag.
+    let file = dir.path().join("good.json");
+    std::fs::write(&file, r#"{"method": "qs"}"#).unwrap();
+    let o = cli(&[
+        "infer",
+        OEDOMETER,
+        "-o",
+        out.to_str().unwrap(),
+        "--config",
+        file.to_str().unwrap(),
+        "--tolerance",
+        "2",
+    ]);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && stderr.contains("--tolerance must lie in (0, 1)"),
+        "{stderr}"
+    );
+    let missing = dir.path().join("missing.json");
+    let o = cli(&[
+        "infer",
+        OEDOMETER,
+        "-o",
+        out.to_str().unwrap(),
+        "--config",
+        missing.to_str().unwrap(),
+    ]);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && stderr.contains(missing.to_str().unwrap()),
+        "{stderr}"
+    );
+}

@@ -354,7 +354,7 @@ def infer(
     snake_case: stress_noise, mu, lambda_, lambda_range=(min, max),
     lambda_precision, gravity=(gx, gy), grains=[ids], region=(xmin, xmax,
     ymin, ymax), cone, solver ('active_set', 'interior_point'), ordering,
-    tolerance, allow_infeasible, accept_degenerate, wall_weight,
+    tolerance, allow_infeasible, accept_degenerate, uniqueness_limit, wall_weight,
     lambda_rule, stress_sd, accel_sd, sweep, sweep_points, pareto=True,
     frames=(a, b), fps, derive_accelerations, smoother, fir_order, cutoff,
     savgol_window, savgol_degree, time_fit ('frames', 'joint'), roughness,

@@ -106,6 +106,7 @@ def infer(
     ordering: Optional[Literal["auto", "amd", "nested_dissection"]] = None,
     tolerance: Optional[float] = None,
     allow_infeasible: bool = False,
+    uniqueness_limit: Optional[int] = None,
     wall_weight: Optional[float] = None,
     lambda_rule: Optional[Literal["weights", "knee", "hard", "fixed", "variance"]] = None,
     stress_sd: Optional[float] = None,

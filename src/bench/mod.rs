@@ -13,7 +13,9 @@ pub use generate::{generate, Packing, PackingSpec};
 pub use noise::{perturb, Noise};
 
 use crate::error::{Error, Result};
-use crate::infer::{infer, ConeModel, ConstrainedSolver, InferOptions, LambdaPrecision, Method};
+use crate::infer::{
+    infer, ConeModel, ConstrainedSolver, InferConfig, InferOptions, LambdaPrecision, Method,
+};
 use crate::report::chart::{Chart, Scale};
 use crate::report::metrics::relative_error;
 use crate::scene::{Scene, Vec3};
@@ -62,67 +64,70 @@ pub fn default_methods(dim: usize) -> Vec<&'static str> {
     m
 }
 
-/// The options of a named method. `lambda` is the Tikhonov λ [m] for the
-/// fixed-λ variants.
-pub fn method_spec(name: &str, lambda: f64) -> Result<MethodSpec> {
-    let mut o = InferOptions::default();
+/// The configuration a bench method name stands for: a named preset of
+/// [`InferConfig`] (names in [`METHOD_NAMES`]). `lambda` is the Tikhonov λ
+/// [m] of the fixed-λ names.
+pub fn preset(name: &str, lambda: f64) -> Result<InferConfig> {
+    let mut c = InferConfig::default();
     let mut base = name;
     let mut name_rest = name;
     if let Some(b) = name.strip_suffix("-nocheck") {
-        o.identifiability_limit = 0;
+        c.uniqueness_limit = 0;
         base = b;
         name_rest = b;
     }
     if let Some(b) = base.strip_suffix("-relative") {
-        o.stress_noise = crate::infer::StressNoise::Relative;
+        c.stress_noise = crate::infer::StressNoise::Relative;
         base = b;
         name_rest = b;
     }
     if let Some(b) = base.strip_suffix("-relaxed") {
         // A tolerance is a knob of the interior point only.
-        o.conic.tolerance = RELAXED_TOLERANCE;
-        o.conic.noise_share = None;
-        o.solver = ConstrainedSolver::InteriorPoint;
+        c.tolerance = Some(RELAXED_TOLERANCE);
+        c.solver = ConstrainedSolver::InteriorPoint;
         base = b;
     } else if let Some(b) = base.strip_suffix("-ip") {
-        o.solver = ConstrainedSolver::InteriorPoint;
+        c.solver = ConstrainedSolver::InteriorPoint;
         base = b;
     }
-    match base {
-        "ls" if base == name_rest => o.method = Method::Ls,
-        "qs" => o.method = Method::Qs,
+    let method = match base {
+        "ls" if base == name_rest => Method::Ls,
+        "qs" => Method::Qs,
         "tikhonov" => {
-            o.method = Method::Tikhonov;
-            o.lambda = Some(lambda);
+            c.lambda = Some(lambda);
+            Method::Tikhonov
         }
-        "tikhonov-search" if base == name_rest => o.method = Method::Tikhonov,
+        "tikhonov-search" if base == name_rest => Method::Tikhonov,
         "tikhonov-coarse" if base == name_rest => {
-            o.method = Method::Tikhonov;
-            o.lambda_search.precision = LambdaPrecision::Coarse;
+            c.lambda_precision = LambdaPrecision::Coarse;
+            Method::Tikhonov
         }
-        "scaled" if base == name_rest => o.method = Method::Scaled,
-        "soft" if base == name_rest => o.method = Method::Soft,
+        "scaled" if base == name_rest => Method::Scaled,
+        "soft" if base == name_rest => Method::Soft,
         _ => {
             let facets = base
                 .strip_prefix("qs-pyr")
                 .and_then(|k| k.parse::<usize>().ok())
                 .filter(|&k| k >= 3);
-            match facets {
-                Some(k) => {
-                    o.method = Method::Qs;
-                    o.cone = ConeModel::Pyramid(k);
-                }
-                None => {
-                    return Err(Error::Invalid(format!(
-                        "unknown bench method `{name}`; known: {METHOD_NAMES}"
-                    )))
-                }
-            }
+            let Some(k) = facets else {
+                return Err(Error::Invalid(format!(
+                    "unknown bench method `{name}`; known: {METHOD_NAMES}"
+                )));
+            };
+            c.cone = ConeModel::Pyramid(k);
+            Method::Qs
         }
-    }
+    };
+    c.method = Some(method);
+    Ok(c)
+}
+
+/// The solver's options of a named method ([`preset`]).
+pub fn method_spec(name: &str, lambda: f64) -> Result<MethodSpec> {
+    let (options, _) = preset(name, lambda)?.options()?;
     Ok(MethodSpec {
         name: name.to_owned(),
-        options: o,
+        options,
     })
 }
 

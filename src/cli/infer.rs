@@ -1,7 +1,7 @@
 //! `grainforce infer`: scene → forces.csv (+ summary on stderr, JSON report).
 
 use grainforce::error::{Error, Result};
-use grainforce::infer::config::spell_fields;
+use grainforce::infer::config::{spell_fields, FIELDS};
 use grainforce::infer::run::{Event, Run, Source};
 use grainforce::infer::{self, InferConfig};
 use grainforce::report::forcechain::{draw_force_chains_with_sd, ForceChainOptions};
@@ -16,6 +16,11 @@ pub struct Args {
     /// Where to write the forces (forces.csv format; force on grain `a` by `b`).
     #[arg(short, long)]
     pub output: PathBuf,
+    /// Read the configuration from this JSON file (an object of the fields,
+    /// each named as its flag with `_` for `-`); flags given on the command
+    /// line override it.
+    #[arg(long = "config", value_name = "CONFIG.json")]
+    pub config_file: Option<PathBuf>,
     #[command(flatten)]
     pub config: InferConfig,
     /// Dynamic: write the Pareto front (lambda, stress_residual,
@@ -35,7 +40,6 @@ pub struct Args {
     /// |Δv inferred − Δv measured| / |Δv measured|; gap_in_sd: that gap over
     /// dv_sd (a few units is noise); moves: 1 when |Δv measured| ≥ 20 dv_sd.
     #[arg(long, value_name = "IMPULSE.csv")]
-    #[arg(long, value_name = "IMPULSE.csv")]
     pub impulse: Option<PathBuf>,
     /// Also draw the force chains of the (first) frame to this PNG.
     #[arg(long, value_name = "FORCES.png")]
@@ -46,6 +50,20 @@ pub struct Args {
     /// The global -q/--quiet: print no report, summary or progress on stderr.
     #[arg(skip)]
     pub quiet: bool,
+    /// The configuration fields given as flags (they override `--config`).
+    #[arg(skip)]
+    pub given: Vec<String>,
+}
+
+/// The configuration fields given on the command line among these matches.
+pub fn given_fields(matches: &clap::ArgMatches) -> Vec<String> {
+    matches
+        .ids()
+        .map(|id| id.as_str())
+        .filter(|id| FIELDS.contains(id))
+        .filter(|id| matches.value_source(id) == Some(clap::parser::ValueSource::CommandLine))
+        .map(str::to_owned)
+        .collect()
 }
 
 /// A configuration field as its flag: `time_fit` → `--time-fit`.
@@ -57,17 +75,65 @@ fn flag(field: &str, value: Option<&str>) -> String {
     }
 }
 
-/// The library's configuration of these flags, checked; its errors name flags.
+/// The library's configuration of these flags (over the `--config` file's),
+/// checked; its errors name the flag, or the file and the field.
 fn config(args: &Args) -> Result<InferConfig> {
+    let (base, from_file) = match &args.config_file {
+        Some(path) => config_file(path, &args.config, &args.given)?,
+        None => (args.config.clone(), Vec::new()),
+    };
     let config = InferConfig {
         pareto: args.pareto.is_some(),
         impulse: args.impulse.is_some(),
-        ..args.config.clone()
+        ..base
+    };
+    let spell = |field: &str, value: Option<&str>| match &args.config_file {
+        Some(path) if from_file.iter().any(|f| f == field) => match value {
+            Some(v) => format!("`{field}` = {v} in {}", path.display()),
+            None => format!("`{field}` in {}", path.display()),
+        },
+        _ => flag(field, value),
     };
     config
         .validate()
-        .map_err(|e| Error::Invalid(e.spelled(flag)))?;
+        .map_err(|e| Error::Invalid(e.spelled(spell)))?;
     Ok(config)
+}
+
+/// The configuration of a JSON file with the flags given on the command
+/// line over it, and the fields that came from the file.
+fn config_file(
+    path: &std::path::Path,
+    flags: &InferConfig,
+    given: &[String],
+) -> Result<(InferConfig, Vec<String>)> {
+    let at = |e: String| Error::Invalid(format!("{}: {e}", path.display()));
+    let text = std::fs::read_to_string(path).map_err(|e| at(e.to_string()))?;
+    let mut value: serde_json::Value =
+        serde_json::from_str(&text).map_err(|e| at(format!("not JSON: {e}")))?;
+    let serde_json::Value::Object(fields) = &mut value else {
+        return Err(at("a configuration is a JSON object of fields".into()));
+    };
+    for output in ["pareto", "impulse"] {
+        if fields.contains_key(output) {
+            return Err(at(format!(
+                "`{output}` is asked for with its output file: give --{output} FILE"
+            )));
+        }
+    }
+    let from_file = fields
+        .keys()
+        .filter(|k| !given.contains(k))
+        .cloned()
+        .collect();
+    let flags = serde_json::to_value(flags).map_err(|e| at(e.to_string()))?;
+    for field in given {
+        if let Some(v) = flags.get(field) {
+            fields.insert(field.clone(), v.clone());
+        }
+    }
+    let config = InferConfig::from_value(value).map_err(at)?;
+    Ok((config, from_file))
 }
 
 /// The bar drawn on stderr while the frames of a sequence are inferred.

@@ -1,6 +1,6 @@
 //! One module per verb; each parses its flags (clap) and calls the library.
 
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 use std::sync::atomic::{AtomicBool, Ordering};
 
 /// Set once from the global `-q/--quiet` before the verb runs.
@@ -86,11 +86,18 @@ enum Command {
 }
 
 pub fn main() -> std::process::ExitCode {
-    let cli = Cli::parse();
+    // The matches too: `infer --config` needs to know which flags were given.
+    let matches = Cli::command().get_matches();
+    let cli = Cli::from_arg_matches(&matches)
+        .map_err(|e| e.format(&mut Cli::command()))
+        .unwrap_or_else(|e| e.exit());
     QUIET.store(cli.quiet, Ordering::Relaxed);
     let result = match cli.command {
         Command::Infer(mut a) => {
             a.quiet = cli.quiet;
+            if let Some(("infer", sub)) = matches.subcommand() {
+                a.given = infer::given_fields(sub);
+            }
             match infer::run(a) {
                 Ok(infer::Finished::FramesFailed) => {
                     return std::process::ExitCode::from(infer::FRAMES_FAILED_EXIT)

@@ -4,8 +4,11 @@
 //! (momentum as a penalty), which also gives the answer `infer` switches to.
 
 use super::{InferOptions, Inference, Method};
-use crate::error::Result;
+use crate::assemble::{Friction, System};
+use crate::error::{Error, Result};
 use crate::scene::{self, Body, Scene};
+use crate::solver::cascade;
+use crate::solver::{Cone, ConicProblem, Solution, Term};
 
 /// What to do when the hard-balance answer collapses.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
@@ -230,4 +233,198 @@ pub(crate) fn diagnose(
         },
         soft,
     ))
+}
+
+/// Settles a hard-balance method's answer (`first`): returned when it does not
+/// collapse, else diagnosed and failed, switched or accepted by
+/// [`InferOptions::on_collapse`].
+pub(crate) fn settle(
+    scene: &Scene,
+    opts: &InferOptions,
+    first: Result<Inference>,
+) -> Result<Inference> {
+    let (inference, collapsed, error) = match first {
+        Ok(mut inf) => match detected(scene, &inf) {
+            None => return Ok(inf),
+            Some(c) => {
+                // A large Tikhonov λ shrinks balanced forces towards zero: a
+                // collapse only if momentum balance alone (qs) collapses too.
+                if opts.method == Method::Tikhonov {
+                    let qs = InferOptions {
+                        method: Method::Qs,
+                        ..opts.clone()
+                    };
+                    if super::infer_once(scene, &qs)
+                        .map(|q| detected(scene, &q).is_none())
+                        .unwrap_or(false)
+                    {
+                        inf.report.warnings.push(format!(
+                            "λ shrinks the forces to {:.1e} of the scale the stresses imply (stress residual {:.3}); \
+                             qs fits these data",
+                            c.1, c.0
+                        ));
+                        return Ok(inf);
+                    }
+                }
+                (Some(inf), Some(c), None)
+            }
+        },
+        // The cone-collapse error of the solve: soft equilibrium answers it too.
+        Err(Error::Infeasible(msg)) if opts.on_collapse == OnCollapse::Switch => {
+            (None, None, Some(msg))
+        }
+        Err(e) => return Err(e),
+    };
+    let (mut diagnosis, soft) = diagnose(scene, opts, collapsed, error.as_deref())?;
+    match (opts.on_collapse, inference) {
+        (OnCollapse::Accept, Some(mut inf)) => {
+            diagnosis.action =
+                "accepted (`accept_degenerate`): the forces above are not an answer".into();
+            inf.report.warnings.push(format!(
+                "the forces collapsed (stress residual {:.3}): the data do not balance; `method` = soft fits them",
+                diagnosis.stress_residual
+            ));
+            inf.report.collapse = Some(diagnosis);
+            Ok(inf)
+        }
+        (OnCollapse::Fail, _) => {
+            diagnosis.action = "failed".into();
+            Err(Error::Infeasible(format!(
+                "the data do not balance.\n{diagnosis}            use `method` = soft (momentum balance as a penalty), or \
+                 `accept_degenerate` to keep the collapsed answer"
+            )))
+        }
+        (_, _) => {
+            let mut soft = soft;
+            diagnosis.action = format!(
+                "switched to soft equilibrium (momentum weight λ = {:.3e}); stress residual {:.3}",
+                soft.report.momentum_weight.unwrap_or(f64::NAN),
+                soft.report.stress_residual
+            );
+            soft.report.warnings.insert(
+                0,
+                format!(
+                    "{} collapsed on data out of balance: the soft-equilibrium answer is returned instead",
+                    opts.method
+                ),
+            );
+            soft.report.collapse = Some(diagnosis);
+            Ok(soft)
+        }
+    }
+}
+
+/// The hard-balance answer of one cluster fits far worse than the data allow
+/// (`fit` is the stress rows' relative squared misfit; `unconstrained_fit`
+/// that of the least squares without cones).
+pub(crate) fn retry_soft(
+    system: &System,
+    opts: &InferOptions,
+    problem: &ConicProblem,
+    mut sol: Solution,
+    fit: impl Fn(&[f64]) -> f64,
+    unconstrained_fit: Option<f64>,
+) -> Result<(Vec<f64>, Option<Solution>)> {
+    // Equilibrium and the cones leave almost no room (data slightly out of
+    // balance with contacts at their friction limit): the hard answer fits far
+    // worse than the data allow. Try momentum as a heavy penalty and keep it if
+    // it balances to data precision and fits clearly better.
+    let hard_fit = fit(&sol.x);
+    let mut soft_problem = problem.clone();
+    soft_problem.equalities.clear();
+    soft_problem.terms.push(Term {
+        matrix: &system.momentum,
+        rhs: &system.momentum_rhs,
+        weight: COLLAPSE_WEIGHT,
+    });
+    let mut soft = cascade::solve(&soft_problem, None, &opts.cascade())?.solution;
+    let residual = system
+        .momentum
+        .mul(&soft.x)
+        .iter()
+        .zip(&system.momentum_rhs)
+        .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+    let mean = mean_magnitude(system, &soft.x);
+    if residual <= BALANCE_PRECISION * mean && fit(&soft.x) < 0.1 * hard_fit {
+        soft.softened = true;
+        soft.warnings.push(format!(
+            "momentum balance and the friction cones leave almost no room (data slightly out of balance \
+             with contacts at their friction limit): with momentum exact the stress rows fit {:.1e}, with \
+             momentum as a penalty {:.1e} at a momentum residual of {:.1e} of the mean force; the latter is returned",
+            hard_fit.sqrt(),
+            fit(&soft.x).sqrt(),
+            residual / mean
+        ));
+        Ok((soft.x.clone(), Some(soft)))
+    } else if hard_fit > 0.9 {
+        // Only (near-)zero forces balance: returning them would be garbage.
+        Err(Error::Infeasible(format!(
+            "momentum balance with compressive, Coulomb-bounded contacts admits only near-zero forces for {} \
+             grains (their stresses fit no better than with zero forces, while {:.1e} is possible without \
+             friction) — typically a missing contact or a misplaced grain; check the contact list, or pass \
+             `allow_infeasible` for the least-violation answer",
+            system.grains.len(),
+            unconstrained_fit.unwrap_or(0.0).sqrt()
+        )))
+    } else {
+        sol.warnings.push(format!(
+            "with momentum exact and friction the stress rows fit {:.1e}, far worse than the {:.1e} possible \
+             without friction: the data are out of balance somewhere (check contacts and accelerations)",
+            hard_fit.sqrt(),
+            unconstrained_fit.unwrap_or(0.0).sqrt()
+        ));
+        Ok((sol.x.clone(), Some(sol)))
+    }
+}
+
+/// Weight of the momentum rows when the hard-equality feasible set collapses.
+const COLLAPSE_WEIGHT: f64 = 1e6;
+
+/// Largest momentum residual (relative to the mean contact force) accepted from
+/// the penalty form: beyond it the data are not "slightly" out of balance.
+const BALANCE_PRECISION: f64 = 1e-2;
+
+/// Mean magnitude of the (dimensionless) contact forces of a solution.
+fn mean_magnitude(system: &System, x: &[f64]) -> f64 {
+    let forces = system.forces(x);
+    let total: f64 = forces.iter().map(|(_, f)| crate::scene::norm(*f)).sum();
+    (total / forces.len().max(1) as f64 / system.scales.force).max(f64::MIN_POSITIVE)
+}
+
+/// The constrained fit (relative, squared) is far worse than the unconstrained
+/// one: the feasible set is (nearly) degenerate.
+pub(crate) fn degenerate(constrained: f64, unconstrained: Option<f64>) -> bool {
+    constrained > 1e-12 && unconstrained.is_some_and(|u| constrained > 100.0 * u)
+}
+
+/// Explains an infeasible problem: is it friction (μ too small) or the sign of
+/// the loads (tension needed)?
+pub(crate) fn diagnose_infeasible(
+    system: &System,
+    opts: &InferOptions,
+    problem: &ConicProblem,
+) -> Error {
+    let mut normal_only = problem.clone();
+    normal_only.cones = system
+        .unknowns
+        .iter()
+        .map(|u| Cone::NonNegative { normal: u.offset })
+        .collect();
+    let friction_bound = system
+        .unknowns
+        .iter()
+        .any(|u| u.friction != Friction::NormalOnly);
+    let hint = "or pass `allow_infeasible` for the least-violation answer";
+    if friction_bound && cascade::solve(&normal_only, None, &opts.cascade()).is_ok() {
+        Error::Infeasible(format!(
+            "the measured loads need tangential forces beyond μ·f_n at some contacts (μ too small for these stresses \
+             and accelerations); raise `mu`, check the data, {hint}"
+        ))
+    } else {
+        Error::Infeasible(format!(
+            "the loads on {} grains cannot be balanced by compressive contact forces alone (tension would be needed); \
+             check that normals point from a to b and that stress is tension-positive, {hint}",
+            system.grains.len()
+        ))
+    }
 }

@@ -189,6 +189,15 @@ pub struct InferConfig {
     /// instead of an error.
     #[cfg_attr(feature = "cli", arg(long))]
     pub allow_infeasible: bool,
+    /// Check that the data determine the forces (N(K_st) ∩ N(K_eq) = {0},
+    /// reported as `unique`) when the problem has at most this many
+    /// unknowns; 0 skips the check. It runs beside the solve on its own
+    /// factorisation: on a busy machine it costs time (bench's `-nocheck`).
+    #[cfg_attr(
+        feature = "cli",
+        arg(long, value_name = "UNKNOWNS", default_value_t = 200_000)
+    )]
+    pub uniqueness_limit: usize,
     /// Weight of the wall rows relative to the stress rows (method scaled).
     #[cfg_attr(feature = "cli", arg(long, default_value_t = 100.0))]
     pub wall_weight: f64,
@@ -327,6 +336,7 @@ impl Default for InferConfig {
             ordering: OrderingChoice::Auto,
             tolerance: None,
             allow_infeasible: false,
+            uniqueness_limit: 200_000,
             wall_weight: 100.0,
             lambda_rule: RuleChoice::Weights,
             stress_sd: 0.1,
@@ -412,6 +422,7 @@ pub const FIELDS: &[&str] = &[
     "ordering",
     "tolerance",
     "allow_infeasible",
+    "uniqueness_limit",
     "wall_weight",
     "lambda_rule",
     "stress_sd",
@@ -507,7 +518,24 @@ fn range(field: &'static str, r: [f64; 2]) -> Result<(f64, f64), ConfigError> {
 impl InferConfig {
     /// A configuration from JSON text (unknown fields are errors).
     pub fn from_json(text: &str) -> crate::error::Result<Self> {
-        serde_json::from_str(text).map_err(|e| Error::Invalid(format!("infer configuration: {e}")))
+        let value: serde_json::Value = serde_json::from_str(text)
+            .map_err(|e| Error::Invalid(format!("infer configuration: {e}")))?;
+        Self::from_value(value).map_err(|e| Error::Invalid(format!("infer configuration: {e}")))
+    }
+
+    /// A configuration from a JSON value (e.g. a parsed file); an error
+    /// names the field at fault (serde's own message does not).
+    pub fn from_value(value: serde_json::Value) -> std::result::Result<Self, String> {
+        if let serde_json::Value::Object(fields) = &value {
+            for (name, v) in fields {
+                let one =
+                    serde_json::Value::Object([(name.clone(), v.clone())].into_iter().collect());
+                if let Err(e) = serde_json::from_value::<InferConfig>(one) {
+                    return Err(format!("field `{name}`: {e}"));
+                }
+            }
+        }
+        serde_json::from_value(value).map_err(|e| e.to_string())
     }
 
     /// Checks every field and their combinations; the error names the field.
@@ -641,6 +669,7 @@ impl InferConfig {
             ));
         }
         opts.solver = self.solver;
+        opts.identifiability_limit = self.uniqueness_limit;
         opts.ordering = match self.ordering {
             OrderingChoice::Auto => None,
             OrderingChoice::Amd => Some(Ordering::Amd),

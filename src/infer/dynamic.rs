@@ -8,10 +8,12 @@
 //! - `hard`: momentum as an exact constraint (accelerations trusted fully);
 //! - `fixed`: a given λ.
 
-use super::{cascade, cones, FactorCache, FactorSlot, InferOptions, InferenceReport};
+use super::context::{cones, pattern, Context};
+use super::{qs, InferOptions, InferenceReport};
 use crate::assemble::{Assembly, System};
 use crate::error::{Error, Result};
 use crate::report::pareto::ParetoPoint;
+use crate::solver::cascade::{self, FactorSlot};
 use crate::solver::Solution;
 use crate::solver::{ConicProblem, Term};
 
@@ -63,13 +65,12 @@ pub struct Front {
 /// Solves all clusters with momentum weight `lambda`; returns the solutions and
 /// the (stress, momentum) residual norms (dimensionless).
 pub(crate) fn solve_weighted(
-    assembly: &Assembly,
-    opts: &InferOptions,
+    cx: &Context,
     lambda: f64,
-    factors: &FactorCache,
     report: &mut InferenceReport,
 ) -> Result<(Vec<Vec<f64>>, f64, f64)> {
     use rayon::prelude::*;
+    let (assembly, opts, factors) = (cx.assembly, cx.opts, cx.factors);
     let results: Vec<Result<(Vec<f64>, Solution)>> = assembly
         .systems
         .par_iter()
@@ -122,7 +123,7 @@ fn solve_one(
     let moderate = (1e-6..=1e6).contains(&lambda);
     let sparse =
         moderate && (opts.exact_first || opts.solver == super::ConstrainedSolver::ActiveSet);
-    let pattern = super::pattern(system);
+    let pattern = pattern(system);
     let sparse = sparse.then_some((&pattern, factor));
     let mut sol = cascade::solve(&problem, sparse, &opts.cascade())?.solution;
     if opts.polish && moderate {
@@ -131,14 +132,66 @@ fn solve_one(
     Ok((sol.x.clone(), sol))
 }
 
+/// `dynamic` and `soft`: the momentum weight by the rule, then the solve at it
+/// (hard momentum, as `qs`, when the rule gives none). Returns every cluster's
+/// unknowns.
+pub(crate) fn solve(cx: &Context, report: &mut InferenceReport) -> Result<Vec<Vec<f64>>> {
+    let (assembly, opts) = (cx.assembly, cx.opts);
+    let mut soft_solution = None;
+    if opts.dynamic_front && opts.dynamic.rule != LambdaRule::Knee {
+        report.pareto = Some(sweep(cx, report)?);
+    }
+    let lambda = match opts.dynamic.rule {
+        LambdaRule::Knee => {
+            let front = sweep(cx, report)?;
+            let lambda = front.knee.map(|k| front.points[k].lambda);
+            report.pareto = Some(front);
+            lambda
+        }
+        LambdaRule::Weights {
+            stress_sd,
+            momentum_sd,
+        } => weight_from_noise(assembly, stress_sd, momentum_sd),
+        LambdaRule::Variance => {
+            let (lambda, xs, steps) = variance_components(cx, report)?;
+            soft_solution = Some(xs);
+            report.variance_steps = steps;
+            Some(lambda)
+        }
+        _ => dynamic_lambda(opts),
+    };
+    report.momentum_weight = lambda;
+    Ok(match lambda {
+        Some(_) if soft_solution.is_some() => soft_solution.unwrap_or_default(),
+        Some(l) => solve_weighted(cx, l, report)?.0,
+        None => qs::solve_all(cx, 0.0, report)?,
+    })
+}
+
+/// The rule of `soft`: the user's if it weights momentum, else variance
+/// components (momentum exact would defeat the method).
+pub(crate) fn soft_rule(rule: LambdaRule) -> LambdaRule {
+    match rule {
+        LambdaRule::Hard => LambdaRule::Variance,
+        LambdaRule::Weights { momentum_sd, .. } if momentum_sd <= 0.0 => LambdaRule::Variance,
+        r => r,
+    }
+}
+
+/// The momentum weight a dynamic rule fixes before any solve; `None` means
+/// hard momentum (or a weight the data decide later: knee, weights).
+pub(crate) fn dynamic_lambda(opts: &InferOptions) -> Option<f64> {
+    match opts.dynamic.rule {
+        LambdaRule::Hard => None,
+        LambdaRule::Fixed(l) => Some(l),
+        LambdaRule::Knee | LambdaRule::Variance => Some(1.0),
+        LambdaRule::Weights { momentum_sd, .. } => (momentum_sd > 0.0).then_some(1.0),
+    }
+}
+
 /// Sweeps λ and returns the front (λ dimensionless).
-pub(crate) fn sweep(
-    assembly: &Assembly,
-    opts: &InferOptions,
-    factors: &FactorCache,
-    report: &mut InferenceReport,
-) -> Result<Front> {
-    let d = &opts.dynamic;
+pub(crate) fn sweep(cx: &Context, report: &mut InferenceReport) -> Result<Front> {
+    let d = &cx.opts.dynamic;
     if !(d.sweep_min > 0.0
         && d.sweep_max > d.sweep_min
         && d.sweep_points >= 2
@@ -153,7 +206,7 @@ pub(crate) fn sweep(
     let mut points = Vec::with_capacity(d.sweep_points);
     for i in 0..d.sweep_points {
         let lambda = 10f64.powf(lo + (hi - lo) * i as f64 / (d.sweep_points - 1) as f64);
-        let (_, s, m) = solve_weighted(assembly, opts, lambda, factors, report)?;
+        let (_, s, m) = solve_weighted(cx, lambda, report)?;
         points.push(ParetoPoint {
             lambda,
             stress_residual: s,
@@ -294,11 +347,10 @@ pub struct VarianceStep {
 
 /// λ by variance components; returns the solutions at the final λ as well.
 pub(crate) fn variance_components(
-    assembly: &Assembly,
-    opts: &InferOptions,
-    factors: &FactorCache,
+    cx: &Context,
     report: &mut InferenceReport,
 ) -> Result<(f64, Vec<Vec<f64>>, Vec<VarianceStep>)> {
+    let assembly = cx.assembly;
     let rows_s: usize = assembly.systems.iter().map(|s| s.stress.nrows).sum();
     let rows_m: usize = assembly.systems.iter().map(|s| s.momentum.nrows).sum();
     let n: usize = assembly.systems.iter().map(|s| s.n).sum();
@@ -306,7 +358,7 @@ pub(crate) fn variance_components(
     let mut steps = Vec::new();
     let mut xs;
     for _ in 0..VARIANCE_STEPS {
-        let (sol, rs, rm) = solve_weighted(assembly, opts, lambda, factors, report)?;
+        let (sol, rs, rm) = solve_weighted(cx, lambda, report)?;
         xs = sol;
         let mut trace_s = 0.0;
         for system in &assembly.systems {
@@ -331,7 +383,7 @@ pub(crate) fn variance_components(
         lambda = next;
     }
     // Not settled (oscillating between nearby values): the last λ's answer.
-    let (sol, _, _) = solve_weighted(assembly, opts, lambda, factors, report)?;
+    let (sol, _, _) = solve_weighted(cx, lambda, report)?;
     xs = sol;
     report.warnings.push(format!(
         "the variance-component estimate of the momentum weight did not settle in {VARIANCE_STEPS} steps; λ = {lambda:.3e} used"
@@ -365,7 +417,7 @@ fn stress_hat_trace(system: &System, lambda: f64) -> Result<f64> {
         &col_ptr,
         &row_idx,
         &values,
-        super::ordering(system.dim, None),
+        cascade::ordering(system.dim, None),
         shift,
     )?;
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(19);

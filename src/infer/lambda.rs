@@ -20,10 +20,9 @@
 
 use std::cell::Cell;
 
-use super::{
-    collect_forces, solve_all, solve_all_least_squares, wall_totals, FactorCache, InferOptions,
-    InferenceReport,
-};
+use super::context::Context;
+use super::qs::{solve_all, solve_all_least_squares};
+use super::{collect_forces, wall_totals, InferenceReport};
 use crate::assemble::Assembly;
 use crate::error::{Error, Result};
 use crate::scene::Scene;
@@ -84,6 +83,17 @@ impl Default for LambdaSearch {
 }
 
 impl LambdaSearch {
+    /// The range is usable: 0 < min < max, at least 3 grid points.
+    fn check(&self) -> Result<()> {
+        if !(self.min > 0.0 && self.max > self.min && self.grid >= 3 && self.max.is_finite()) {
+            return Err(Error::Invalid(format!(
+                "λ search range must satisfy 0 < min < max with at least 3 points, got {}..{} ({} points)",
+                self.min, self.max, self.grid
+            )));
+        }
+        Ok(())
+    }
+
     /// The most constrained solves the search makes (the answer is the best
     /// of them, so no solve follows). With the unconstrained scan:
     /// [`Self::GUIDED_SOLVES`]: three around the unconstrained optimum, then
@@ -174,60 +184,14 @@ const TOLERANCE: f64 = 2e-3;
 /// The dimensionless λ, the trace, and the constrained solution at that λ
 /// (every cluster's unknowns), so that the caller need not solve again.
 pub(crate) fn search(
-    scene: &Scene,
-    assembly: &Assembly,
-    opts: &InferOptions,
-    factors: &FactorCache,
+    cx: &Context,
     report: &mut InferenceReport,
 ) -> Result<(f64, LambdaTrace, Vec<Vec<f64>>)> {
+    let (scene, assembly, opts) = (cx.scene, cx.assembly, cx.opts);
     let s = &opts.lambda_search;
-    if !(s.min > 0.0 && s.max > s.min && s.grid >= 3 && s.max.is_finite()) {
-        return Err(Error::Invalid(format!(
-            "λ search range must satisfy 0 < min < max with at least 3 points, got {}..{} ({} points)",
-            s.min, s.max, s.grid
-        )));
-    }
-    let measured: Vec<usize> = scene
-        .walls
-        .iter()
-        .enumerate()
-        .filter(|(w, wall)| {
-            wall.measured_force.is_some()
-                && scene
-                    .contacts
-                    .iter()
-                    .any(|c| c.b == crate::scene::Body::Wall(*w))
-        })
-        .map(|(w, _)| w)
-        .collect();
-    if measured.is_empty() {
-        return Err(Error::Invalid(
-            "λ cannot be chosen: it is matched to measured wall forces (walls.csv), and this scene has none \
-             for walls its grains touch; give `lambda`"
-                .into(),
-        ));
-    }
-    let norm: f64 = measured
-        .iter()
-        .map(|&w| {
-            let f = scene.walls[w].measured_force.unwrap_or_default();
-            f.iter().map(|x| x * x).sum::<f64>()
-        })
-        .sum::<f64>()
-        .max(f64::MIN_POSITIVE);
-    // Squared relative mismatch of the wall totals of an answer.
-    let mismatch = |xs: &[Vec<f64>]| -> f64 {
-        let forces = collect_forces(scene, assembly, xs);
-        let totals = wall_totals(scene, &forces);
-        measured
-            .iter()
-            .map(|&w| {
-                let m = scene.walls[w].measured_force.unwrap_or_default();
-                (0..3).map(|k| (totals[w][k] - m[k]).powi(2)).sum::<f64>()
-            })
-            .sum::<f64>()
-            / norm
-    };
+    s.check()?;
+    let walls = WallMismatch::new(scene)?;
+    let mismatch = |xs: &[Vec<f64>]| walls.of(scene, assembly, xs);
     let length = assembly.scales.length;
     // Several constrained solves only rank λ: where an interior point answers
     // them, to a looser tolerance, and the chosen λ once more to the user's.
@@ -236,60 +200,44 @@ pub(crate) fn search(
     let loosened = Cell::new(several && opts.conic.tolerance < SEARCH_TOLERANCE);
     let mut ranking_opts = opts.clone();
     ranking_opts.conic.tolerance = SEARCH_TOLERANCE;
-    let mut search = Search {
-        points: Vec::new(),
-        unconstrained: Vec::new(),
-        best: None,
-    };
-    let mut probe =
-        |log_lambda: f64, constrained: bool, report: &mut InferenceReport| -> Result<f64> {
-            let lambda = 10f64.powf(log_lambda);
-            if constrained {
-                let solve_opts = if loosened.get() { &ranking_opts } else { opts };
-                let xs = solve_all(assembly, solve_opts, lambda, factors, report)?;
-                let j = mismatch(&xs);
-                search.points.push((lambda * length, j.sqrt()));
-                if search.best.as_ref().is_none_or(|b| j < b.1) {
-                    search.best = Some((log_lambda, j, xs));
-                }
-                Ok(j)
-            } else {
-                let xs = solve_all_least_squares(assembly, opts, lambda, factors, report)?
-                    .ok_or_else(|| {
-                        Error::Invalid(
-                            "the λ scan needs the sparse least squares of every cluster".into(),
-                        )
-                    })?;
-                let j = mismatch(&xs);
-                search.unconstrained.push((lambda * length, j.sqrt()));
-                Ok(j)
+    let mut search = Search::default();
+    let mut probe = |log_lambda: f64,
+                     constrained: bool,
+                     report: &mut InferenceReport|
+     -> Result<f64> {
+        let lambda = 10f64.powf(log_lambda);
+        if constrained {
+            let solve_opts = if loosened.get() { &ranking_opts } else { opts };
+            let xs = solve_all(
+                &Context {
+                    opts: solve_opts,
+                    ..*cx
+                },
+                lambda,
+                report,
+            )?;
+            let j = mismatch(&xs);
+            search.points.push((lambda * length, j.sqrt()));
+            if search.best.as_ref().is_none_or(|b| j < b.1) {
+                search.best = Some((log_lambda, j, xs));
             }
-        };
+            Ok(j)
+        } else {
+            let xs = solve_all_least_squares(cx, lambda, report)?.ok_or_else(|| {
+                Error::Invalid("the λ scan needs the sparse least squares of every cluster".into())
+            })?;
+            let j = mismatch(&xs);
+            search.unconstrained.push((lambda * length, j.sqrt()));
+            Ok(j)
+        }
+    };
 
     let (lo, hi) = (s.min.log10(), s.max.log10());
     let step = (hi - lo) / (s.grid - 1) as f64;
     let at = |i: usize| lo + step * i as f64;
     let mut cheap = !s.constrained_scan;
     let at_edge = loop {
-        // The grid, from the largest λ down, until the low end is flat.
-        let mut values = vec![f64::INFINITY; s.grid];
-        let mut largest = 0.0f64;
-        let mut lowest = s.grid - 1;
-        for i in (0..s.grid).rev() {
-            values[i] = probe(at(i), !cheap, report)?;
-            largest = largest.max(values[i]);
-            lowest = i;
-            // Flat after a descent from larger mismatches: the low end, where
-            // the answer changes as λ². (The high end flattens too, toward the
-            // minimum-norm balanced forces, but from above.)
-            if cheap
-                && i + 1 < s.grid
-                && (values[i] - values[i + 1]).abs() <= FLAT * largest
-                && largest - values[i] > FLAT * largest
-            {
-                break;
-            }
-        }
+        let (values, largest, lowest) = scan(s, &at, cheap, &mut probe, report)?;
         let best = (lowest..s.grid)
             .min_by(|&a, &b| values[a].total_cmp(&values[b]))
             .unwrap_or(lowest);
@@ -353,31 +301,8 @@ pub(crate) fn search(
         if plateau || s.precision == LambdaPrecision::Coarse {
             break at_edge;
         }
-        // ... then its two neighbours (warm), then Brent's steps from the
-        // three: the first at the vertex of their parabola.
-        let left = probe(optimum - SPREAD, true, report)?;
-        let right = probe(optimum + SPREAD, true, report)?;
-        let mut three = [
-            (optimum - SPREAD, left),
-            (optimum, centre),
-            (optimum + SPREAD, right),
-        ];
-        three.sort_by(|p, q| p.1.total_cmp(&q.1));
-        let reach = EXTRAPOLATION * SPREAD;
-        let bracket = match three[0].0 - optimum {
-            d if d < 0.0 => (optimum - reach, optimum),
-            d if d > 0.0 => (optimum, optimum + reach),
-            _ => (optimum - SPREAD, optimum + SPREAD),
-        };
-        let refine = |u| probe(u, true, report);
-        brent(
-            bracket,
-            three[0],
-            [three[1], three[2]],
-            CONSTRAINED_STEPS,
-            FINE,
-            refine,
-        )?;
+        // ... then its neighbours (warm) and Brent's steps.
+        refine_constrained(optimum, centre, &mut probe, report)?;
         break at_edge;
     };
     let Search {
@@ -390,7 +315,7 @@ pub(crate) fn search(
     // Active-set answers are exact whatever the tolerance; an interior
     // point's is sharpened (restarted mid-path from the last λ's iterate).
     if loosened.get() && report.solver_status.is_interior_point() {
-        xs = solve_all(assembly, opts, 10f64.powf(best_log), factors, report)?;
+        xs = solve_all(cx, 10f64.powf(best_log), report)?;
         report.solver_attempts.push(format!(
             "λ search: λ ranked with the interior point at tolerance {SEARCH_TOLERANCE:.0e}, the chosen λ solved again at {:.0e}",
             opts.conic.tolerance
@@ -407,7 +332,128 @@ pub(crate) fn search(
     ))
 }
 
+/// The measured walls the grains touch, and the squared norm of their forces.
+struct WallMismatch {
+    measured: Vec<usize>,
+    norm: f64,
+}
+
+impl WallMismatch {
+    fn new(scene: &Scene) -> Result<Self> {
+        let measured: Vec<usize> = scene
+            .walls
+            .iter()
+            .enumerate()
+            .filter(|(w, wall)| {
+                wall.measured_force.is_some()
+                    && scene
+                        .contacts
+                        .iter()
+                        .any(|c| c.b == crate::scene::Body::Wall(*w))
+            })
+            .map(|(w, _)| w)
+            .collect();
+        if measured.is_empty() {
+            return Err(Error::Invalid(
+                "λ cannot be chosen: it is matched to measured wall forces (walls.csv), and this scene has none \
+                 for walls its grains touch; give `lambda`"
+                    .into(),
+            ));
+        }
+        let norm: f64 = measured
+            .iter()
+            .map(|&w| {
+                let f = scene.walls[w].measured_force.unwrap_or_default();
+                f.iter().map(|x| x * x).sum::<f64>()
+            })
+            .sum::<f64>()
+            .max(f64::MIN_POSITIVE);
+        Ok(WallMismatch { measured, norm })
+    }
+
+    /// Squared relative mismatch of the wall totals of an answer.
+    fn of(&self, scene: &Scene, assembly: &Assembly, xs: &[Vec<f64>]) -> f64 {
+        let forces = collect_forces(scene, assembly, xs);
+        let totals = wall_totals(scene, &forces);
+        self.measured
+            .iter()
+            .map(|&w| {
+                let m = scene.walls[w].measured_force.unwrap_or_default();
+                (0..3).map(|k| (totals[w][k] - m[k]).powi(2)).sum::<f64>()
+            })
+            .sum::<f64>()
+            / self.norm
+    }
+}
+
+/// The grid, from the largest λ down; when `cheap`, until the low end is
+/// flat. Returns the mismatches (∞ where not probed), the largest of them and
+/// the lowest index probed.
+fn scan(
+    s: &LambdaSearch,
+    at: &impl Fn(usize) -> f64,
+    cheap: bool,
+    probe: &mut impl FnMut(f64, bool, &mut InferenceReport) -> Result<f64>,
+    report: &mut InferenceReport,
+) -> Result<(Vec<f64>, f64, usize)> {
+    let mut values = vec![f64::INFINITY; s.grid];
+    let mut largest = 0.0f64;
+    let mut lowest = s.grid - 1;
+    for i in (0..s.grid).rev() {
+        values[i] = probe(at(i), !cheap, report)?;
+        largest = largest.max(values[i]);
+        lowest = i;
+        // Flat after a descent from larger mismatches: the low end, where
+        // the answer changes as λ². (The high end flattens too, toward the
+        // minimum-norm balanced forces, but from above.)
+        if cheap
+            && i + 1 < s.grid
+            && (values[i] - values[i + 1]).abs() <= FLAT * largest
+            && largest - values[i] > FLAT * largest
+        {
+            break;
+        }
+    }
+    Ok((values, largest, lowest))
+}
+
+/// After the constrained solve at the unconstrained `optimum` (mismatch
+/// `centre`): its two neighbours (warm), then Brent's steps from the three,
+/// the first at the vertex of their parabola. The probe keeps the best.
+fn refine_constrained(
+    optimum: f64,
+    centre: f64,
+    probe: &mut impl FnMut(f64, bool, &mut InferenceReport) -> Result<f64>,
+    report: &mut InferenceReport,
+) -> Result<()> {
+    let left = probe(optimum - SPREAD, true, report)?;
+    let right = probe(optimum + SPREAD, true, report)?;
+    let mut three = [
+        (optimum - SPREAD, left),
+        (optimum, centre),
+        (optimum + SPREAD, right),
+    ];
+    three.sort_by(|p, q| p.1.total_cmp(&q.1));
+    let reach = EXTRAPOLATION * SPREAD;
+    let bracket = match three[0].0 - optimum {
+        d if d < 0.0 => (optimum - reach, optimum),
+        d if d > 0.0 => (optimum, optimum + reach),
+        _ => (optimum - SPREAD, optimum + SPREAD),
+    };
+    let refine = |u| probe(u, true, report);
+    brent(
+        bracket,
+        three[0],
+        [three[1], three[2]],
+        CONSTRAINED_STEPS,
+        FINE,
+        refine,
+    )?;
+    Ok(())
+}
+
 /// What the search has found so far.
+#[derive(Default)]
 struct Search {
     points: Vec<(f64, f64)>,
     unconstrained: Vec<(f64, f64)>,

@@ -24,7 +24,7 @@
 //! contact absent from a frame has zero force there.
 
 use super::{cones, ConeModel, InferOptions};
-use crate::assemble::{self, AssembleOptions};
+use crate::assemble::{self, AssembleOptions, Assembly};
 use crate::error::{Error, Result};
 use crate::scene::{Body, Scene, Vec3};
 use crate::solver::cascade::{self, CascadeSettings};
@@ -275,53 +275,10 @@ pub fn infer_time_fit(
     opts.conic.check()?;
     let start = Instant::now();
     let nf = frames.len();
-    if nf < 3 {
-        return Err(Error::Invalid(format!(
-            "the time fit needs a sequence of at least 3 frames, got {nf}"
-        )));
-    }
-    if !(fit.fps > 0.0 && fit.fps.is_finite()) {
-        return Err(Error::Invalid(format!(
-            "the time fit needs a positive frame rate, got {}",
-            fit.fps
-        )));
-    }
-    if !(fit.stress_sd > 0.0 && fit.stress_sd.is_finite()) {
-        return Err(Error::Invalid(format!(
-            "the time fit weighs the stresses by 1/σ_s: `stress_sd` must be positive, got {}",
-            fit.stress_sd
-        )));
-    }
-    if let ConeModel::Pyramid(_) = opts.cone {
-        return Err(Error::Invalid(
-            "the time fit solves friction with the active set, which takes exact cones only (drop `cone`)"
-                .into(),
-        ));
-    }
+    check_settings(nf, opts, fit)?;
     let ctracks = contact_tracks(frames);
-    let (roughness, roughness_estimated) = match fit.roughness {
-        Some(r) if r > 0.0 && r.is_finite() => (r, false),
-        Some(r) => {
-            return Err(Error::Invalid(format!(
-                "the force roughness σ_r must be positive and finite, got {r}"
-            )))
-        }
-        None => {
-            let forces = frame_by_frame.ok_or_else(|| {
-                Error::Invalid(
-                    "the time fit needs σ_r (`roughness`) or a frame-by-frame answer to estimate it from"
-                        .into(),
-                )
-            })?;
-            let r = roughness_of(&ctracks, frames, forces).ok_or_else(|| {
-                Error::Invalid(
-                    "cannot estimate the force roughness: no contact lasts three frames with a force; give `roughness`"
-                        .into(),
-                )
-            })?;
-            (ROUGHNESS_FACTOR * r, true)
-        }
-    };
+    let (roughness, roughness_estimated) =
+        force_roughness(fit.roughness, &ctracks, frames, frame_by_frame)?;
     let dt = 1.0 / fit.fps;
     let dim = frames[0].dim;
     if let Some(k) = frames.iter().position(|f| f.dim != dim) {
@@ -348,37 +305,9 @@ pub fn infer_time_fit(
         .map(|a| a.scales.force)
         .fold(0.0, f64::max)
         .max(f64::MIN_POSITIVE);
-
-    // Force columns, frame by frame, system by system.
-    let mut ncols = 0;
-    let mut placed: Vec<Vec<Option<JointContact>>> = Vec::with_capacity(nf);
-    let mut cone_list: Vec<Cone> = Vec::new();
-    let mut blocks = Vec::new();
-    for (frame, assembly) in frames.iter().zip(&assemblies) {
-        let mut here = vec![None; frame.contacts.len()];
-        for system in &assembly.systems {
-            for cone in cones(system, opts.cone) {
-                cone_list.push(cone.shifted(ncols));
-            }
-            for u in &system.unknowns {
-                let count = u.count(dim);
-                blocks.push((ncols + u.offset, count));
-                here[u.contact] = Some(JointContact {
-                    col: ncols + u.offset,
-                    count,
-                    directions: u.directions,
-                });
-            }
-            ncols += system.n;
-        }
-        placed.push(here);
-    }
-    let force_unknowns = ncols;
-    if force_unknowns == 0 {
-        return Err(Error::Invalid(
-            "the time fit found no contact force to infer in any frame".into(),
-        ));
-    }
+    let columns = ForceColumns::place(frames, &assemblies, opts.cone)?;
+    let force_unknowns = columns.ncols;
+    let placed = &columns.placed;
 
     // Net force on grain p of frame k, per axis: joint columns and coefficients
     // (in joint force units), and whether the grain's forces are all modelled.
@@ -406,14 +335,146 @@ pub fn infer_time_fit(
         Some(net)
     };
     let position_sd_estimated = fit.position_sd.is_none();
+    let position_sd = track_sd(fit.position_sd, frames, &assemblies)?;
+
+    let mut warnings: Vec<String> = Vec::new();
+    let mut rows = JointRows {
+        a: Triplets::new(0, 0),
+        b: Vec::new(),
+        c: Triplets::new(0, 0),
+        d: Vec::new(),
+    };
+    // Kinematic columns: per track segment and frame, x (dim) then v·Δt (dim),
+    // both in units of the first σ_x about the segment's first measured
+    // position; a later σ_x changes only the track rows' weights.
+    let segments = grain_segments(frames, &net_force)?;
+    let mut ncols = force_unknowns;
+    let mut first_col = Vec::with_capacity(segments.len());
+    for seg in &segments {
+        first_col.push(ncols);
+        ncols += 2 * dim * seg.frames.len();
+    }
+    let kinematic_unknowns = ncols - force_unknowns;
+    rows.a.ncols = ncols;
+    rows.c.ncols = ncols;
+
+    rows.append_frames(&assemblies, fit.stress_sd, force_unit, dim);
+    let gravity = opts.assemble.gravity.unwrap_or_else(|| frames[0].gravity());
+    let kinematics = Kinematics {
+        frames,
+        segments: &segments,
+        first_col: &first_col,
+        dt,
+        gravity,
+        force_unit,
+        unit: position_sd,
+    };
+    let track_rows = rows.append_tracks(&kinematics, position_sd);
+    let contact_track_count = rows.append_roughness(&ctracks, placed, dim, force_unit / roughness);
+    if contact_track_count == 0 {
+        warnings.push("no contact lasts long enough for the roughness prior".into());
+    }
+
+    let (solved, position_sd) = solve_joint(
+        rows,
+        &columns,
+        ncols,
+        &track_rows,
+        position_sd,
+        opts,
+        start,
+        &mut warnings,
+    )?;
+    warnings.extend(solved.warnings);
+    let forces = columns.forces(&solved.x, force_unit);
+    let report = TimeFitReport {
+        frames: nf,
+        force_unknowns,
+        kinematic_unknowns,
+        grain_tracks: segments.len(),
+        contact_tracks: contact_track_count,
+        position_sd,
+        position_sd_estimated,
+        stress_sd: fit.stress_sd,
+        roughness,
+        roughness_estimated,
+        solver_status: solved.status,
+        solver_attempts: solved.attempts,
+        seconds: start.elapsed().as_secs_f64(),
+        warnings,
+    };
+    Ok(TimeFit { forces, report })
+}
+
+/// The settings and the sequence are usable at all.
+fn check_settings(nf: usize, opts: &InferOptions, fit: &TimeFitOptions) -> Result<()> {
+    if nf < 3 {
+        return Err(Error::Invalid(format!(
+            "the time fit needs a sequence of at least 3 frames, got {nf}"
+        )));
+    }
+    if !(fit.fps > 0.0 && fit.fps.is_finite()) {
+        return Err(Error::Invalid(format!(
+            "the time fit needs a positive frame rate, got {}",
+            fit.fps
+        )));
+    }
+    if !(fit.stress_sd > 0.0 && fit.stress_sd.is_finite()) {
+        return Err(Error::Invalid(format!(
+            "the time fit weighs the stresses by 1/σ_s: `stress_sd` must be positive, got {}",
+            fit.stress_sd
+        )));
+    }
+    if let ConeModel::Pyramid(_) = opts.cone {
+        return Err(Error::Invalid(
+            "the time fit solves friction with the active set, which takes exact cones only (drop `cone`)"
+                .into(),
+        ));
+    }
+    Ok(())
+}
+
+/// σ_r as given, or estimated from the frame-by-frame answer; and whether estimated.
+fn force_roughness(
+    given: Option<f64>,
+    ctracks: &ContactTracks,
+    frames: &[Scene],
+    frame_by_frame: Option<&[Vec<Option<Vec3>>]>,
+) -> Result<(f64, bool)> {
+    Ok(match given {
+        Some(r) if r > 0.0 && r.is_finite() => (r, false),
+        Some(r) => {
+            return Err(Error::Invalid(format!(
+                "the force roughness σ_r must be positive and finite, got {r}"
+            )))
+        }
+        None => {
+            let forces = frame_by_frame.ok_or_else(|| {
+                Error::Invalid(
+                    "the time fit needs σ_r (`roughness`) or a frame-by-frame answer to estimate it from"
+                        .into(),
+                )
+            })?;
+            let r = roughness_of(ctracks, frames, forces).ok_or_else(|| {
+                Error::Invalid(
+                    "cannot estimate the force roughness: no contact lasts three frames with a force; give `roughness`"
+                        .into(),
+                )
+            })?;
+            (ROUGHNESS_FACTOR * r, true)
+        }
+    })
+}
+
+/// σ_x as given or estimated from the tracks, floored.
+fn track_sd(given: Option<f64>, frames: &[Scene], assemblies: &[Assembly]) -> Result<f64> {
     // Frames without contacts have no length scale of their own.
     let length_scale = assemblies
         .iter()
         .filter(|a| !a.systems.is_empty())
         .map(|a| a.scales.length)
         .fold(0.0, f64::max);
-    let position_sd = fit
-        .position_sd
+    let position_sd = given
         .unwrap_or_else(|| super::kinematics::estimate_position_sd(frames))
         // Exact tracks: the floor keeps the normal equations conditioned (at
         // 1e-9 R the refinement stalled at 2e-5 on noise-free `impact`), and
@@ -424,151 +485,266 @@ pub fn infer_time_fit(
             "the position sd must be finite, got {position_sd}"
         )));
     }
+    Ok(position_sd)
+}
 
-    let mut warnings: Vec<String> = Vec::new();
-    let mut a = Triplets::new(0, 0);
-    let mut b = Vec::new();
-    let mut c = Triplets::new(0, 0);
-    let mut d = Vec::new();
-    let gravity = opts.assemble.gravity.unwrap_or_else(|| frames[0].gravity());
+/// The force columns of the joint system: frame by frame, system by system.
+struct ForceColumns {
+    /// Per frame, per scene contact: its columns (`None`: not inferred).
+    placed: Vec<Vec<Option<JointContact>>>,
+    cones: Vec<Cone>,
+    /// (first column, count) of each contact's unknowns.
+    blocks: Vec<(usize, usize)>,
+    ncols: usize,
+}
 
-    // Kinematic columns: per track segment and frame, x (dim) then v·Δt (dim),
-    // both in units of the first σ_x about the segment's first measured
-    // position; a later σ_x changes only the track rows' weights.
-    let unit = position_sd;
-    let segments = grain_segments(frames, &net_force)?;
-    let mut first_col = Vec::with_capacity(segments.len());
-    for seg in &segments {
-        first_col.push(ncols);
-        ncols += 2 * dim * seg.frames.len();
-    }
-    let kinematic_unknowns = ncols - force_unknowns;
-    a.ncols = ncols;
-    c.ncols = ncols;
-
-    // Stress rows and moment rows of every frame, both least squares.
-    let loads: Vec<f64> = assemblies.iter().map(frame_load).collect();
-    let largest_load = loads.iter().copied().fold(0.0, f64::max);
-    let mut offset = 0;
-    for (assembly, load) in assemblies.iter().zip(&loads) {
-        // A frame without stress is not exact: floor its noise.
-        let noise = fit.stress_sd * load.max(1e-3 * largest_load).max(f64::MIN_POSITIVE);
-        for system in &assembly.systems {
-            let scale = system.scales.force * system.scales.length;
-            let column = force_unit / system.scales.force;
-            append_rows(
-                &mut a,
-                &mut b,
-                &system.stress,
-                &system.stress_rhs,
-                offset,
-                column * scale / noise,
-                scale / noise,
-                |_| true,
-            );
-            let nm = system.momentum_rows_per_grain();
-            let weight = MOMENT_WEIGHT * scale / noise;
-            append_rows(
-                &mut a,
-                &mut b,
-                &system.momentum,
-                &system.momentum_rhs,
-                offset,
-                column * weight,
-                weight,
-                |row| row % nm >= dim,
-            );
-            offset += system.n;
+impl ForceColumns {
+    fn place(frames: &[Scene], assemblies: &[Assembly], cone_model: ConeModel) -> Result<Self> {
+        let dim = frames[0].dim;
+        let mut ncols = 0;
+        let mut placed: Vec<Vec<Option<JointContact>>> = Vec::with_capacity(frames.len());
+        let mut cone_list: Vec<Cone> = Vec::new();
+        let mut blocks = Vec::new();
+        for (frame, assembly) in frames.iter().zip(assemblies) {
+            let mut here = vec![None; frame.contacts.len()];
+            for system in &assembly.systems {
+                for cone in cones(system, cone_model) {
+                    cone_list.push(cone.shifted(ncols));
+                }
+                for u in &system.unknowns {
+                    let count = u.count(dim);
+                    blocks.push((ncols + u.offset, count));
+                    here[u.contact] = Some(JointContact {
+                        col: ncols + u.offset,
+                        count,
+                        directions: u.directions,
+                    });
+                }
+                ncols += system.n;
+            }
+            placed.push(here);
         }
+        if ncols == 0 {
+            return Err(Error::Invalid(
+                "the time fit found no contact force to infer in any frame".into(),
+            ));
+        }
+        Ok(ForceColumns {
+            placed,
+            cones: cone_list,
+            blocks,
+            ncols,
+        })
     }
 
-    // Tracks (least squares; each row's triplet, right-hand side and measured
-    // offset kept, to reweigh them) and the integrator (hard).
-    let mut track_rows: Vec<(usize, usize, f64)> = Vec::new();
-    for (seg, &col0) in segments.iter().zip(&first_col) {
-        let x_col = |i: usize, axis: usize| col0 + 2 * dim * i + axis;
-        let v_col = |i: usize, axis: usize| col0 + 2 * dim * i + dim + axis;
-        let (k0, p0) = seg.frames[0];
-        let origin = frames[k0].grains[p0].position;
-        for (i, &(k, p)) in seg.frames.iter().enumerate() {
-            let measured = frames[k].grains[p].position;
-            for axis in 0..dim {
-                let off = measured[axis] - origin[axis];
-                track_rows.push((a.nnz(), b.len(), off));
-                push_row(&mut a, &mut b, &[(x_col(i, axis), 1.0)], off / position_sd);
-            }
-        }
-        // a_k = N_k/m + g; in the columns' unit a Δt² term weighs h = Δt² F/(m unit).
-        let h = dt * dt * force_unit / (seg.mass * unit);
-        let g_term = |axis: usize| dt * dt * gravity[axis] / unit;
-        for i in 0..seg.frames.len() - 1 {
-            for axis in 0..dim {
-                let (now, next) = (&seg.nets[i][axis], &seg.nets[i + 1][axis]);
-                let mut x_row = vec![
-                    (x_col(i + 1, axis), 1.0),
-                    (x_col(i, axis), -1.0),
-                    (v_col(i, axis), -1.0),
-                ];
-                x_row.extend(now.iter().map(|&(col, s)| (col, -h * s / 3.0)));
-                x_row.extend(next.iter().map(|&(col, s)| (col, -h * s / 6.0)));
-                push_row(&mut c, &mut d, &x_row, 0.5 * g_term(axis));
-                let mut v_row = vec![(v_col(i + 1, axis), 1.0), (v_col(i, axis), -1.0)];
-                v_row.extend(now.iter().chain(next).map(|&(col, s)| (col, -0.5 * h * s)));
-                push_row(&mut c, &mut d, &v_row, g_term(axis));
+    /// Each frame's contact forces from the joint unknowns.
+    fn forces(&self, x: &[f64], force_unit: f64) -> Vec<Vec<Option<Vec3>>> {
+        self.placed
+            .iter()
+            .map(|here| {
+                here.iter()
+                    .map(|jc| {
+                        jc.as_ref().map(|jc| {
+                            let mut f = [0.0; 3];
+                            for j in 0..jc.count {
+                                for (axis, fa) in f.iter_mut().enumerate() {
+                                    *fa += x[jc.col + j] * jc.directions[j][axis] * force_unit;
+                                }
+                            }
+                            f
+                        })
+                    })
+                    .collect()
+            })
+            .collect()
+    }
+}
+
+/// The joint system: least-squares rows A x ≈ b, hard rows C x = d.
+struct JointRows {
+    a: Triplets,
+    b: Vec<f64>,
+    c: Triplets,
+    d: Vec<f64>,
+}
+
+/// What the track and integrator rows read.
+struct Kinematics<'a> {
+    frames: &'a [Scene],
+    segments: &'a [Segment],
+    first_col: &'a [usize],
+    dt: f64,
+    gravity: Vec3,
+    force_unit: f64,
+    /// The kinematic columns' unit (the first σ_x).
+    unit: f64,
+}
+
+impl JointRows {
+    /// Stress rows and moment rows of every frame, both least squares.
+    fn append_frames(
+        &mut self,
+        assemblies: &[Assembly],
+        stress_sd: f64,
+        force_unit: f64,
+        dim: usize,
+    ) {
+        let loads: Vec<f64> = assemblies.iter().map(frame_load).collect();
+        let largest_load = loads.iter().copied().fold(0.0, f64::max);
+        let mut offset = 0;
+        for (assembly, load) in assemblies.iter().zip(&loads) {
+            // A frame without stress is not exact: floor its noise.
+            let noise = stress_sd * load.max(1e-3 * largest_load).max(f64::MIN_POSITIVE);
+            for system in &assembly.systems {
+                let scale = system.scales.force * system.scales.length;
+                let column = force_unit / system.scales.force;
+                append_rows(
+                    &mut self.a,
+                    &mut self.b,
+                    &system.stress,
+                    &system.stress_rhs,
+                    offset,
+                    column * scale / noise,
+                    scale / noise,
+                    |_| true,
+                );
+                let nm = system.momentum_rows_per_grain();
+                let weight = MOMENT_WEIGHT * scale / noise;
+                append_rows(
+                    &mut self.a,
+                    &mut self.b,
+                    &system.momentum,
+                    &system.momentum_rhs,
+                    offset,
+                    column * weight,
+                    weight,
+                    |row| row % nm >= dim,
+                );
+                offset += system.n;
             }
         }
     }
 
-    // Roughness rows: each contact's force, component by component, changes
-    // smoothly; absent from a frame = zero force there.
-    let mut contact_track_count = 0;
-    let weight = force_unit / roughness;
-    for track in ctracks.values() {
-        // A frame where the pair has a contact that is not fitted (outside the
-        // selection) or several contacts breaks the track.
-        let usable = |k: usize| -> Option<Option<(&JointContact, f64)>> {
-            match track[k].as_slice() {
-                [] => Some(None),
-                &[(i, sign)] => placed[k][i].as_ref().map(|jc| Some((jc, sign))),
-                _ => None,
+    /// Tracks (least squares) and the integrator (hard). Returns each track
+    /// row's triplet, right-hand side and measured offset, to reweigh them.
+    fn append_tracks(&mut self, k: &Kinematics, position_sd: f64) -> Vec<(usize, usize, f64)> {
+        let (frames, dt, unit) = (k.frames, k.dt, k.unit);
+        let dim = frames[0].dim;
+        let mut track_rows: Vec<(usize, usize, f64)> = Vec::new();
+        for (seg, &col0) in k.segments.iter().zip(k.first_col) {
+            let x_col = |i: usize, axis: usize| col0 + 2 * dim * i + axis;
+            let v_col = |i: usize, axis: usize| col0 + 2 * dim * i + dim + axis;
+            let (k0, p0) = seg.frames[0];
+            let origin = frames[k0].grains[p0].position;
+            for (i, &(f, p)) in seg.frames.iter().enumerate() {
+                let measured = frames[f].grains[p].position;
+                for axis in 0..dim {
+                    let off = measured[axis] - origin[axis];
+                    track_rows.push((self.a.nnz(), self.b.len(), off));
+                    push_row(
+                        &mut self.a,
+                        &mut self.b,
+                        &[(x_col(i, axis), 1.0)],
+                        off / position_sd,
+                    );
+                }
             }
-        };
-        let present: Vec<usize> = (0..nf).filter(|&k| !track[k].is_empty()).collect();
-        let (Some(&first), Some(&last)) = (present.first(), present.last()) else {
-            continue;
-        };
-        let (lo, hi) = (first.saturating_sub(1), (last + 1).min(nf - 1));
-        let mut any = false;
-        for k in lo + 1..hi {
-            let window: Option<Vec<_>> = (k - 1..=k + 1).map(usable).collect();
-            let Some(window) = window else { continue };
-            for axis in 0..dim {
-                let mut row = Vec::new();
-                for (slot, coef) in window.iter().zip([1.0, -2.0, 1.0]) {
-                    if let Some((jc, sign)) = slot {
-                        for j in 0..jc.count {
-                            let v = coef * sign * jc.directions[j][axis] * weight;
-                            if v != 0.0 {
-                                row.push((jc.col + j, v));
+            // a_k = N_k/m + g; in the columns' unit a Δt² term weighs h = Δt² F/(m unit).
+            let h = dt * dt * k.force_unit / (seg.mass * unit);
+            let g_term = |axis: usize| dt * dt * k.gravity[axis] / unit;
+            for i in 0..seg.frames.len() - 1 {
+                for axis in 0..dim {
+                    let (now, next) = (&seg.nets[i][axis], &seg.nets[i + 1][axis]);
+                    let mut x_row = vec![
+                        (x_col(i + 1, axis), 1.0),
+                        (x_col(i, axis), -1.0),
+                        (v_col(i, axis), -1.0),
+                    ];
+                    x_row.extend(now.iter().map(|&(col, s)| (col, -h * s / 3.0)));
+                    x_row.extend(next.iter().map(|&(col, s)| (col, -h * s / 6.0)));
+                    push_row(&mut self.c, &mut self.d, &x_row, 0.5 * g_term(axis));
+                    let mut v_row = vec![(v_col(i + 1, axis), 1.0), (v_col(i, axis), -1.0)];
+                    v_row.extend(now.iter().chain(next).map(|&(col, s)| (col, -0.5 * h * s)));
+                    push_row(&mut self.c, &mut self.d, &v_row, g_term(axis));
+                }
+            }
+        }
+        track_rows
+    }
+
+    /// Roughness rows: each contact's force, component by component, changes
+    /// smoothly; absent from a frame = zero force there. Returns the number
+    /// of contact tracks that gave a row.
+    fn append_roughness(
+        &mut self,
+        ctracks: &ContactTracks,
+        placed: &[Vec<Option<JointContact>>],
+        dim: usize,
+        weight: f64,
+    ) -> usize {
+        let nf = placed.len();
+        let mut contact_track_count = 0;
+        for track in ctracks.values() {
+            // A frame where the pair has a contact that is not fitted (outside the
+            // selection) or several contacts breaks the track.
+            let usable = |k: usize| -> Option<Option<(&JointContact, f64)>> {
+                match track[k].as_slice() {
+                    [] => Some(None),
+                    &[(i, sign)] => placed[k][i].as_ref().map(|jc| Some((jc, sign))),
+                    _ => None,
+                }
+            };
+            let present: Vec<usize> = (0..nf).filter(|&k| !track[k].is_empty()).collect();
+            let (Some(&first), Some(&last)) = (present.first(), present.last()) else {
+                continue;
+            };
+            let (lo, hi) = (first.saturating_sub(1), (last + 1).min(nf - 1));
+            let mut any = false;
+            for k in lo + 1..hi {
+                let window: Option<Vec<_>> = (k - 1..=k + 1).map(usable).collect();
+                let Some(window) = window else { continue };
+                for axis in 0..dim {
+                    let mut row = Vec::new();
+                    for (slot, coef) in window.iter().zip([1.0, -2.0, 1.0]) {
+                        if let Some((jc, sign)) = slot {
+                            for j in 0..jc.count {
+                                let v = coef * sign * jc.directions[j][axis] * weight;
+                                if v != 0.0 {
+                                    row.push((jc.col + j, v));
+                                }
                             }
                         }
                     }
-                }
-                if !row.is_empty() {
-                    push_row(&mut a, &mut b, &row, 0.0);
-                    any = true;
+                    if !row.is_empty() {
+                        push_row(&mut self.a, &mut self.b, &row, 0.0);
+                        any = true;
+                    }
                 }
             }
+            contact_track_count += usize::from(any);
         }
-        contact_track_count += usize::from(any);
+        contact_track_count
     }
-    if contact_track_count == 0 {
-        warnings.push("no contact lasts long enough for the roughness prior".into());
-    }
+}
 
+/// Solves the joint system through the cascade; returns the solution and the
+/// position sd finally used.
+#[allow(clippy::too_many_arguments)]
+fn solve_joint(
+    rows: JointRows,
+    columns: &ForceColumns,
+    ncols: usize,
+    track_rows: &[(usize, usize, f64)],
+    position_sd: f64,
+    opts: &InferOptions,
+    start: Instant,
+    warnings: &mut Vec<String>,
+) -> Result<(Solution, f64)> {
+    let JointRows { mut a, mut b, c, d } = rows;
+    let unit = position_sd;
     // Each contact's unknowns coupled, so the active set's rows fit the pattern.
-    let mut coupling = Triplets::new(blocks.len(), ncols);
-    for (row, &(col, count)) in blocks.iter().enumerate() {
+    let mut coupling = Triplets::new(columns.blocks.len(), ncols);
+    for (row, &(col, count)) in columns.blocks.iter().enumerate() {
         for j in col..col + count {
             coupling.push(row, j, 1.0);
         }
@@ -595,7 +771,7 @@ pub fn infer_time_fit(
         }
         loosened += 1;
         position_sd *= 10.0;
-        for &(entry, row, off) in &track_rows {
+        for &(entry, row, off) in track_rows {
             a.vals[entry] = unit / position_sd;
             b[row] = off / position_sd;
         }
@@ -615,7 +791,7 @@ pub fn infer_time_fit(
         equalities: vec![(&c, d.as_slice())],
         lambda: 0.0,
         regularized: 0,
-        cones: cone_list,
+        cones: columns.cones.clone(),
     };
     let unconstrained = Solution {
         x: sol.x,
@@ -645,44 +821,7 @@ pub fn infer_time_fit(
             solved.status
         )));
     }
-    warnings.extend(solved.warnings);
-    let (x, solver_status, solver_attempts) = (solved.x, solved.status, solved.attempts);
-
-    let forces = placed
-        .iter()
-        .map(|here| {
-            here.iter()
-                .map(|jc| {
-                    jc.as_ref().map(|jc| {
-                        let mut f = [0.0; 3];
-                        for j in 0..jc.count {
-                            for (axis, fa) in f.iter_mut().enumerate() {
-                                *fa += x[jc.col + j] * jc.directions[j][axis] * force_unit;
-                            }
-                        }
-                        f
-                    })
-                })
-                .collect()
-        })
-        .collect();
-    let report = TimeFitReport {
-        frames: nf,
-        force_unknowns,
-        kinematic_unknowns,
-        grain_tracks: segments.len(),
-        contact_tracks: contact_track_count,
-        position_sd,
-        position_sd_estimated,
-        stress_sd: fit.stress_sd,
-        roughness,
-        roughness_estimated,
-        solver_status,
-        solver_attempts,
-        seconds: start.elapsed().as_secs_f64(),
-        warnings,
-    };
-    Ok(TimeFit { forces, report })
+    Ok((solved, position_sd))
 }
 
 /// Net force on a grain in one frame, per axis: (joint column, coefficient).

@@ -469,28 +469,10 @@ fn iterate(
         None => (0..contacts.len()).map(|k| natural(&x, &v, k).1).collect(),
     };
     for iteration in 1..=settings.max_iterations {
-        let mut g = Triplets::new(0, n);
-        let mut springs = Triplets::new(0, n);
-        let mut owner = Vec::new();
-        let mut spring_of = Vec::new();
-        for (k, (ct, piece)) in contacts.iter().zip(&pieces).enumerate() {
-            for row in ct.rows(*piece) {
-                g.nrows += 1;
-                for (j, val) in row {
-                    g.push(g.nrows - 1, j, val);
-                }
-                owner.push(k);
-            }
-            if let Some((row, stiffness)) = ct.spring(*piece, rho[k]) {
-                springs.nrows += 1;
-                for (j, val) in row {
-                    springs.push(springs.nrows - 1, j, val);
-                }
-                spring_of.push((k, stiffness));
-            }
-        }
+        let rows = ActiveRows::of(contacts, &pieces, rho, n);
+        let (g, springs) = (&rows.g, &rows.springs);
         let clock = std::time::Instant::now();
-        let sol = ls.solve_with_active(a, c, b, d, lambda, &g, &springs)?;
+        let sol = ls.solve_with_active(a, c, b, d, lambda, g, springs)?;
         history.push(ActiveSetStep {
             active_rows: g.nrows,
             step: 0.0,
@@ -500,61 +482,11 @@ fn iterate(
             reused_factor: sol.reused_factor,
         });
         let x_full = sol.solution.x;
-        // v_c = Σ y_i a_i over the contact's rows.
-        let mut v_full = vec![(0.0, [0.0; 2]); contacts.len()];
-        for k in 0..g.nnz() {
-            let (row, j, val) = (g.rows[k], g.cols[k], g.vals[k]);
-            let ct = &contacts[owner[row]];
-            let y = sol.multipliers[row] * val;
-            let vc = &mut v_full[owner[row]];
-            if j == ct.normal {
-                vc.0 += y;
-            } else if let Some(p) = ct.tangents.iter().position(|&t| t == j) {
-                vc.1[p] += y;
-            }
-        }
-        // The springs' force, v = −k (e⊥·x) e⊥.
-        for &(k, stiffness) in &spring_of {
-            let Piece::Boundary { dir, .. } = pieces[k] else {
-                continue;
-            };
-            let ct = &contacts[k];
-            let (_, xt) = ct.split(&x_full);
-            let across = -dir[1] * xt[0] + dir[0] * xt[1];
-            let force = -stiffness * across;
-            v_full[k].1[0] += force * -dir[1];
-            v_full[k].1[1] += force * dir[0];
-        }
+        let v_full = rows.dual(contacts, &pieces, &sol.multipliers, &x_full);
         // Damped step: the full Newton step can overshoot far from the
-        // solution; halve it until the natural residual decreases. Both ends
-        // satisfy the (linear) stationarity and momentum rows, so every point
-        // between them does too.
+        // solution; halve it until the natural residual decreases.
         let before = merit(&x, &v);
-        let mut step = 1.0;
-        let (mut x_new, mut v_new) = (x_full.clone(), v_full.clone());
-        let mut after = merit(&x_new, &v_new);
-        while after > (1.0 - 1e-4 * step) * before && step > MIN_STEP {
-            step *= 0.5;
-            x_new = x
-                .iter()
-                .zip(&x_full)
-                .map(|(a, b)| a + step * (b - a))
-                .collect();
-            v_new = v
-                .iter()
-                .zip(&v_full)
-                .map(|(a, b)| {
-                    (
-                        a.0 + step * (b.0 - a.0),
-                        [
-                            a.1[0] + step * (b.1[0] - a.1[0]),
-                            a.1[1] + step * (b.1[1] - a.1[1]),
-                        ],
-                    )
-                })
-                .collect();
-            after = merit(&x_new, &v_new);
-        }
+        let (step, x_new, v_new, after) = damped_step(&x, &v, x_full, v_full, before, &merit);
         if after > (1.0 - 1e-4 * step) * before {
             return Ok(fail(
                 x,
@@ -590,25 +522,8 @@ fn iterate(
         // The pieces of this solve, when a re-guess may replace the next ones.
         let reguess = iteration == 1 && settings.reguess;
         let solved_on = reguess.then(|| pieces.clone());
-        let mut worst = 0.0f64;
-        let mut changed = 0;
-        for k in 0..contacts.len() {
-            let (e, piece) = natural(&x, &v, k);
-            worst = worst.max(e);
-            if e > tol {
-                if piece != pieces[k] {
-                    changed += 1;
-                }
-                pieces[k] = piece;
-            } else if let (Piece::Boundary { .. }, Piece::Boundary { .. }) = (piece, pieces[k]) {
-                // A sliding contact within tolerance still follows its
-                // sliding direction: kept at an older one, such contacts
-                // held the residual just below the tolerance (3D, 30 %
-                // sliding: 1e-10 at the end instead of 2e-13), and the last
-                // step was no longer Newton's.
-                pieces[k] = piece;
-            }
-        }
+        let (worst, mut changed) =
+            update_pieces(contacts.len(), &natural, &x, &v, tol, &mut pieces);
         // The first solve's cone forces are the first exact ones: the
         // sweeps around its answer place the contacts better than the
         // Newton step's projection, whose sliding directions turned too
@@ -665,4 +580,156 @@ fn iterate(
             solves: settings.max_iterations,
         },
     ))
+}
+
+/// A contact's dual force (normal, tangential).
+type Dual = (f64, [f64; 2]);
+
+/// The rows of the contacts' current pieces: equalities `g` (owned by
+/// `owner[row]`) and the springs of sliding contacts (contact, stiffness).
+struct ActiveRows {
+    g: Triplets,
+    springs: Triplets,
+    owner: Vec<usize>,
+    spring_of: Vec<(usize, f64)>,
+}
+
+impl ActiveRows {
+    fn of(contacts: &[Contact], pieces: &[Piece], rho: &[f64], n: usize) -> Self {
+        let mut g = Triplets::new(0, n);
+        let mut springs = Triplets::new(0, n);
+        let mut owner = Vec::new();
+        let mut spring_of = Vec::new();
+        for (k, (ct, piece)) in contacts.iter().zip(pieces).enumerate() {
+            for row in ct.rows(*piece) {
+                g.nrows += 1;
+                for (j, val) in row {
+                    g.push(g.nrows - 1, j, val);
+                }
+                owner.push(k);
+            }
+            if let Some((row, stiffness)) = ct.spring(*piece, rho[k]) {
+                springs.nrows += 1;
+                for (j, val) in row {
+                    springs.push(springs.nrows - 1, j, val);
+                }
+                spring_of.push((k, stiffness));
+            }
+        }
+        ActiveRows {
+            g,
+            springs,
+            owner,
+            spring_of,
+        }
+    }
+
+    /// Each contact's dual force from the solve's multipliers.
+    fn dual(
+        &self,
+        contacts: &[Contact],
+        pieces: &[Piece],
+        multipliers: &[f64],
+        x_full: &[f64],
+    ) -> Vec<Dual> {
+        let (g, owner) = (&self.g, &self.owner);
+        // v_c = Σ y_i a_i over the contact's rows.
+        let mut v_full = vec![(0.0, [0.0; 2]); contacts.len()];
+        for k in 0..g.nnz() {
+            let (row, j, val) = (g.rows[k], g.cols[k], g.vals[k]);
+            let ct = &contacts[owner[row]];
+            let y = multipliers[row] * val;
+            let vc = &mut v_full[owner[row]];
+            if j == ct.normal {
+                vc.0 += y;
+            } else if let Some(p) = ct.tangents.iter().position(|&t| t == j) {
+                vc.1[p] += y;
+            }
+        }
+        // The springs' force, v = −k (e⊥·x) e⊥.
+        for &(k, stiffness) in &self.spring_of {
+            let Piece::Boundary { dir, .. } = pieces[k] else {
+                continue;
+            };
+            let ct = &contacts[k];
+            let (_, xt) = ct.split(x_full);
+            let across = -dir[1] * xt[0] + dir[0] * xt[1];
+            let force = -stiffness * across;
+            v_full[k].1[0] += force * -dir[1];
+            v_full[k].1[1] += force * dir[0];
+        }
+        v_full
+    }
+}
+
+/// Halves the step from (x, v) towards the Newton point (x_full, v_full)
+/// until the merit decreases enough (or the step is below [`MIN_STEP`]). Both
+/// ends satisfy the (linear) stationarity and momentum rows, so every point
+/// between them does too. Returns the step, the point and its merit.
+fn damped_step(
+    x: &[f64],
+    v: &[Dual],
+    x_full: Vec<f64>,
+    v_full: Vec<Dual>,
+    before: f64,
+    merit: &impl Fn(&[f64], &[Dual]) -> f64,
+) -> (f64, Vec<f64>, Vec<Dual>, f64) {
+    let mut step = 1.0;
+    let (mut x_new, mut v_new) = (x_full.clone(), v_full.clone());
+    let mut after = merit(&x_new, &v_new);
+    while after > (1.0 - 1e-4 * step) * before && step > MIN_STEP {
+        step *= 0.5;
+        x_new = x
+            .iter()
+            .zip(&x_full)
+            .map(|(a, b)| a + step * (b - a))
+            .collect();
+        v_new = v
+            .iter()
+            .zip(&v_full)
+            .map(|(a, b)| {
+                (
+                    a.0 + step * (b.0 - a.0),
+                    [
+                        a.1[0] + step * (b.1[0] - a.1[0]),
+                        a.1[1] + step * (b.1[1] - a.1[1]),
+                    ],
+                )
+            })
+            .collect();
+        after = merit(&x_new, &v_new);
+    }
+    (step, x_new, v_new, after)
+}
+
+/// Moves each contact whose natural residual exceeds `tol` to the piece its
+/// projection lands on; returns the worst residual and how many changed.
+fn update_pieces(
+    count: usize,
+    natural: &impl Fn(&[f64], &[Dual], usize) -> (f64, Piece),
+    x: &[f64],
+    v: &[Dual],
+    tol: f64,
+    pieces: &mut [Piece],
+) -> (f64, usize) {
+    let mut worst = 0.0f64;
+    let mut changed = 0;
+    for k in 0..count {
+        let (e, piece) = natural(x, v, k);
+        worst = worst.max(e);
+        if e > tol {
+            if piece != pieces[k] {
+                changed += 1;
+            }
+            pieces[k] = piece;
+        } else if let (Piece::Boundary { .. }, Piece::Boundary { .. }) = (piece, pieces[k]) {
+            // A sliding contact within tolerance still follows its
+            // sliding direction: kept at an older one, such contacts
+            // held the residual just below the tolerance (3D, 30 %
+            // sliding: 1e-10 at the end instead of 2e-13), and the last
+            // step was no longer Newton's.
+            pieces[k] = piece;
+        }
+    }
+    (worst, changed)
 }

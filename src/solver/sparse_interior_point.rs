@@ -539,45 +539,13 @@ pub fn solve(
     settings: &InteriorPointSettings,
 ) -> Result<InteriorPointSolution> {
     let n = problem.a.ncols;
-    if start.len() != n {
-        return Err(Error::Invalid(format!(
-            "interior point: the start has {} entries for {n} unknowns",
-            start.len()
-        )));
-    }
-    if !(settings.tolerance > 0.0 && settings.tolerance < 1.0) || settings.max_iterations == 0 {
-        return Err(Error::Invalid(format!(
-            "interior point: need at least one iteration and a tolerance in (0, 1), got {} and {}",
-            settings.max_iterations, settings.tolerance
-        )));
-    }
+    check_settings(n, start, settings)?;
     if cones.iter().any(|c| matches!(c, Cone::Pyramid { .. })) {
-        return Ok(InteriorPointSolution {
-            x: start.to_vec(),
-            iterations: 0,
-            converged: false,
-            stop: Some(InteriorPointStop::PyramidalCones),
-            gap: f64::INFINITY,
-            primal_residual: f64::INFINITY,
-            dual_residual: f64::INFINITY,
-            distance: f64::INFINITY,
-            noise: None,
-            at_distance: false,
-            restart: None,
-        });
+        return Ok(InteriorPointSolution::not_started(start));
     }
     let rows = ConeRows::new(cones);
     let mut aug = Augmented::new(problem, &rows);
-    let mut ls = match analysed.sharing_analysis(&aug.a, problem.c)? {
-        Some(shared) => shared,
-        None => EqualityLeastSquares::with_ordering(
-            &aug.a,
-            problem.c,
-            analysed.coupling(),
-            analysed.ordering(),
-        )?,
-    };
-    ls.set_first_regularisation(REGULARISATION);
+    let mut ls = factor_of(&aug, problem, analysed)?;
 
     let mut it = match restart {
         Some(r) if r.fits(n, problem.c.nrows, rows.len()) => r.0.clone(),
@@ -699,6 +667,62 @@ pub fn solve(
             .finish(cones, iterations, Some(stop), measures)
             .with_restart(keep)
             .with_noise(noise)),
+    }
+}
+
+/// The start fits the problem and the settings are usable.
+fn check_settings(n: usize, start: &[f64], settings: &InteriorPointSettings) -> Result<()> {
+    if start.len() != n {
+        return Err(Error::Invalid(format!(
+            "interior point: the start has {} entries for {n} unknowns",
+            start.len()
+        )));
+    }
+    if !(settings.tolerance > 0.0 && settings.tolerance < 1.0) || settings.max_iterations == 0 {
+        return Err(Error::Invalid(format!(
+            "interior point: need at least one iteration and a tolerance in (0, 1), got {} and {}",
+            settings.max_iterations, settings.tolerance
+        )));
+    }
+    Ok(())
+}
+
+/// The solver of the augmented system: the caller's analysis when it can be
+/// shared, else one made with the caller's coupling and ordering.
+fn factor_of(
+    aug: &Augmented,
+    problem: &LeastSquares,
+    analysed: &EqualityLeastSquares,
+) -> Result<EqualityLeastSquares> {
+    let mut ls = match analysed.sharing_analysis(&aug.a, problem.c)? {
+        Some(shared) => shared,
+        None => EqualityLeastSquares::with_ordering(
+            &aug.a,
+            problem.c,
+            analysed.coupling(),
+            analysed.ordering(),
+        )?,
+    };
+    ls.set_first_regularisation(REGULARISATION);
+    Ok(ls)
+}
+
+impl InteriorPointSolution {
+    /// The start returned unsolved: pyramidal cones are not handled here.
+    fn not_started(start: &[f64]) -> Self {
+        InteriorPointSolution {
+            x: start.to_vec(),
+            iterations: 0,
+            converged: false,
+            stop: Some(InteriorPointStop::PyramidalCones),
+            gap: f64::INFINITY,
+            primal_residual: f64::INFINITY,
+            dual_residual: f64::INFINITY,
+            distance: f64::INFINITY,
+            noise: None,
+            at_distance: false,
+            restart: None,
+        }
     }
 }
 

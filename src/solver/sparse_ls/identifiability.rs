@@ -82,41 +82,7 @@ pub fn identifiability_with(
     // Ruiz equilibration (∞-norms of rows and columns driven to 1) makes the
     // answer independent of the units of rows and unknowns; a last column 2-norm
     // pass gives diag(BᵀB) = 1.
-    let mut row_scale = vec![1.0; m];
-    let mut col_scale = vec![1.0; n];
-    for _ in 0..RUIZ_PASSES {
-        let mut row_max = vec![0.0f64; m];
-        let mut col_max = vec![0.0f64; n];
-        for r in 0..m {
-            for q in csr.range(r) {
-                let v = (csr.val[q] * row_scale[r] * col_scale[csr.idx[q]]).abs();
-                row_max[r] = row_max[r].max(v);
-                col_max[csr.idx[q]] = col_max[csr.idx[q]].max(v);
-            }
-        }
-        for (t, mx) in row_scale.iter_mut().zip(&row_max) {
-            if *mx > 0.0 {
-                *t /= mx.sqrt();
-            }
-        }
-        for (s, mx) in col_scale.iter_mut().zip(&col_max) {
-            if *mx > 0.0 {
-                *s /= mx.sqrt();
-            }
-        }
-    }
-    let mut col_sq = vec![0.0; n];
-    for (r, t) in row_scale.iter().enumerate() {
-        for q in csr.range(r) {
-            let j = csr.idx[q];
-            col_sq[j] += (csr.val[q] * t * col_scale[j]).powi(2);
-        }
-    }
-    for (s, sq) in col_scale.iter_mut().zip(&col_sq) {
-        if *sq > 0.0 {
-            *s /= sq.sqrt();
-        }
-    }
+    let (row_scale, col_scale, col_sq) = equilibrate(&csr, m, n);
     let zero_columns: Vec<usize> = (0..n).filter(|&j| col_sq[j] == 0.0).collect();
     if row_scale.iter().chain(&col_scale).any(|v| !v.is_finite()) {
         return Err(Error::Solver(
@@ -137,19 +103,7 @@ pub fn identifiability_with(
         |len: usize| -> Vec<f64> { (0..len).map(|_| StandardNormal.sample(&mut rng)).collect() };
 
     // Largest eigenvalue (power iteration; converges from below, a few % is enough).
-    let mut v = random_vector(n);
-    normalise(&mut v);
-    let mut lambda_max = 0.0f64;
-    for _ in 0..POWER_STEPS {
-        let mut w = apply_m(&v);
-        let norm = norm2(&w);
-        if norm == 0.0 {
-            break;
-        }
-        w.iter_mut().for_each(|x| *x /= norm);
-        v = w;
-        lambda_max = lambda_max.max(rayleigh(&v));
-    }
+    let lambda_max = largest_eigenvalue(random_vector(n), &apply_m, &rayleigh);
     if lambda_max == 0.0 {
         // B = 0: every vector is a null vector.
         let mut e0 = vec![0.0; n];
@@ -200,24 +154,8 @@ pub fn identifiability_with(
             .chunks(n)
             .map(|col| mul_scaled(&csr, &row_scale, &col_scale, col))
             .collect();
-        let gram = nalgebra::DMatrix::from_fn(k, k, |i, j| {
-            images[i].iter().zip(&images[j]).map(|(p, q)| p * q).sum()
-        });
-        let eig: nalgebra::SymmetricEigen<f64, nalgebra::Dyn> = nalgebra::SymmetricEigen::new(gram);
-        let mut order: Vec<usize> = (0..k).collect();
-        order.sort_by(|&i, &j| eig.eigenvalues[i].total_cmp(&eig.eigenvalues[j]));
-        let mut rotated = vec![0.0; n * k];
-        for (new_col, &old) in order.iter().enumerate() {
-            for (src_col, coeff) in eig.eigenvectors.column(old).iter().enumerate() {
-                let (dst, src) = (
-                    &mut rotated[new_col * n..(new_col + 1) * n],
-                    &block[src_col * n..(src_col + 1) * n],
-                );
-                dst.iter_mut().zip(src).for_each(|(d, s)| *d += coeff * s);
-            }
-        }
+        let (rotated, new_ritz) = rayleigh_ritz(&block, &images, n, k);
         block = rotated;
-        let new_ritz: Vec<f64> = order.iter().map(|&i| eig.eigenvalues[i].max(0.0)).collect();
         let settled = new_ritz
             .iter()
             .zip(&ritz)
@@ -259,6 +197,93 @@ pub fn identifiability_with(
         },
         null_vector,
     })
+}
+
+/// Ruiz equilibration of B (CSR): the ∞-norms of rows and columns driven
+/// to 1, then a column 2-norm pass so that diag(BᵀB) = 1. Returns the row
+/// and column scales and the columns' squared norms before that last pass.
+fn equilibrate(csr: &Compressed, m: usize, n: usize) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+    let mut row_scale = vec![1.0; m];
+    let mut col_scale = vec![1.0; n];
+    for _ in 0..RUIZ_PASSES {
+        let mut row_max = vec![0.0f64; m];
+        let mut col_max = vec![0.0f64; n];
+        for r in 0..m {
+            for q in csr.range(r) {
+                let v = (csr.val[q] * row_scale[r] * col_scale[csr.idx[q]]).abs();
+                row_max[r] = row_max[r].max(v);
+                col_max[csr.idx[q]] = col_max[csr.idx[q]].max(v);
+            }
+        }
+        for (t, mx) in row_scale.iter_mut().zip(&row_max) {
+            if *mx > 0.0 {
+                *t /= mx.sqrt();
+            }
+        }
+        for (s, mx) in col_scale.iter_mut().zip(&col_max) {
+            if *mx > 0.0 {
+                *s /= mx.sqrt();
+            }
+        }
+    }
+    let mut col_sq = vec![0.0; n];
+    for (r, t) in row_scale.iter().enumerate() {
+        for q in csr.range(r) {
+            let j = csr.idx[q];
+            col_sq[j] += (csr.val[q] * t * col_scale[j]).powi(2);
+        }
+    }
+    for (s, sq) in col_scale.iter_mut().zip(&col_sq) {
+        if *sq > 0.0 {
+            *s /= sq.sqrt();
+        }
+    }
+    (row_scale, col_scale, col_sq)
+}
+
+/// The largest eigenvalue of M by power iteration from `v` (converges from
+/// below; a few % is enough). 0 when M v vanishes.
+fn largest_eigenvalue(
+    mut v: Vec<f64>,
+    apply_m: &impl Fn(&[f64]) -> Vec<f64>,
+    rayleigh: &impl Fn(&[f64]) -> f64,
+) -> f64 {
+    normalise(&mut v);
+    let mut lambda_max = 0.0f64;
+    for _ in 0..POWER_STEPS {
+        let mut w = apply_m(&v);
+        let norm = norm2(&w);
+        if norm == 0.0 {
+            break;
+        }
+        w.iter_mut().for_each(|x| *x /= norm);
+        v = w;
+        lambda_max = lambda_max.max(rayleigh(&v));
+    }
+    lambda_max
+}
+
+/// Rayleigh–Ritz on the block V (n×k, column-major) with images B V: the
+/// block rotated onto the Ritz vectors, smallest first, and their values.
+fn rayleigh_ritz(block: &[f64], images: &[Vec<f64>], n: usize, k: usize) -> (Vec<f64>, Vec<f64>) {
+    let gram = nalgebra::DMatrix::from_fn(k, k, |i, j| {
+        images[i].iter().zip(&images[j]).map(|(p, q)| p * q).sum()
+    });
+    let eig: nalgebra::SymmetricEigen<f64, nalgebra::Dyn> = nalgebra::SymmetricEigen::new(gram);
+    let mut order: Vec<usize> = (0..k).collect();
+    order.sort_by(|&i, &j| eig.eigenvalues[i].total_cmp(&eig.eigenvalues[j]));
+    let mut rotated = vec![0.0; n * k];
+    for (new_col, &old) in order.iter().enumerate() {
+        for (src_col, coeff) in eig.eigenvectors.column(old).iter().enumerate() {
+            let (dst, src) = (
+                &mut rotated[new_col * n..(new_col + 1) * n],
+                &block[src_col * n..(src_col + 1) * n],
+            );
+            dst.iter_mut().zip(src).for_each(|(d, s)| *d += coeff * s);
+        }
+    }
+    let new_ritz: Vec<f64> = order.iter().map(|&i| eig.eigenvalues[i].max(0.0)).collect();
+    (rotated, new_ritz)
 }
 
 fn normalise(v: &mut [f64]) {
