@@ -96,6 +96,9 @@ fn main() -> grainforce::Result<()> {
                         synth::quantile(&pe, 0.5),
                     );
                     eprintln!("  {} voxels, import {elapsed:.2} s", grid.len());
+                    if std::env::var("TOMO_WORST").is_ok() && method == "fit" {
+                        worst(&imported, &truth, voxel);
+                    }
                     if std::env::var("TOMO_DEBUG").is_ok() && method.contains("grey") {
                         let true_pairs: std::collections::HashSet<(usize, usize)> = truth
                             .iter()
@@ -122,4 +125,56 @@ fn main() -> grainforce::Result<()> {
         }
     }
     Ok(())
+}
+
+/// The worst-placed normals of a run, with what the fit saw (TOMO_WORST=1).
+fn worst(imported: &labels::LabelScene, truth: &[synth::TrueContact], voxel: f64) {
+    let mut rows = Vec::new();
+    for t in truth {
+        let key = (t.a.min(t.b) + 1, t.a.max(t.b) + 1);
+        let zones: Vec<_> = imported
+            .detected
+            .iter()
+            .filter(|c| match c.b {
+                labels::Other::Grain(b) => (c.a as usize, b as usize) == key,
+                _ => false,
+            })
+            .collect();
+        let Some(c) = zones.iter().max_by_key(|c| c.faces) else {
+            continue;
+        };
+        let sign = if c.a as usize - 1 == t.a { 1.0 } else { -1.0 };
+        let angle = |n: [f64; 3]| {
+            (sign * scene::dot(n, t.normal))
+                .clamp(-1.0, 1.0)
+                .acos()
+                .to_degrees()
+        };
+        rows.push((
+            angle(c.normal),
+            angle(c.pca_normal),
+            c.method,
+            c.faces,
+            zones.len(),
+            c.fit_rms.map(|r| r.map(|r| r / voxel)),
+            c.gap.map(|g| g / voxel),
+        ));
+    }
+    rows.sort_by(|x, y| y.0.total_cmp(&x.0));
+    for r in rows.iter().take(15) {
+        eprintln!(
+            "    fit {:5.2}° pca {:5.2}° {} faces {} zones {} rms {:.2?} gap {:.2?}",
+            r.0, r.1, r.2, r.3, r.4, r.5, r.6
+        );
+    }
+    let rms: Vec<f64> = rows
+        .iter()
+        .flat_map(|r| r.5.into_iter().flatten())
+        .collect();
+    eprintln!(
+        "    rms quantiles 10/50/90: {:.2} {:.2} {:.2}",
+        synth::quantile(&rms, 0.1),
+        synth::quantile(&rms, 0.5),
+        synth::quantile(&rms, 0.9)
+    );
 }

@@ -42,6 +42,9 @@ __all__ = [
     "dem",
     "detect",
     "packing",
+    "LabelImport",
+    "import_labels",
+    "import_imaged11",
     "InfeasibleError",
     "SolverError",
     "FrameFailureWarning",
@@ -470,4 +473,204 @@ def detect(
     lo, hi = radius
     return _table(
         _native.detect(np.ascontiguousarray(array), float(lo), float(hi), polarity, smoothing)
+    )
+
+
+class LabelImport:
+    """A label volume's import (``grainforce import labels``).
+
+    ``scene`` (grains and contacts; stresses zero unless attached),
+    ``quality`` (contacts_quality.csv: every touching zone, kept or not, with
+    its area, fitted gap, grey evidence and the standard PCA normal),
+    ``rattlers`` and ``cut`` (grain ids), ``warnings``, and with stresses
+    attached ``stress_match`` (stress_match.csv: grain, source, distance) and
+    ``transform`` (stress_match.json: rotation, translation, residual).
+    ``save(path)`` writes the folder the CLI writes.
+    """
+
+    __slots__ = ("_native", "scene", "quality", "stress_match", "transform")
+
+    def __init__(self, native: "_native.LabelImport"):
+        self._native = native
+        self.scene = Scene(native.scene())
+        self.quality = _pd.read_csv(
+            io.StringIO(native.quality_csv()), dtype={"contact": str, "a": str, "b": str}
+        )
+        matched = native.stress_match()
+        if matched is None:
+            self.stress_match = None
+            self.transform = None
+        else:
+            header = ("grain", "source")
+            self.stress_match = _pd.read_csv(
+                io.StringIO(matched[0]), dtype={c: str for c in header}
+            )
+            self.transform = json.loads(matched[1])
+
+    @property
+    def rattlers(self) -> list:
+        return self._native.rattlers
+
+    @property
+    def cut(self) -> list:
+        return self._native.cut
+
+    @property
+    def warnings(self) -> list:
+        return self._native.warnings
+
+    def save(self, path: Union[str, os.PathLike]) -> None:
+        """Writes the scene folder, contacts_quality.csv and (with stresses) stress_match.*."""
+        self._native.save(os.fspath(path))
+
+    def __repr__(self) -> str:
+        extra = ""
+        if self.transform is not None:
+            extra = f", {self.transform['matched']} stresses attached"
+        return f"LabelImport({self.scene!r}, {len(self.rattlers)} rattlers{extra})"
+
+
+def _wall_specs(walls: Any) -> list:
+    if walls is None:
+        return []
+    if isinstance(walls, Mapping):
+        out = []
+        for name, spec in walls.items():
+            try:
+                axis, position = spec
+            except (TypeError, ValueError):
+                raise ValueError(
+                    f"walls[{name!r}]: expected (axis, position), e.g. ('z', 0.0), got {spec!r}"
+                ) from None
+            out.append(f"{name}:{axis}={float(position)!r}")
+        return out
+    if isinstance(walls, str):
+        return [walls]
+    return [str(w) for w in walls]
+
+
+def import_labels(
+    volume: Any,
+    voxel_size: float,
+    *,
+    origin: Optional[Sequence[float]] = None,
+    grey: Any = None,
+    walls: Any = None,
+    container: Optional[int] = None,
+    density: Optional[float] = None,
+    normals: str = "fit",
+    max_gap: Optional[float] = None,
+    min_grey: float = 0.9,
+    stresses: Any = None,
+    match_distance: Optional[float] = None,
+    match_transform: str = "rigid",
+) -> LabelImport:
+    """Grains and contacts from a labelled CT volume (``grainforce import labels``).
+
+    volume: a 3D integer array indexed (z, y, x), each voxel its grain's
+    label, 0 = void. Voxel [z, y, x] is centred at origin + voxel_size·(x, y, z)
+    (metres). grey: the CT it was segmented from (same shape): grey-level
+    evidence per contact, necks darker than ``min_grey`` dropped. walls:
+    plane walls, ``{"bottom": ("z", 0.0)}`` or ``["bottom:z=0"]``.
+    container: the label that is the container. density: kg/m³, gives masses
+    and inertia tensors. normals: ``"fit"`` (local surface fits) or ``"pca"``
+    (the field's standard). max_gap: drop zones whose fitted gap exceeds the
+    median by this many voxels.
+
+    stresses: per-grain stresses to attach by position (a Scene, e.g. from
+    :func:`import_imaged11`, a scene folder or CSV path, or a table with id,
+    x, y, z, s_xx … s_yz in SI); the rigid transform between the two frames
+    is fitted (``match_transform="none"``: the same frame) and stresses are
+    rotated into the CT frame. Runs with the GIL released.
+    """
+    array = np.asarray(volume)
+    if array.ndim != 3:
+        raise ValueError(f"import_labels() needs a 3D array (z, y, x), got shape {array.shape}")
+    if array.dtype.kind == "b":
+        array = array.astype(np.uint8)
+    if array.dtype.kind not in "iu":
+        raise ValueError(
+            f"import_labels() needs an integer label volume, got dtype {array.dtype} "
+            "(convert whole-valued floats with .astype(np.uint32))"
+        )
+    array = np.ascontiguousarray(array, dtype=array.dtype.newbyteorder("="))
+    grey_array = None
+    if grey is not None:
+        grey_array = np.ascontiguousarray(np.asarray(grey), dtype=np.float32)
+        if grey_array.shape != array.shape:
+            raise ValueError(
+                f"grey has shape {grey_array.shape}, the volume {array.shape}"
+            )
+    if origin is not None:
+        origin = [float(x) for x in origin]
+        if len(origin) != 3:
+            raise ValueError(f"origin needs 3 numbers (x, y, z), got {len(origin)}")
+
+    def run(stress_path: Optional[str]) -> LabelImport:
+        return LabelImport(
+            _native.import_labels(
+                array,
+                float(voxel_size),
+                origin,
+                grey_array,
+                _wall_specs(walls),
+                container,
+                density,
+                normals,
+                max_gap,
+                float(min_grey),
+                stress_path,
+                match_distance,
+                match_transform,
+            )
+        )
+
+    if stresses is None:
+        return run(None)
+    if isinstance(stresses, (str, os.PathLike)):
+        return run(os.fspath(stresses))
+    with tempfile.TemporaryDirectory(prefix="grainforce-") as folder:
+        if isinstance(stresses, Scene):
+            stresses.save(folder)
+            path = folder
+        else:
+            path = os.path.join(folder, "stresses.csv")
+            _write_table(path, "stresses", stresses)
+        try:
+            return run(path)
+        except ValueError as e:
+            message = str(e).replace(folder + os.sep, "").replace(folder, "stresses")
+            raise type(e)(message) from None
+
+
+def import_imaged11(
+    path: Union[str, os.PathLike],
+    *,
+    cell: Sequence[float],
+    stiffness: str,
+    grain_volume: Optional[float] = None,
+    contacts: Optional[Union[str, os.PathLike]] = None,
+) -> Scene:
+    """A 3D scene from an ImageD11 grain map (``.map``/``.ubi``;
+    ``grainforce import imaged11``): positions from ``#translation`` (µm →
+    m), sample-frame stresses from the UBIs (Biot strain of the polar
+    decomposition, Hooke's law in the x ∥ a* crystal frame, docs/field.md).
+
+    cell: a, b, c (Å), α, β, γ (degrees) of the unstrained crystal.
+    stiffness: a preset (quartz, zirconium, …) or constants as the CLI takes
+    them. grain_volume: m³, given to every grain (a map has none; any value
+    will do when the stresses go to :func:`import_labels`). contacts: a
+    contact list CSV (as ``import gff`` reads it).
+    """
+    cell = [float(x) for x in cell]
+    if len(cell) != 6:
+        raise ValueError(f"cell needs 6 numbers (a, b, c, alpha, beta, gamma), got {len(cell)}")
+    return Scene(
+        _native.import_imaged11(
+            os.fspath(path),
+            cell,
+            stiffness,
+            grain_volume,
+            None if contacts is None else os.fspath(contacts),
+        )
     )

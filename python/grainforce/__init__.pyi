@@ -159,3 +159,50 @@ def detect(
     smoothing: Optional[float] = None,
 ) -> Table:
     """Finds disks in a grey image: columns x, y, r, support, visible, contrast, rms."""
+
+class LabelImport:
+    """A label volume's import: scene, quality (contacts_quality.csv),
+    rattlers, cut, warnings, and with stresses attached stress_match
+    (stress_match.csv) and transform (stress_match.json)."""
+
+    scene: Scene
+    quality: Table
+    stress_match: Optional[Table]
+    transform: Optional[dict[str, Any]]
+    @property
+    def rattlers(self) -> list[str]: ...
+    @property
+    def cut(self) -> list[str]: ...
+    @property
+    def warnings(self) -> list[str]: ...
+    def save(self, path: PathLike) -> None:
+        """Writes the folder `grainforce import labels` writes."""
+
+def import_labels(
+    volume: npt.ArrayLike,
+    voxel_size: float,
+    *,
+    origin: Optional[Sequence[float]] = None,
+    grey: Optional[npt.ArrayLike] = None,
+    walls: Union[None, Mapping[str, Tuple[str, float]], Sequence[str]] = None,
+    container: Optional[int] = None,
+    density: Optional[float] = None,
+    normals: Literal["fit", "pca"] = "fit",
+    max_gap: Optional[float] = None,
+    min_grey: float = 0.9,
+    stresses: Union[None, Scene, PathLike, Table] = None,
+    match_distance: Optional[float] = None,
+    match_transform: Literal["rigid", "none"] = "rigid",
+) -> LabelImport:
+    """Grains and contacts from a labelled CT volume (z, y, x), optionally with
+    per-grain stresses attached by position (`grainforce import labels`)."""
+
+def import_imaged11(
+    path: PathLike,
+    *,
+    cell: Sequence[float],
+    stiffness: str,
+    grain_volume: Optional[float] = None,
+    contacts: Optional[PathLike] = None,
+) -> Scene:
+    """A 3D scene from an ImageD11 grain map (`grainforce import imaged11`)."""

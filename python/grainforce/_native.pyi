@@ -60,3 +60,38 @@ def detect(
     smoothing: Optional[float] = None,
 ) -> Columns: ...
 def write_table(path: str, names: list[str], columns: list[Any]) -> None: ...
+
+class LabelImport:
+    def scene(self) -> Scene: ...
+    def quality_csv(self) -> str: ...
+    @property
+    def rattlers(self) -> list[str]: ...
+    @property
+    def cut(self) -> list[str]: ...
+    @property
+    def warnings(self) -> list[str]: ...
+    def stress_match(self) -> Optional[tuple[str, str]]: ...
+    def save(self, path: str) -> None: ...
+
+def import_labels(
+    volume: npt.NDArray[Any],
+    voxel_size: float,
+    origin: Optional[list[float]] = None,
+    grey: Optional[npt.NDArray[np.float32]] = None,
+    walls: list[str] = ...,
+    container: Optional[int] = None,
+    density: Optional[float] = None,
+    normals: str = "fit",
+    max_gap: Optional[float] = None,
+    min_grey: float = 0.9,
+    stresses: Optional[str] = None,
+    match_distance: Optional[float] = None,
+    match_transform: str = "rigid",
+) -> LabelImport: ...
+def import_imaged11(
+    path: str,
+    cell: list[float],
+    stiffness: str,
+    grain_volume: Optional[float] = None,
+    contacts: Optional[str] = None,
+) -> Scene: ...

@@ -7,7 +7,9 @@ use grainforce::error::Error;
 use grainforce::infer::run::{self, Event, Source};
 use grainforce::infer::InferConfig;
 use grainforce::scene::{self, ForceRow, Forces};
-use numpy::{PyArray1, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
+use numpy::{
+    PyArray1, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArray3, PyUntypedArrayMethods,
+};
 use pyo3::create_exception;
 use pyo3::exceptions::{PyFileNotFoundError, PyOSError, PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
@@ -531,6 +533,200 @@ fn detect<'py>(
     Ok(table)
 }
 
+/// A label volume as NumPy holds it: any integer type a segmentation writes.
+#[derive(FromPyObject)]
+enum LabelArray<'py> {
+    U8(PyReadonlyArray3<'py, u8>),
+    U16(PyReadonlyArray3<'py, u16>),
+    U32(PyReadonlyArray3<'py, u32>),
+    U64(PyReadonlyArray3<'py, u64>),
+    I8(PyReadonlyArray3<'py, i8>),
+    I16(PyReadonlyArray3<'py, i16>),
+    I32(PyReadonlyArray3<'py, i32>),
+    I64(PyReadonlyArray3<'py, i64>),
+}
+
+/// A label import: the scene, every touching zone's measurements and,
+/// with stresses attached, the match.
+#[pyclass(frozen, module = "grainforce._native")]
+struct LabelImport {
+    imported: grainforce::import::labels::LabelScene,
+    matched: Option<grainforce::import::register::StressMatch>,
+}
+
+#[pymethods]
+impl LabelImport {
+    fn scene(&self) -> Scene {
+        Scene {
+            frames: vec![self.imported.scene.clone()],
+        }
+    }
+
+    /// contacts_quality.csv's text.
+    fn quality_csv(&self) -> String {
+        self.imported.quality_csv()
+    }
+
+    #[getter]
+    fn rattlers(&self) -> Vec<String> {
+        self.imported.rattlers.clone()
+    }
+
+    #[getter]
+    fn cut(&self) -> Vec<String> {
+        self.imported.cut.clone()
+    }
+
+    #[getter]
+    fn warnings(&self) -> Vec<String> {
+        let mut w = self.imported.warnings.clone();
+        if let Some(m) = &self.matched {
+            w.extend(m.warnings.iter().cloned());
+        }
+        w
+    }
+
+    /// stress_match.csv and stress_match.json's texts, when stresses were attached.
+    fn stress_match(&self) -> Option<(String, String)> {
+        self.matched.as_ref().map(|m| m.texts())
+    }
+
+    /// Writes the folder `grainforce import labels` writes.
+    fn save(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
+        py.detach(|| {
+            self.imported.write(&path)?;
+            if let Some(m) = &self.matched {
+                m.write(&path)?;
+            }
+            Ok::<_, Error>(())
+        })
+        .map_err(to_py)
+    }
+}
+
+/// Imports a labelled volume (z, y, x) into grains and contacts
+/// (`grainforce import labels`), optionally attaching per-grain stresses
+/// from a scene folder or CSV by position.
+#[pyfunction]
+#[pyo3(signature = (volume, voxel_size, origin=None, grey=None, walls=Vec::new(), container=None, density=None, normals="fit", max_gap=None, min_grey=0.9, stresses=None, match_distance=None, match_transform="rigid"))]
+#[allow(clippy::too_many_arguments)]
+fn import_labels(
+    py: Python<'_>,
+    volume: LabelArray<'_>,
+    voxel_size: f64,
+    origin: Option<[f64; 3]>,
+    grey: Option<PyReadonlyArray3<'_, f32>>,
+    walls: Vec<String>,
+    container: Option<u32>,
+    density: Option<f64>,
+    normals: &str,
+    max_gap: Option<f64>,
+    min_grey: f64,
+    stresses: Option<PathBuf>,
+    match_distance: Option<f64>,
+    match_transform: &str,
+) -> PyResult<LabelImport> {
+    use grainforce::import::labels::{self, NormalMethod, Options, WallPlane};
+    use grainforce::import::register::{self, MatchOptions, TransformModel};
+    let walls = walls
+        .iter()
+        .map(|w| WallPlane::parse(w))
+        .collect::<grainforce::Result<Vec<_>>>()
+        .map_err(to_py)?;
+    let options = Options {
+        voxel_size,
+        origin: origin.unwrap_or([0.0; 3]),
+        walls,
+        container,
+        normals: NormalMethod::parse(normals).map_err(to_py)?,
+        density,
+        max_gap,
+        min_grey,
+        ..Options::default()
+    };
+    let transform = TransformModel::parse(match_transform).map_err(to_py)?;
+    let source = match &stresses {
+        Some(p) => Some(
+            py.detach(|| register::read_stressed_grains(p))
+                .map_err(to_py)?,
+        ),
+        None => None,
+    };
+    let not_contiguous =
+        |_| PyValueError::new_err("the volume must be a C-contiguous array (np.ascontiguousarray)");
+    let grey_data = match &grey {
+        Some(g) => Some((g.as_slice().map_err(not_contiguous)?, g.shape().to_vec())),
+        None => None,
+    };
+    macro_rules! run {
+        ($a:expr) => {{
+            let shape = $a.shape().to_vec();
+            let data = $a.as_slice().map_err(not_contiguous)?;
+            if let Some((_, gs)) = &grey_data {
+                if *gs != shape {
+                    return Err(PyValueError::new_err(format!(
+                        "grey has shape {gs:?}, the volume {shape:?}"
+                    )));
+                }
+            }
+            let g = grey_data.as_ref().map(|(g, _)| *g);
+            py.detach(|| labels::import_array(data, [shape[0], shape[1], shape[2]], g, &options))
+        }};
+    }
+    let mut imported = match &volume {
+        LabelArray::U8(a) => run!(a),
+        LabelArray::U16(a) => run!(a),
+        LabelArray::U32(a) => run!(a),
+        LabelArray::U64(a) => run!(a),
+        LabelArray::I8(a) => run!(a),
+        LabelArray::I16(a) => run!(a),
+        LabelArray::I32(a) => run!(a),
+        LabelArray::I64(a) => run!(a),
+    }
+    .map_err(to_py)?;
+    let matched = match &source {
+        Some(source) => {
+            let options = MatchOptions {
+                max_distance: match_distance,
+                transform,
+                ..MatchOptions::default()
+            };
+            Some(
+                py.detach(|| register::attach_stresses(&mut imported.scene, source, &options))
+                    .map_err(to_py)?,
+            )
+        }
+        None => None,
+    };
+    Ok(LabelImport { imported, matched })
+}
+
+/// Imports an ImageD11 grain map (`.map`/`.ubi`) into a 3D scene with
+/// sample-frame stresses (`grainforce import imaged11`).
+#[pyfunction]
+#[pyo3(signature = (path, cell, stiffness, grain_volume=None, contacts=None))]
+fn import_imaged11(
+    py: Python<'_>,
+    path: PathBuf,
+    cell: [f64; 6],
+    stiffness: &str,
+    grain_volume: Option<f64>,
+    contacts: Option<PathBuf>,
+) -> PyResult<Scene> {
+    use grainforce::import::{imaged11, stiffness::Stiffness};
+    let options = imaged11::Options {
+        cell,
+        stiffness: Stiffness::parse(stiffness).map_err(to_py)?,
+        grain_volume,
+    };
+    let imported = py
+        .detach(|| imaged11::import(&path, contacts.as_deref(), &options))
+        .map_err(to_py)?;
+    Ok(Scene {
+        frames: imported.frames,
+    })
+}
+
 #[pymodule]
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Scene>()?;
@@ -542,6 +738,9 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(detect, m)?)?;
     m.add_function(wrap_pyfunction!(packing, m)?)?;
     m.add_function(wrap_pyfunction!(write_table, m)?)?;
+    m.add_class::<LabelImport>()?;
+    m.add_function(wrap_pyfunction!(import_labels, m)?)?;
+    m.add_function(wrap_pyfunction!(import_imaged11, m)?)?;
     m.add("InfeasibleError", m.py().get_type::<InfeasibleError>())?;
     m.add("SolverError", m.py().get_type::<SolverError>())?;
     Ok(())

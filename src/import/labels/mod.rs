@@ -199,6 +199,10 @@ pub struct DetectedContact {
     pub gap: Option<f64>,
     /// Grey-level evidence of solid at the neck, 0 = void grey, 1 = solid grey.
     pub grey: Option<f64>,
+    /// Rms distance of each side's surface faces from its fitted sphere [m]
+    /// (a confidence in that side's fit: about a third of a voxel on a
+    /// sphere, more where a flat face or another lobe came into the fit).
+    pub fit_rms: [Option<f64>; 2],
     /// Whether the contact passed the filters and is in the scene.
     pub kept: bool,
 }
@@ -498,6 +502,11 @@ pub fn import_source(
         }
         std::mem::swap(&mut prev, &mut cur);
         std::mem::swap(&mut gprev, &mut gcur);
+        // Both slices were copied out: slice z is not read again in this pass.
+        labels.release(z, z + 1);
+        if let Some(g) = grey.as_deref_mut() {
+            g.release(z, z + 1);
+        }
     }
     if scan.labels.is_empty() {
         return Err(Error::Invalid(
@@ -835,6 +844,8 @@ struct SphereFit {
     origin: [f64; 3],
     ata: [[f64; 4]; 4],
     atb: [f64; 4],
+    /// Σ rhs², for the residual of the solution.
+    btb: f64,
     n: usize,
 }
 
@@ -853,6 +864,7 @@ impl SphereFit {
             }
             self.atb[i] += row[i] * rhs;
         }
+        self.btb += rhs * rhs;
         self.n += 1;
     }
 
@@ -864,11 +876,18 @@ impl SphereFit {
             }
             self.atb[i] += other.atb[i];
         }
+        self.btb += other.btb;
         self.n += other.n;
     }
 
     /// Centre and radius, when well determined.
     fn solve(&self, min_faces: usize) -> Option<([f64; 3], f64)> {
+        self.solve_with_rms(min_faces).map(|(c, r, _)| (c, r))
+    }
+
+    /// Centre, radius and the rms distance of the faces from the sphere
+    /// (voxels): the algebraic residual |d|² − 2c·d − k ≈ 2r (|d − c| − r).
+    fn solve_with_rms(&self, min_faces: usize) -> Option<([f64; 3], f64, f64)> {
         if self.n < min_faces.max(4) {
             return None;
         }
@@ -880,13 +899,16 @@ impl SphereFit {
         if !(r2 > 0.0 && r2.is_finite()) {
             return None;
         }
+        let sse = (self.btb - 2.0 * x.dot(&b) + x.dot(&(a * x))).max(0.0);
+        let r = r2.sqrt();
         Some((
             [
                 c[0] + self.origin[0],
                 c[1] + self.origin[1],
                 c[2] + self.origin[2],
             ],
-            r2.sqrt(),
+            r,
+            (sse / self.n as f64).sqrt() / (2.0 * r),
         ))
     }
 }
@@ -1078,6 +1100,11 @@ fn surface_pass(
             for s in sums {
                 add(s?);
             }
+            // No thread reads now; the next batch starts one slice lower
+            // (its first slab's neighbour below), which stays mapped.
+            if let (Some(&(z0, _)), Some(&(_, z1))) = (batch.first(), batch.last()) {
+                shared.release_at(z0.saturating_sub(1), z1.saturating_sub(1));
+            }
         }
     } else {
         add(slab(0, nz, &mut |z, out| labels.labels(z, out))?);
@@ -1108,15 +1135,17 @@ fn contacts_of(
     let s = options.voxel_size;
     let mut out = Vec::new();
     for (k, z) in zones.iter().enumerate() {
-        let fa = fits.sides[k][0].solve(options.fit.min_faces);
-        let fb = fits.sides[k][1].solve(options.fit.min_faces);
+        let fa = fits.sides[k][0].solve_with_rms(options.fit.min_faces);
+        let fb = fits.sides[k][1].solve_with_rms(options.fit.min_faces);
+        let fit_rms = [fa.map(|f| f.2 * s), fb.map(|f| f.2 * s)];
         // A fit far from the grain's size is of something else (a flat face,
         // a neck): not trusted.
-        let sane = |f: Option<([f64; 3], f64)>, g: usize| {
-            f.filter(|(_, r)| {
+        let sane = |f: Option<([f64; 3], f64, f64)>, g: usize| {
+            f.filter(|(_, r, _)| {
                 let rg = grains[g].radius_voxels;
                 *r > 0.25 * rg && *r < 4.0 * rg
             })
+            .map(|(c, r, _)| (c, r))
         };
         let fa = sane(fa, z.a as usize);
         let (mut point, mut normal, mut method, mut gap) = (z.centre, z.pca_normal, "pca", None);
@@ -1174,6 +1203,7 @@ fn contacts_of(
             pca_point: to_metres(z.centre, options),
             gap,
             grey: z.grey,
+            fit_rms,
             kept,
         });
     }
@@ -1211,6 +1241,7 @@ fn contacts_of(
             pca_point: p,
             gap: None,
             grey: None,
+            fit_rms: [None, None],
             kept: true,
         });
     }
@@ -1355,7 +1386,7 @@ impl LabelScene {
     /// The text of `contacts_quality.csv`.
     pub fn quality_csv(&self) -> String {
         let mut text = String::from(
-            "contact,a,b,zone,kept,method,faces,area,gap,grey,x,y,z,n_x,n_y,n_z,pca_x,pca_y,pca_z,pca_n_x,pca_n_y,pca_n_z\n",
+            "contact,a,b,zone,kept,method,faces,area,gap,grey,x,y,z,n_x,n_y,n_z,pca_x,pca_y,pca_z,pca_n_x,pca_n_y,pca_n_z,fit_rms_a,fit_rms_b\n",
         );
         let wall_name = |w: usize| -> String {
             self.scene
@@ -1371,7 +1402,7 @@ impl LabelScene {
             };
             let id = if c.kept { i.to_string() } else { String::new() };
             text.push_str(&format!(
-                "{id},{},{b},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
+                "{id},{},{b},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
                 c.a,
                 c.zone,
                 c.kept as u8,
@@ -1392,8 +1423,45 @@ impl LabelScene {
                 c.pca_normal[0],
                 c.pca_normal[1],
                 c.pca_normal[2],
+                opt(c.fit_rms[0]),
+                opt(c.fit_rms[1]),
             ));
         }
         text
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::SphereFit;
+
+    /// Points at radius 10 ± e (alternating) about (3, −2, 5): the fit finds
+    /// the sphere and its rms distance is e, to first order in e/r.
+    #[test]
+    fn sphere_fit_rms_is_the_faces_distance_from_the_sphere() {
+        let centre = [3.0, -2.0, 5.0];
+        for e in [0.0, 0.3, 0.5] {
+            let mut fit = SphereFit {
+                origin: [2.0, -1.0, 4.0],
+                ..SphereFit::default()
+            };
+            for i in 0..400 {
+                let z = 1.0 - 2.0 * (i as f64 + 0.5) / 400.0;
+                let phi = i as f64 * std::f64::consts::PI * (3.0 - 5f64.sqrt());
+                let s = (1.0 - z * z).sqrt();
+                let r = 10.0 + if i % 2 == 0 { e } else { -e };
+                fit.add([
+                    centre[0] + r * s * phi.cos(),
+                    centre[1] + r * s * phi.sin(),
+                    centre[2] + r * z,
+                ]);
+            }
+            let (c, r, rms) = fit.solve_with_rms(12).expect("a sphere");
+            for k in 0..3 {
+                assert!((c[k] - centre[k]).abs() < 0.02, "{c:?}");
+            }
+            assert!((r - 10.0).abs() < 0.02 + 0.01 * e, "r {r}");
+            assert!((rms - e).abs() < 0.02, "e {e}: rms {rms}");
+        }
     }
 }

@@ -133,12 +133,17 @@ pub trait SliceSource {
     fn shared(&self) -> Option<&dyn SharedSource> {
         None
     }
+    /// Slices `z0..z1` will not be read again in this pass (a memory-mapped
+    /// file gives their pages back, so that resident memory stays O(slab)).
+    fn release(&mut self, _z0: usize, _z1: usize) {}
 }
 
 /// A volume whose slices can be read in any order from any thread.
 pub trait SharedSource: Sync {
     /// As [`SliceSource::labels`].
     fn labels_at(&self, z: usize, out: &mut [u32]) -> Result<()>;
+    /// As [`SliceSource::release`]; called when no thread is reading.
+    fn release_at(&self, _z0: usize, _z1: usize) {}
 }
 
 fn not_a_label(origin: &Path, z: usize, index: usize, nx: usize, value: f64) -> Error {
@@ -282,6 +287,37 @@ impl MappedSource {
         let n = self.shape[1] * self.shape[2] * self.dtype.size();
         &self.map[self.offset + z * n..self.offset + (z + 1) * n]
     }
+
+    /// Drops the mapped pages of slices `z0..z1` from this process (they
+    /// stay in the page cache): without it a pass over a 2 GB file leaves
+    /// 2 GB resident.
+    fn drop_pages(&self, z0: usize, z1: usize) {
+        #[cfg(unix)]
+        {
+            // 64 KiB: a multiple of every page size in use, so both ends are
+            // page-aligned whatever the machine's.
+            const ALIGN: usize = 1 << 16;
+            let n = self.shape[1] * self.shape[2] * self.dtype.size();
+            let start = (self.offset + z0 * n).div_ceil(ALIGN) * ALIGN;
+            let end =
+                ((self.offset + z1.min(self.shape[0]) * n) / ALIGN * ALIGN).min(self.map.len());
+            if end > start {
+                // SAFETY: a read-only map of a file: MADV_DONTNEED only makes
+                // the next read fault the same bytes in again from the page
+                // cache. Every read copies out of the map and returns before
+                // a range is released, so no borrow of it is alive.
+                let _ = unsafe {
+                    self.map.unchecked_advise_range(
+                        memmap2::UncheckedAdvice::DontNeed,
+                        start,
+                        end - start,
+                    )
+                };
+            }
+        }
+        #[cfg(not(unix))]
+        let _ = (z0, z1);
+    }
 }
 
 impl SliceSource for MappedSource {
@@ -305,9 +341,17 @@ impl SliceSource for MappedSource {
     fn shared(&self) -> Option<&dyn SharedSource> {
         Some(self)
     }
+
+    fn release(&mut self, z0: usize, z1: usize) {
+        self.drop_pages(z0, z1);
+    }
 }
 
 impl SharedSource for MappedSource {
+    fn release_at(&self, z0: usize, z1: usize) {
+        self.drop_pages(z0, z1);
+    }
+
     fn labels_at(&self, z: usize, out: &mut [u32]) -> Result<()> {
         let size = self.dtype.size();
         let bytes = self.slice_bytes(z);
