@@ -47,7 +47,7 @@ pub(super) fn border_columns(num: &Numeric, changes: &Changes, delta: f64) -> Ve
 }
 
 /// A column of B (sparse) and its D.
-type BorderColumn = (Vec<(usize, f64)>, f64);
+pub(super) type BorderColumn = (Vec<(usize, f64)>, f64);
 
 impl Bordered {
     /// Whether this border already solved that column.

@@ -2,7 +2,7 @@
 //! against the unregularised KKT system.
 
 use super::active_rows::{ActiveRows, Changes};
-use super::border::{border_columns, Bordered, BORDER_MAX_ROWS};
+use super::border::{border_columns, BorderColumn, Bordered, BORDER_MAX_ROWS};
 use super::compressed::{abs_mul_scaled, abs_mul_t_scaled, mul_scaled, mul_t_scaled};
 use super::krylov;
 use super::numeric::{thread_count, Numeric};
@@ -90,59 +90,8 @@ impl EqualityLeastSquares {
         may_border: bool,
     ) -> Result<Attempt> {
         let n = self.n;
-        // On a factor of the same A, C, λ and δ, the rows that changed since
-        // it was computed (rows added, rows it holds that are no longer
-        // active) are bordered around it — one sparse forward solve each —
-        // instead of a new numeric factorisation, when those solves are
-        // modelled to cost less than it.
-        let mut changes = None;
-        // The border's columns, when the choice below already built them.
-        let mut built = None;
-        // The factor holds another, nearby λ: GMRES on the exact system.
-        let mut other_lambda = false;
-        if let (Some(num), Some(symbolic)) = (self.numeric.as_mut(), self.symbolic.as_ref()) {
-            // Only to the converged tolerance: to round-off GMRES took as
-            // many solves as the factorisation (10⁴ spheres: 30 steps).
-            let cheap = self.refine_to >= CONVERGED_TOL;
-            let bordering = self.bordering;
-            if may_border && cheap && nearby_lambda(num, bordering, a, c, lambda, delta, g, springs)
-            {
-                other_lambda = true;
-                changes = Some(Changes::unchanged(0));
-            } else if num.same_values(a, c, lambda, delta) {
-                if !num.active.same(g, springs) {
-                    num.active = ActiveRows::new(n, g, springs, &num.base.col_scale);
-                }
-                let diff = Changes::between(&num.in_factor, &num.active, &num.base.col_scale);
-                let k = diff.count();
-                // GMRES on a factor holding stale rows costs many solves.
-                let gmres_solves = if diff.any_stale() { STALE_SOLVES } else { 0.0 };
-                let reuse = match self.bordering {
-                    Bordering::Never => k == 0 && !diff.any_stale(),
-                    Bordering::Always => k <= BORDER_MAX_ROWS,
-                    Bordering::Auto if k == 0 => gmres_solves < num.factor_solves,
-                    Bordering::Auto if k > BORDER_MAX_ROWS => false,
-                    Bordering::Auto => {
-                        // Only the columns the last border did not solve cost solves.
-                        let columns = border_columns(num, &diff, delta);
-                        let factor = num.factor(symbolic);
-                        let fresh = (columns.iter())
-                            .filter(|col| !num.last_border.as_ref().is_some_and(|b| b.holds(col)))
-                            .map(|(entries, _)| entries.as_slice());
-                        let share = factor.reach_share(fresh)
-                            + factor.schur_share(columns.iter().map(|(e, _)| e.as_slice()));
-                        let solves = share / thread_count(self.par) as f64;
-                        built = Some(columns);
-                        solves + gmres_solves < num.factor_solves
-                    }
-                };
-                // Without `may_border` (the retry after a border or stale
-                // factor that did not refine) only the very same rows reuse it.
-                if reuse && (may_border || (k == 0 && !diff.any_stale())) {
-                    changes = Some(diff);
-                }
-            }
-        }
+        let (changes, built, other_lambda) =
+            self.reusable(a, c, lambda, delta, g, springs, may_border);
         let changes = match changes {
             Some(changes) => changes,
             None => {
@@ -243,8 +192,7 @@ impl EqualityLeastSquares {
         z.extend_from_slice(&d_hat);
         z.resize(size + mg, 0.0);
         kkt_solve(&mut z);
-        let (mut r, mut dual, mut primal) =
-            self.kkt_residual(num, &lambda2_s2, &ones_a, b, &d_hat, &z);
+        let (r, dual, primal) = self.kkt_residual(num, &lambda2_s2, &ones_a, b, &d_hat, &z);
         if !(dual.is_finite() && primal.is_finite()) {
             return Err(Error::Solver(
                 "the first KKT solve produced non-finite values (factor growth; the data are too badly scaled \
@@ -252,75 +200,11 @@ impl EqualityLeastSquares {
                     .into(),
             ));
         }
-        let mut best = (dual.max(primal), dual, primal, z.clone());
-        let mut steps = 0;
-        let mut stalled = 0;
-        // On a stale factor, refinement is GMRES preconditioned by the
-        // factor; stop it before it costs more than the factorisation it saves.
-        // (`Always` runs it to the end.)
-        let max_steps = if stale && self.bordering == Bordering::Auto {
-            (num.factor_solves as usize).clamp(4, MAX_REFINEMENT_STEPS)
-        } else {
-            MAX_REFINEMENT_STEPS
-        };
-        // K v = r(0) − r(v), for the Krylov steps on a stale factor.
-        let at_zero = stale.then(|| {
-            self.kkt_residual(num, &lambda2_s2, &ones_a, b, &d_hat, &vec![0.0; z.len()])
-                .0
-        });
-        while steps < max_steps && best.0 > self.refine_to && stalled < STALL_STEPS {
-            match &at_zero {
-                Some(r0) => {
-                    let mut apply = |v: &[f64]| {
-                        let rv = self.kkt_residual(num, &lambda2_s2, &ones_a, b, &d_hat, v).0;
-                        r0.iter().zip(&rv).map(|(a, b)| a - b).collect()
-                    };
-                    let budget = (max_steps - steps).min(KRYLOV_RESTART);
-                    // Only the reduction still needed (with a margin): the
-                    // relative KKT residual is not GMRES's 2-norm.
-                    let aim = (0.1 * self.refine_to / best.0).clamp(KRYLOV_TOL, 0.5);
-                    steps += krylov::gmres(&mut r, budget, aim, &mut kkt_solve, &mut apply).max(1);
-                }
-                None => {
-                    kkt_solve(&mut r);
-                    steps += 1;
-                }
-            }
-            for (zi, ri) in z.iter_mut().zip(&r) {
-                *zi += ri;
-            }
-            (r, dual, primal) = self.kkt_residual(num, &lambda2_s2, &ones_a, b, &d_hat, &z);
-            let rho = dual.max(primal);
-            if !rho.is_finite() {
-                break;
-            }
-            stalled = if rho < 0.9 * best.0 { 0 } else { stalled + 1 };
-            if rho < best.0 {
-                best = (rho, dual, primal, z.clone());
-            }
-        }
-        let x: Vec<f64> = best.3[..n]
-            .iter()
-            .zip(&num.base.col_scale)
-            .map(|(y, s)| y * s)
-            .collect();
-        if x.iter().any(|v| !v.is_finite()) {
-            return Err(Error::Solver(
-                "the solution overflows after unscaling".into(),
-            ));
-        }
-        // The refined system reads (AᵀA + λ²)x + … + Gᵀ(T w) = Aᵀb, so the
-        // multiplier of G x ≥ 0 in ∇ = Cᵀν + Gᵀy is y = −T w.
-        let equality_multipliers = best.3[n..size]
-            .iter()
-            .zip(&num.base.c_row_scale)
-            .map(|(m, t)| -m * t)
-            .collect();
-        let multipliers = best.3[size..]
-            .iter()
-            .zip(&num.active.row_scale)
-            .map(|(w, t)| -w * t)
-            .collect();
+        let residual = |z: &[f64]| self.kkt_residual(num, &lambda2_s2, &ones_a, b, &d_hat, z);
+        let first = (r, dual, primal);
+        let stale_solves = stale.then_some(num.factor_solves);
+        let (best, steps) = self.refine(z, first, stale_solves, &mut kkt_solve, &residual);
+        let (x, equality_multipliers, multipliers) = unscale(&best.3, num, n, size)?;
         if let Some(num) = self.numeric.as_mut() {
             num.last_border = bordered.or(previous);
         }
@@ -333,6 +217,142 @@ impl EqualityLeastSquares {
             steps,
             reused_factor: border || stale,
         })
+    }
+
+    /// Iterative refinement from z (its residual `first`): `kkt_solve`
+    /// steps, or on a stale factor (`stale_solves`: what factorising costs,
+    /// in solves) GMRES preconditioned by it, until the relative KKT
+    /// residual meets the target or stalls. Returns the best point
+    /// (residual, dual, primal, z) and the steps.
+    #[allow(clippy::type_complexity)]
+    fn refine(
+        &self,
+        mut z: Vec<f64>,
+        first: (Vec<f64>, f64, f64),
+        stale_solves: Option<f64>,
+        kkt_solve: &mut impl FnMut(&mut [f64]),
+        residual: &impl Fn(&[f64]) -> (Vec<f64>, f64, f64),
+    ) -> ((f64, f64, f64, Vec<f64>), usize) {
+        let stale = stale_solves.is_some();
+        // On a stale factor, refinement is GMRES preconditioned by the
+        // factor; stop it before it costs more than the factorisation it saves.
+        // (`Always` runs it to the end.)
+        let max_steps = if stale && self.bordering == Bordering::Auto {
+            (stale_solves.unwrap_or_default() as usize).clamp(4, MAX_REFINEMENT_STEPS)
+        } else {
+            MAX_REFINEMENT_STEPS
+        };
+        let (mut r, mut dual, mut primal) = first;
+        let mut best = (dual.max(primal), dual, primal, z.clone());
+        let mut steps = 0;
+        let mut stalled = 0;
+        // K v = r(0) − r(v), for the Krylov steps on a stale factor.
+        let at_zero = stale.then(|| residual(&vec![0.0; z.len()]).0);
+        while steps < max_steps && best.0 > self.refine_to && stalled < STALL_STEPS {
+            match &at_zero {
+                Some(r0) => {
+                    let mut apply = |v: &[f64]| {
+                        let rv = residual(v).0;
+                        r0.iter().zip(&rv).map(|(a, b)| a - b).collect()
+                    };
+                    let budget = (max_steps - steps).min(KRYLOV_RESTART);
+                    // Only the reduction still needed (with a margin): the
+                    // relative KKT residual is not GMRES's 2-norm.
+                    let aim = (0.1 * self.refine_to / best.0).clamp(KRYLOV_TOL, 0.5);
+                    steps += krylov::gmres(&mut r, budget, aim, kkt_solve, &mut apply).max(1);
+                }
+                None => {
+                    kkt_solve(&mut r);
+                    steps += 1;
+                }
+            }
+            for (zi, ri) in z.iter_mut().zip(&r) {
+                *zi += ri;
+            }
+            (r, dual, primal) = residual(&z);
+            let rho = dual.max(primal);
+            if !rho.is_finite() {
+                break;
+            }
+            stalled = if rho < 0.9 * best.0 { 0 } else { stalled + 1 };
+            if rho < best.0 {
+                best = (rho, dual, primal, z.clone());
+            }
+        }
+        (best, steps)
+    }
+
+    /// Whether the factor in hand serves these rows: on a factor of the same
+    /// A, C, λ and δ, the rows that changed (bordered around it), or a nearby
+    /// λ (GMRES on the exact system). Returns the changes (`None`: factorise
+    /// anew), the border's columns when the choice built them, and whether
+    /// the factor holds another λ.
+    #[allow(clippy::too_many_arguments, clippy::type_complexity)]
+    fn reusable(
+        &mut self,
+        a: &Triplets,
+        c: &Triplets,
+        lambda: f64,
+        delta: f64,
+        g: &Triplets,
+        springs: &Triplets,
+        may_border: bool,
+    ) -> (Option<Changes>, Option<Vec<BorderColumn>>, bool) {
+        let n = self.n;
+        // On a factor of the same A, C, λ and δ, the rows that changed since
+        // it was computed (rows added, rows it holds that are no longer
+        // active) are bordered around it — one sparse forward solve each —
+        // instead of a new numeric factorisation, when those solves are
+        // modelled to cost less than it.
+        let mut changes = None;
+        // The border's columns, when the choice below already built them.
+        let mut built = None;
+        // The factor holds another, nearby λ: GMRES on the exact system.
+        let mut other_lambda = false;
+        if let (Some(num), Some(symbolic)) = (self.numeric.as_mut(), self.symbolic.as_ref()) {
+            // Only to the converged tolerance: to round-off GMRES took as
+            // many solves as the factorisation (10⁴ spheres: 30 steps).
+            let cheap = self.refine_to >= CONVERGED_TOL;
+            let bordering = self.bordering;
+            if may_border && cheap && nearby_lambda(num, bordering, a, c, lambda, delta, g, springs)
+            {
+                other_lambda = true;
+                changes = Some(Changes::unchanged(0));
+            } else if num.same_values(a, c, lambda, delta) {
+                if !num.active.same(g, springs) {
+                    num.active = ActiveRows::new(n, g, springs, &num.base.col_scale);
+                }
+                let diff = Changes::between(&num.in_factor, &num.active, &num.base.col_scale);
+                let k = diff.count();
+                // GMRES on a factor holding stale rows costs many solves.
+                let gmres_solves = if diff.any_stale() { STALE_SOLVES } else { 0.0 };
+                let reuse = match self.bordering {
+                    Bordering::Never => k == 0 && !diff.any_stale(),
+                    Bordering::Always => k <= BORDER_MAX_ROWS,
+                    Bordering::Auto if k == 0 => gmres_solves < num.factor_solves,
+                    Bordering::Auto if k > BORDER_MAX_ROWS => false,
+                    Bordering::Auto => {
+                        // Only the columns the last border did not solve cost solves.
+                        let columns = border_columns(num, &diff, delta);
+                        let factor = num.factor(symbolic);
+                        let fresh = (columns.iter())
+                            .filter(|col| !num.last_border.as_ref().is_some_and(|b| b.holds(col)))
+                            .map(|(entries, _)| entries.as_slice());
+                        let share = factor.reach_share(fresh)
+                            + factor.schur_share(columns.iter().map(|(e, _)| e.as_slice()));
+                        let solves = share / thread_count(self.par) as f64;
+                        built = Some(columns);
+                        solves + gmres_solves < num.factor_solves
+                    }
+                };
+                // Without `may_border` (the retry after a border or stale
+                // factor that did not refine) only the very same rows reuse it.
+                if reuse && (may_border || (k == 0 && !diff.any_stale())) {
+                    changes = Some(diff);
+                }
+            }
+        }
+        (changes, built, other_lambda)
     }
 
     /// Residual of the unregularised equilibrated KKT system at z = (y, μ, w), and
@@ -467,6 +487,39 @@ fn nearby_lambda(
         && base.delta == delta
         && base.a_vals == a.vals
         && base.c_vals == c.vals
+}
+
+/// The answer and the multipliers in the problem's units from the refined
+/// z = (y, μ, w) of the equilibrated system.
+fn unscale(
+    z: &[f64],
+    num: &Numeric,
+    n: usize,
+    size: usize,
+) -> Result<(Vec<f64>, Vec<f64>, Vec<f64>)> {
+    let x: Vec<f64> = z[..n]
+        .iter()
+        .zip(&num.base.col_scale)
+        .map(|(y, s)| y * s)
+        .collect();
+    if x.iter().any(|v| !v.is_finite()) {
+        return Err(Error::Solver(
+            "the solution overflows after unscaling".into(),
+        ));
+    }
+    // The refined system reads (AᵀA + λ²)x + … + Gᵀ(T w) = Aᵀb, so the
+    // multiplier of G x ≥ 0 in ∇ = Cᵀν + Gᵀy is y = −T w.
+    let equality_multipliers = z[n..size]
+        .iter()
+        .zip(&num.base.c_row_scale)
+        .map(|(m, t)| -m * t)
+        .collect();
+    let multipliers = z[size..]
+        .iter()
+        .zip(&num.active.row_scale)
+        .map(|(w, t)| -w * t)
+        .collect();
+    Ok((x, equality_multipliers, multipliers))
 }
 
 #[cfg(test)]
