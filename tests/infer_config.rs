@@ -389,16 +389,8 @@ fn config_file_errors_name_the_file_and_the_field() {
     for (text, expected) in cases {
         let file = dir.path().join("bad.json");
         std::fs::write(&file, text).unwrap();
-        let o = cli(&[
-            "infer",
-            OEDOMETER,
-            "-o",
-            out.to_str().unwrap(),
-            "--config",
-            file.to_str().unwrap(),
-        ]);
-        let stderr = String::from_utf8_lossy(&o.stderr);
-        assert!(!o.status.success(), "{text}");
+        let (failed, stderr) = infer_with_config(&out, &file, &[]);
+        assert!(failed, "{text}");
         assert!(stderr.contains(file.to_str().unwrap()), "{text}: {stderr}");
         assert!(stderr.contains(expected), "{text}: {stderr}");
         assert!(!out.exists(), "{text}: no output on an error");
@@ -406,33 +398,34 @@ fn config_file_errors_name_the_file_and_the_field() {
     // A bad value given as a flag is still spelled as the flag.
     let file = dir.path().join("good.json");
     std::fs::write(&file, r#"{"method": "qs"}"#).unwrap();
-    let o = cli(&[
-        "infer",
-        OEDOMETER,
-        "-o",
-        out.to_str().unwrap(),
-        "--config",
-        file.to_str().unwrap(),
-        "--tolerance",
-        "2",
-    ]);
-    let stderr = String::from_utf8_lossy(&o.stderr);
+    let (failed, stderr) = infer_with_config(&out, &file, &["--tolerance", "2"]);
     assert!(
-        !o.status.success() && stderr.contains("--tolerance must lie in (0, 1)"),
+        failed && stderr.contains("--tolerance must lie in (0, 1)"),
         "{stderr}"
     );
     let missing = dir.path().join("missing.json");
-    let o = cli(&[
+    let (failed, stderr) = infer_with_config(&out, &missing, &[]);
+    assert!(
+        failed && stderr.contains(missing.to_str().unwrap()),
+        "{stderr}"
+    );
+}
+
+/// `infer` on the oedometer with a config file and extra flags: whether it
+/// failed, and its stderr.
+fn infer_with_config(out: &Path, config: &Path, extra: &[&str]) -> (bool, String) {
+    let mut args = vec![
         "infer",
         OEDOMETER,
         "-o",
         out.to_str().unwrap(),
         "--config",
-        missing.to_str().unwrap(),
-    ]);
-    let stderr = String::from_utf8_lossy(&o.stderr);
-    assert!(
-        !o.status.success() && stderr.contains(missing.to_str().unwrap()),
-        "{stderr}"
-    );
+        config.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    let o = cli(&args);
+    (
+        !o.status.success(),
+        String::from_utf8_lossy(&o.stderr).into_owned(),
+    )
 }
