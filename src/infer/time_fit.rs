@@ -31,7 +31,7 @@ use crate::solver::cascade::{self, CascadeSettings};
 use crate::solver::sparse_ls::EqualityLeastSquares;
 use crate::solver::{Attempt, Solution, SolveStatus, Triplets};
 use crate::solver::{Cone, ConicProblem, Term};
-use std::collections::HashMap;
+use std::collections::BTreeMap;
 use std::time::Instant;
 
 /// Settings of [`infer_time_fit`].
@@ -185,10 +185,10 @@ fn pair_key(frame: &Scene, contact: usize) -> (String, String, f64) {
 
 /// Contact tracks: for each pair of bodies, per frame, the contact indices
 /// joining them (usually one) with their sign.
-type ContactTracks = HashMap<(String, String), Vec<Vec<(usize, f64)>>>;
+type ContactTracks = BTreeMap<(String, String), Vec<Vec<(usize, f64)>>>;
 
 fn contact_tracks(frames: &[Scene]) -> ContactTracks {
-    let mut tracks: ContactTracks = HashMap::new();
+    let mut tracks: ContactTracks = BTreeMap::new();
     for (k, frame) in frames.iter().enumerate() {
         for i in 0..frame.contacts.len() {
             let (a, b, sign) = pair_key(frame, i);
