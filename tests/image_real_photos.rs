@@ -33,8 +33,10 @@ struct Case {
     contacts: f64,
 }
 
-/// The targets where they are met; the measured figure with a
-/// little room where not, each with the reason in docs/image.md.
+/// The targets where they are met; where not, the measured figure
+/// (PeGS's contacts on jlin-narrow21, 28 of 35, and jlin-step83, 103 of 117:
+/// the pairs missed show background between them) or the figure with a
+/// little room, each with the reason in docs/image.md.
 const CASES: [Case; 5] = [
     Case {
         folder: "pegs2-step09",
@@ -60,7 +62,7 @@ const CASES: [Case; 5] = [
         stem: "image",
         radius: (59.0, 78.0),
         centre: (0.035, 0.075),
-        contacts: 0.75,
+        contacts: 0.8,
     },
     Case {
         folder: "jlin-step83",
@@ -68,7 +70,7 @@ const CASES: [Case; 5] = [
         stem: "image3",
         radius: (27.0, 39.0),
         centre: (0.035, 0.1),
-        contacts: 0.85,
+        contacts: 0.88,
     },
     Case {
         folder: "jlin-iphone83",
