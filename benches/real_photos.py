@@ -11,7 +11,10 @@ Needs numpy, opencv-python-headless and scikit-image (pip, in a virtual
 environment). The photographs are not part of grainforce: they are read from
 $GRAINFORCE_TEST_DATA/real-photos. Prints one Markdown table row per photo and
 method: disks recall / precision, centre offset median / p90 (in radii),
-force-bearing contact recall (grainforce only) and wall time.
+the share of PeGS's force-bearing contacts found (for the Hough circles: the
+pairs whose circles come within CONTACT_GAP of the smaller radius, the
+fixed-gap rule a user would write; they give no other evidence), the number
+of disk-disk contacts written and wall time.
 """
 import json
 import os
@@ -33,8 +36,13 @@ PHOTOS = {
 }
 
 
+# Circles closer than this fraction of the smaller radius touch (Hough only).
+CONTACT_GAP = 0.1
+
+
 def write_scene(folder, circles, height):
-    """A scene folder as `detect` writes it (pixels, y up), for match.py."""
+    """A scene folder as `detect` writes it (pixels, y up), for match.py,
+    with the pairs closer than CONTACT_GAP as contacts."""
     os.makedirs(folder, exist_ok=True)
     with open(os.path.join(folder, "grains.csv"), "w") as f:
         f.write("id,x,y,volume,radius\n")
@@ -42,6 +50,15 @@ def write_scene(folder, circles, height):
             f.write("%d,%.4f,%.4f,%.4f,%.4f\n" % (i, x + 0.5, height - 0.5 - y, np.pi * r * r, r))
     with open(os.path.join(folder, "image-frame.json"), "w") as f:
         json.dump({"px_per_m": 1.0, "origin": [0.0, 0.0], "width": 0, "height": height}, f)
+    with open(os.path.join(folder, "contacts.csv"), "w") as f:
+        f.write("id,a,b\n")
+        k = 0
+        for i, (xa, ya, ra) in enumerate(circles):
+            for j in range(i + 1, len(circles)):
+                xb, yb, rb = circles[j]
+                if np.hypot(xb - xa, yb - ya) - ra - rb <= CONTACT_GAP * min(ra, rb):
+                    f.write("%d,%d,%d\n" % (k, i, j))
+                    k += 1
 
 
 def opencv(path, rmin, rmax):
@@ -67,11 +84,10 @@ def skimage_hough(path, rmin, rmax):
     return img.shape[0], list(zip(cx.astype(float), cy.astype(float), r.astype(float)))
 
 
-def score(match, scene, folder, name, contacts=True):
+def score(match, scene, folder, name):
     _, centres, refc, _ = PHOTOS[name]
-    args = [sys.executable, match, scene, os.path.join(folder, centres), "--json"]
-    if contacts:
-        args += ["--contacts", os.path.join(folder, refc)]
+    args = [sys.executable, match, scene, os.path.join(folder, centres), "--json",
+            "--contacts", os.path.join(folder, refc)]
     out = subprocess.run(args, capture_output=True, text=True, check=True).stdout
     return json.loads(out.strip().splitlines()[-1])
 
@@ -85,8 +101,8 @@ def main(argv):
     binary = argv[argv.index("--grainforce") + 1] if "--grainforce" in argv else "target/release/grainforce"
     only = argv[argv.index("--only") + 1] if "--only" in argv else None
     keep = argv[argv.index("--keep") + 1] if "--keep" in argv else tempfile.mkdtemp()
-    print("| photo | method | recall | precision | centre median / p90 [R] | force-bearing contacts | time [s] |")
-    print("|---|---|---|---|---|---|---|")
+    print("| photo | method | recall | precision | centre median / p90 [R] | PeGS contacts found | contacts | time [s] |")
+    print("|---|---|---|---|---|---|---|---|")
     for name, (image, _, _, (rmin, rmax)) in PHOTOS.items():
         if only and name != only:
             continue
@@ -103,12 +119,12 @@ def main(argv):
             elapsed = time.time() - t
             out = os.path.join(keep, name, method.split()[0])
             write_scene(out, circles, height)
-            rows.append((method, score(match, out, folder, name, contacts=False), elapsed))
+            rows.append((method, score(match, out, folder, name), elapsed))
         for method, m, elapsed in rows:
-            contacts = "%.2f" % m["contact_recall"] if "contact_recall" in m else "–"
-            print("| %s | %s | %.2f (%d/%d) | %.2f (%d false) | %.3f / %.3f | %s | %.2f |" % (
+            print("| %s | %s | %.2f (%d/%d) | %.2f (%d false) | %.3f / %.3f | %.2f | %d | %.2f |" % (
                 name, method, m["recall"], m["matched"], m["ref"], m["precision"], m["det"] - m["matched"],
-                m["centre_med_R"], m["centre_p90_R"], contacts, elapsed), flush=True)
+                m["centre_med_R"], m["centre_p90_R"], m["contact_recall"], m["det_contacts"], elapsed),
+                flush=True)
 
 
 if __name__ == "__main__":

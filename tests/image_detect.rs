@@ -452,3 +452,30 @@ fn wall_contacts_from_a_scene_and_from_image_edges() {
         .iter()
         .all(|c| !matches!(c.b, ContactBody::Wall(_))));
 }
+
+/// `min_fill`: a circle whose inside is background (a ring, as the edges of
+/// a wall or a loading piston make in a colour distance) is no disk; a filled
+/// disk beside it stays, and without the rule the ring is taken for one.
+#[test]
+fn a_circle_with_nothing_inside_is_no_disk() {
+    let (disk, ring, r) = ([55.0, 60.0], [150.0, 60.0], 30.0);
+    // Soft edges 1.5 px wide; the ring is a 3 px band on a circle of radius r.
+    let soft = |d: f64| (0.5 - d / 1.5).clamp(0.0, 1.0);
+    let image = grainforce::image::FloatImage::from_fn(210, 120, |i, j| {
+        let (x, y) = (i as f64, j as f64);
+        let to_disk = (x - disk[0]).hypot(y - disk[1]) - r;
+        let to_ring = ((x - ring[0]).hypot(y - ring[1]) - (r - 1.5)).abs() - 1.5;
+        image::Luma([(0.6 * soft(to_disk) + 0.6 * soft(to_ring)) as f32])
+    });
+    let mut options = DetectOptions::new(25.0, 35.0);
+    options.find_by_rims = false;
+    let near =
+        |found: &[Disk], c: [f64; 2]| found.iter().any(|d| (d.x - c[0]).hypot(d.y - c[1]) < 3.0);
+    let without = detect_disks(&image, &options).unwrap();
+    assert!(near(&without, disk) && near(&without, ring), "{without:?}");
+    // The disk's inside is at 0.6, the ring's at 0.
+    options.min_fill = 0.3;
+    let with = detect_disks(&image, &options).unwrap();
+    assert!(near(&with, disk) && !near(&with, ring), "{with:?}");
+    assert_eq!(with.len(), 1, "{with:?}");
+}

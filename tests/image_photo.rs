@@ -239,8 +239,9 @@ fn score(photo: &Photo, found: &DetectedFrame) -> Score {
 /// background, unloaded disks darker than it) test the rim, contact and
 /// dim-disk logic of a single channel; in the colour distance (the default
 /// now) their disks are found as well (29 of 29 per box, centres
-/// 0.003–0.012 R) but dim disks darker than the background are not
-/// (docs/image.md, "Real photographs").
+/// 0.003–0.012 R) but contacts fall to 0.85 (dark fringes at a contact pull
+/// a loaded disk's outline inward) and dim disks darker than the background
+/// to 0.77 (docs/image.md, "Real photographs").
 fn green(radius_min: f64, radius_max: f64) -> DetectSettings {
     let mut settings = DetectSettings::new(radius_min, radius_max, PX_PER_M);
     settings.channel = grainforce::image::Channel::Green;

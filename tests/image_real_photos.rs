@@ -8,12 +8,16 @@
 //! reference disk when its centre lies within half the reference radius,
 //! nearest pairs first, one to one; reference centres are MATLAB pixels
 //! (1-based). PeGS lists force-bearing contacts only (G² above a threshold on
-//! both disks), so its contacts are scored by recall.
+//! both disks), so its contacts are scored by recall. PeGS's own centres are
+//! whole-pixel Hough circles, so the centres are also held against an
+//! independent fit of each disk's outline (`real_photos/edge_fit.rs`).
 
+#[path = "real_photos/edge_fit.rs"]
+mod edge_fit;
 #[path = "real_photos/variants.rs"]
 mod variants;
 
-use grainforce::image::{detect_images, ContactBody, DetectSettings, DetectedFrame};
+use grainforce::image::{detect_images, Channel, ContactBody, DetectSettings, DetectedFrame};
 use std::collections::HashSet;
 use std::path::{Path, PathBuf};
 
@@ -29,8 +33,10 @@ struct Case {
     contacts: f64,
 }
 
-/// The issue's targets where they are met; the measured figure with a
-/// little room where not, each with the reason in docs/image.md.
+/// The issue's targets where they are met; where not, the measured figure
+/// (PeGS's contacts on jlin-narrow21, 28 of 35, and jlin-step83, 103 of 117:
+/// the pairs missed show background between them) or the figure with a
+/// little room, each with the reason in docs/image.md.
 const CASES: [Case; 5] = [
     Case {
         folder: "pegs2-step09",
@@ -56,7 +62,7 @@ const CASES: [Case; 5] = [
         stem: "image",
         radius: (59.0, 78.0),
         centre: (0.035, 0.075),
-        contacts: 0.75,
+        contacts: 0.8,
     },
     Case {
         folder: "jlin-step83",
@@ -64,7 +70,7 @@ const CASES: [Case; 5] = [
         stem: "image3",
         radius: (27.0, 39.0),
         centre: (0.035, 0.1),
-        contacts: 0.85,
+        contacts: 0.88,
     },
     Case {
         folder: "jlin-iphone83",
@@ -117,6 +123,8 @@ struct Scored {
     contacts: f64,
     /// The channel G² was read in.
     signal: Option<String>,
+    /// The detected centres [px].
+    centres: Vec<[f64; 2]>,
     line: String,
 }
 
@@ -203,6 +211,7 @@ fn detect_and_score(
         p90,
         contacts,
         signal: frame.choice.signal.clone(),
+        centres: frame.disks.iter().map(|d| [d.x, d.y]).collect(),
         line,
     }
 }
@@ -262,8 +271,116 @@ fn real_photographs_at_the_defaults() {
         );
         println!("{}: {}", case.folder, s.line);
         s.check(case.folder, (0.98, case.centre, case.contacts), &mut failed);
+        let reference = reference(&dir, case);
+        let edges = against_edge_fit(&dir.join(case.image), &reference, &s.centres);
+        println!("{}: {}", case.folder, edges.line);
+        edges.check(case, &mut failed);
     }
     assert!(failed.is_empty(), "{failed:#?}");
+}
+
+/// Centres compared with an independent fit of each disk's outline
+/// ([`edge_fit::edge_fit`], started from PeGS's circle): ours and PeGS's
+/// offsets from it [radii], median and 90th percentile.
+struct EdgeCheck {
+    fitted: usize,
+    disks: usize,
+    ours: (f64, f64),
+    pegs: (f64, f64),
+    line: String,
+}
+
+fn against_edge_fit(image: &Path, reference: &[[f64; 3]], ours: &[[f64; 2]]) -> EdgeCheck {
+    let picture = grainforce::image::read_for_detection(image, Channel::Auto, "bright")
+        .unwrap_or_else(|e| panic!("{}: {e}", image.display()));
+    let (mut from_ours, mut from_pegs) = (Vec::new(), Vec::new());
+    for r in reference {
+        let Some(fit) = edge_fit::edge_fit(
+            &picture.search,
+            picture.background_level,
+            (r[0], r[1], r[2]),
+        ) else {
+            continue;
+        };
+        let offset = |x: f64, y: f64| (x - fit[0]).hypot(y - fit[1]) / fit[2];
+        from_pegs.push(offset(r[0], r[1]));
+        if let Some(nearest) = ours
+            .iter()
+            .map(|c| offset(c[0], c[1]))
+            .min_by(f64::total_cmp)
+            .filter(|&o| o < 0.5)
+        {
+            from_ours.push(nearest);
+        }
+    }
+    let quartiles = |v: &mut Vec<f64>| {
+        if v.is_empty() {
+            (f64::INFINITY, f64::INFINITY)
+        } else {
+            (percentile(v, 50.0), percentile(v, 90.0))
+        }
+    };
+    let (ours, pegs) = (quartiles(&mut from_ours), quartiles(&mut from_pegs));
+    EdgeCheck {
+        fitted: from_pegs.len(),
+        disks: reference.len(),
+        ours,
+        pegs,
+        line: format!(
+            "edge fit of {} of {} disks: our centres {:.3} / {:.3} R from it (median / p90), \
+             PeGS's {:.3} / {:.3} R",
+            from_pegs.len(),
+            reference.len(),
+            ours.0,
+            ours.1,
+            pegs.0,
+            pegs.1
+        ),
+    }
+}
+
+impl EdgeCheck {
+    /// At least three quarters of the disks fitted (or the check says
+    /// little); our centres within the target of the fit, and no farther
+    /// from it than PeGS's (median). jlin-fixed48's p90 is its measured
+    /// level (0.079 R; disks against the dark wall strip).
+    fn check(&self, case: &Case, failed: &mut Vec<String>) {
+        let p90 = if case.folder == "jlin-fixed48" {
+            0.085
+        } else {
+            0.075
+        };
+        if 4 * self.fitted < 3 * self.disks
+            || self.ours.0 > 0.035
+            || self.ours.1 > p90
+            || self.ours.0 > self.pegs.0
+        {
+            failed.push(format!("{}: {}", case.folder, self.line));
+        }
+    }
+}
+
+/// The edge fit itself, on a drawn disk with a soft edge and a neighbour
+/// cutting into one side: it must find the centre and radius to a small
+/// fraction of a pixel, and say nothing of a disk that is not there.
+#[test]
+fn the_edge_fit_finds_a_drawn_disk() {
+    let (cx, cy, r) = (61.3, 58.7, 40.4);
+    let neighbour = (cx + 2.0 * r + 1.0, cy, r);
+    let level = |x: f64, y: f64, (px, py, pr): (f64, f64, f64)| {
+        // An edge 1.5 px wide, as a lens and JPEG leave it.
+        (0.5 - ((x - px).hypot(y - py) - pr) / 1.5).clamp(0.0, 1.0)
+    };
+    let image = grainforce::image::FloatImage::from_fn(160, 120, |i, j| {
+        let (x, y) = (i as f64, j as f64);
+        image::Luma([(0.8 * level(x, y, (cx, cy, r)) + 0.6 * level(x, y, neighbour)) as f32])
+    });
+    let fit = edge_fit::edge_fit(&image, 0.0, (cx + 3.0, cy - 2.0, r - 2.0)).expect("a fit");
+    assert!(
+        (fit[0] - cx).hypot(fit[1] - cy) < 0.05 && (fit[2] - r).abs() < 0.1 && fit[3] < 0.1,
+        "{fit:?}"
+    );
+    assert!(edge_fit::edge_fit(&image, 0.0, (30.0, 100.0, 20.0)).is_none());
 }
 
 /// Big disks (radius 100–240 px, as a 21-megapixel camera sees them): real
