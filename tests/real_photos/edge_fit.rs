@@ -10,6 +10,7 @@
 //! neighbour, wall or paint there).
 
 use grainforce::image::FloatImage;
+use nalgebra::{Matrix3, Vector3};
 
 /// Bilinear sample; coordinates outside the image are clamped to its edge.
 fn sample(image: &FloatImage, x: f64, y: f64) -> f64 {
@@ -26,43 +27,15 @@ fn sample(image: &FloatImage, x: f64, y: f64) -> f64 {
     top * (1.0 - fy) + bottom * fy
 }
 
-/// Solves the 3 × 3 system `a p = b` (Gaussian elimination, partial pivoting).
-fn solve3(mut a: [[f64; 3]; 3], mut b: [f64; 3]) -> Option<[f64; 3]> {
-    for k in 0..3 {
-        let p = (k..3).max_by(|&i, &j| a[i][k].abs().total_cmp(&a[j][k].abs()))?;
-        a.swap(k, p);
-        b.swap(k, p);
-        if a[k][k].abs() < 1e-300 {
-            return None;
-        }
-        for i in k + 1..3 {
-            let f = a[i][k] / a[k][k];
-            for j in k..3 {
-                a[i][j] -= f * a[k][j];
-            }
-            b[i] -= f * b[k];
-        }
-    }
-    let mut x = [0.0; 3];
-    for k in (0..3).rev() {
-        let s: f64 = (k + 1..3).map(|j| a[k][j] * x[j]).sum();
-        x[k] = (b[k] - s) / a[k][k];
-    }
-    Some(x)
-}
-
 /// Least squares on rows `(j, r)`: the normal equations of Σ (j·p − r)².
 fn least_squares(rows: impl Iterator<Item = ([f64; 3], f64)>) -> Option<[f64; 3]> {
-    let (mut a, mut b) = ([[0.0; 3]; 3], [0.0; 3]);
+    let (mut a, mut b) = (Matrix3::<f64>::zeros(), Vector3::<f64>::zeros());
     for (j, r) in rows {
-        for i in 0..3 {
-            for k in 0..3 {
-                a[i][k] += j[i] * j[k];
-            }
-            b[i] += j[i] * r;
-        }
+        let j = Vector3::from(j);
+        a += j * j.transpose();
+        b += j * r;
     }
-    solve3(a, b)
+    a.lu().solve(&b).map(Into::into)
 }
 
 /// Circle through the points: algebraic (Kåsa), then Gauss–Newton on the
