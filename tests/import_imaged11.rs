@@ -13,9 +13,10 @@ fn dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/import/imaged11")
 }
 
-/// (grain, position µm, stress MPa in Sym order xx yy zz xy xz yz).
-fn expected(name: &str) -> Vec<(usize, [f64; 3], [f64; 6])> {
-    let text = std::fs::read_to_string(dir().join(format!("{name}_stress.csv"))).unwrap();
+/// (grain, position µm, stress MPa in Sym order xx yy zz xy xz yz) from the
+/// CSV `file` that make_fixtures.py wrote.
+fn expected(file: &str) -> Vec<(usize, [f64; 3], [f64; 6])> {
+    let text = std::fs::read_to_string(dir().join(file)).unwrap();
     text.lines()
         .skip(1)
         .map(|l| {
@@ -36,31 +37,127 @@ fn cell(name: &str) -> [f64; 6] {
     }
 }
 
+fn options(name: &str) -> Options {
+    Options {
+        cell: cell(name),
+        stiffness: Stiffness::parse(name).unwrap(),
+        grain_volume: Some(1e-12),
+        phase: None,
+    }
+}
+
+/// The largest difference [MPa] between the imported grains and ImageD11's
+/// stresses in `truth`; positions must agree to the last bit of µm → m.
+fn largest_difference(file: &str, truth: &str, options: &Options) -> f64 {
+    let out = imaged11::import(&dir().join(file), None, options).unwrap();
+    let scene = &out.frames[0];
+    let truth = expected(truth);
+    assert_eq!(scene.grains.len(), truth.len());
+    let mut worst: f64 = 0.0;
+    for (g, (i, p, s)) in scene.grains.iter().zip(&truth) {
+        assert_eq!(g.id, i.to_string());
+        for k in 0..3 {
+            assert!((g.position[k] - p[k] * 1e-6).abs() < 1e-15);
+        }
+        for k in 0..6 {
+            worst = worst.max((g.stress[k] / 1e6 - s[k]).abs());
+        }
+    }
+    eprintln!("{file}: largest difference from ImageD11 {worst:.2e} MPa");
+    worst
+}
+
 #[test]
 fn stresses_match_imaged11_within_a_kilopascal() {
     for name in ["zirconium", "quartz"] {
-        let options = Options {
-            cell: cell(name),
-            stiffness: Stiffness::parse(name).unwrap(),
-            grain_volume: Some(1e-12),
-        };
-        let out = imaged11::import(&dir().join(format!("{name}.map")), None, &options).unwrap();
-        let scene = &out.frames[0];
-        let truth = expected(name);
-        assert_eq!(scene.grains.len(), truth.len());
-        let mut worst: f64 = 0.0;
-        for (g, (i, p, s)) in scene.grains.iter().zip(&truth) {
-            assert_eq!(g.id, i.to_string());
-            for k in 0..3 {
-                assert!((g.position[k] - p[k] * 1e-6).abs() < 1e-15);
-            }
-            for k in 0..6 {
-                worst = worst.max((g.stress[k] / 1e6 - s[k]).abs());
-            }
-        }
-        eprintln!("{name}: largest difference from ImageD11 {worst:.2e} MPa");
+        let worst = largest_difference(
+            &format!("{name}.map"),
+            &format!("{name}_stress.csv"),
+            &options(name),
+        );
         assert!(worst <= 1e-3, "{name}: {worst} MPa");
     }
+}
+
+#[test]
+fn hdf5_grain_files_match_imaged11_to_1e_8_mpa() {
+    for name in ["zirconium", "quartz"] {
+        let h5 = format!("{name}.h5");
+        let worst = largest_difference(&h5, &format!("{name}_h5_stress.csv"), &options(name));
+        assert!(worst <= 1e-8, "{name}: {worst} MPa");
+        // The phase named explicitly reads the same group.
+        let named = Options {
+            phase: Some(name.into()),
+            ..options(name)
+        };
+        assert_eq!(
+            imaged11::import(&dir().join(&h5), None, &named)
+                .unwrap()
+                .frames[0]
+                .grains,
+            imaged11::import(&dir().join(&h5), None, &options(name))
+                .unwrap()
+                .frames[0]
+                .grains
+        );
+        // The map's 9-digit UBIs describe the same grains.
+        let map = imaged11::read_grains(&dir().join(format!("{name}.map")), None).unwrap();
+        let full = imaged11::read_grains(&dir().join(&h5), None).unwrap();
+        assert_eq!(map.len(), full.len());
+        for (a, b) in map.iter().zip(&full) {
+            assert_eq!(a.index, b.index);
+            for (ra, rb) in a.ubi.iter().zip(&b.ubi) {
+                for (x, y) in ra.iter().zip(rb) {
+                    assert!((x - y).abs() <= 5e-9 * y.abs().max(1.0), "{x} vs {y}");
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn bad_hdf5_grain_files_are_named_errors() {
+    let tmp = tempfile::tempdir().unwrap();
+    let quartz = dir().join("quartz.h5");
+    let e = imaged11::read_grains(&quartz, Some("zircon"))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("quartz.h5") && e.contains("no group `zircon`") && e.contains("quartz"),
+        "{e}"
+    );
+    // --phase is for HDF5 files only.
+    let e = imaged11::read_grains(&dir().join("quartz.map"), Some("quartz"))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("quartz.map") && e.contains("HDF5"), "{e}");
+    // A file cut short, or the signature followed by garbage: an error, no panic.
+    let bytes = std::fs::read(&quartz).unwrap();
+    let cut = tmp.path().join("cut.h5");
+    for keep in [8, 100, 1000, bytes.len() / 2] {
+        std::fs::write(&cut, &bytes[..keep]).unwrap();
+        let e = imaged11::read_grains(&cut, None).unwrap_err().to_string();
+        assert!(e.contains("cut.h5"), "{keep} bytes: {e}");
+    }
+    // The CLI: a missing phase fails without output.
+    let out = tmp.path().join("scene");
+    let (ok, err) = run(&[
+        "import",
+        "imaged11",
+        quartz.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--cell",
+        "4.9134,4.9134,5.4052,90,90,120",
+        "--stiffness",
+        "quartz",
+        "--grain-volume",
+        "1e-12",
+        "--phase",
+        "zircon",
+    ]);
+    assert!(!ok && err.contains("no group `zircon`"), "{err}");
+    assert!(!out.exists());
 }
 
 #[test]
@@ -71,7 +168,7 @@ fn each_convention_matters() {
     let name = "quartz";
     let grains = imaged11::read_map(&dir().join("quartz.map")).unwrap();
     let b0 = imaged11::b_matrix(cell(name)).unwrap();
-    let truth = expected(name);
+    let truth = expected(&format!("{name}_stress.csv"));
     let rotated = Stiffness::parse("quartz").unwrap();
     let mut ieee = rotated.clone();
     ieee.constants_to_crystal = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];

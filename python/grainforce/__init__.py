@@ -650,8 +650,10 @@ def import_imaged11(
     stiffness: str,
     grain_volume: Optional[float] = None,
     contacts: Optional[Union[str, os.PathLike]] = None,
+    phase: Optional[str] = None,
 ) -> Scene:
-    """A 3D scene from an ImageD11 grain map (``.map``/``.ubi``;
+    """A 3D scene from an ImageD11 grain map (``.map``/``.ubi``, or an HDF5
+    grain file as ``ImageD11.grain.write_grain_file_h5`` writes it;
     ``grainforce import imaged11``): positions from ``#translation`` (µm →
     m), sample-frame stresses from the UBIs (Biot strain of the polar
     decomposition, Hooke's law in the x ∥ a* crystal frame, docs/field.md).
@@ -660,7 +662,8 @@ def import_imaged11(
     stiffness: a preset (quartz, zirconium, …) or constants as the CLI takes
     them. grain_volume: m³, given to every grain (a map has none; any value
     will do when the stresses go to :func:`import_labels`). contacts: a
-    contact list CSV (as ``import gff`` reads it).
+    contact list CSV (as ``import gff`` reads it). phase: the group of an
+    HDF5 grain file that holds several.
     """
     cell = [float(x) for x in cell]
     if len(cell) != 6:
@@ -672,5 +675,6 @@ def import_imaged11(
             stiffness,
             grain_volume,
             None if contacts is None else os.fspath(contacts),
+            phase,
         )
     )

@@ -204,5 +204,6 @@ def import_imaged11(
     stiffness: str,
     grain_volume: Optional[float] = None,
     contacts: Optional[PathLike] = None,
+    phase: Optional[str] = None,
 ) -> Scene:
-    """A 3D scene from an ImageD11 grain map (`grainforce import imaged11`)."""
+    """A 3D scene from an ImageD11 grain map, text or HDF5 (`grainforce import imaged11`)."""

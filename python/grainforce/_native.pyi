@@ -94,4 +94,5 @@ def import_imaged11(
     stiffness: str,
     grain_volume: Optional[float] = None,
     contacts: Optional[str] = None,
+    phase: Optional[str] = None,
 ) -> Scene: ...

@@ -701,10 +701,10 @@ fn import_labels(
     Ok(LabelImport { imported, matched })
 }
 
-/// Imports an ImageD11 grain map (`.map`/`.ubi`) into a 3D scene with
+/// Imports an ImageD11 grain map (`.map`/`.ubi` or HDF5) into a 3D scene with
 /// sample-frame stresses (`grainforce import imaged11`).
 #[pyfunction]
-#[pyo3(signature = (path, cell, stiffness, grain_volume=None, contacts=None))]
+#[pyo3(signature = (path, cell, stiffness, grain_volume=None, contacts=None, phase=None))]
 fn import_imaged11(
     py: Python<'_>,
     path: PathBuf,
@@ -712,12 +712,14 @@ fn import_imaged11(
     stiffness: &str,
     grain_volume: Option<f64>,
     contacts: Option<PathBuf>,
+    phase: Option<String>,
 ) -> PyResult<Scene> {
     use grainforce::import::{imaged11, stiffness::Stiffness};
     let options = imaged11::Options {
         cell,
         stiffness: Stiffness::parse(stiffness).map_err(to_py)?,
         grain_volume,
+        phase,
     };
     let imported = py
         .detach(|| imaged11::import(&path, contacts.as_deref(), &options))

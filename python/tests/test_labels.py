@@ -157,3 +157,19 @@ def test_imaged11_maps_give_imaged11s_stresses():
         gf.import_imaged11(IMAGED11 / "quartz.map", cell=(4.9, 4.9, 5.4, 90, 90, 120), stiffness="quartz")
     with pytest.raises(ValueError, match="cell needs 6"):
         gf.import_imaged11(IMAGED11 / "quartz.map", cell=(4.9, 4.9), stiffness="quartz")
+
+
+def test_imaged11_hdf5_grain_files_give_imaged11s_stresses():
+    truth = pd.read_csv(IMAGED11 / "quartz_h5_stress.csv")
+    cell = (4.9134, 4.9134, 5.4052, 90, 90, 120)
+    scene = gf.import_imaged11(
+        IMAGED11 / "quartz.h5", cell=cell, stiffness="quartz", grain_volume=1e-12, phase="quartz"
+    )
+    grains, _, _ = scene.to_frames()
+    assert len(grains) == len(truth)
+    for c in ["s_xx", "s_yy", "s_zz", "s_xy", "s_xz", "s_yz"]:
+        assert np.abs(grains[c].to_numpy() / 1e6 - truth[c].to_numpy()).max() < 1e-8
+    with pytest.raises(ValueError, match="no group `zircon`"):
+        gf.import_imaged11(
+            IMAGED11 / "quartz.h5", cell=cell, stiffness="quartz", grain_volume=1e-12, phase="zircon"
+        )

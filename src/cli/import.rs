@@ -106,6 +106,9 @@ pub struct Args {
     /// imaged11: the volume given to every grain [m³] (a map has none).
     #[arg(long)]
     grain_volume: Option<f64>,
+    /// imaged11: the group (phase) of an HDF5 grain file with several.
+    #[arg(long)]
+    phase: Option<String>,
 }
 
 fn unit(text: &str, table: &[(&str, f64)], what: &str) -> Result<f64> {
@@ -296,6 +299,7 @@ fn run_imaged11(args: &Args, gravity: Option<[f64; 3]>) -> Result<()> {
         cell,
         stiffness,
         grain_volume: args.grain_volume,
+        phase: args.phase.clone(),
     };
     let mut imported = imaged11::import(
         &args.inputs[0],

@@ -1,5 +1,10 @@
 //! ImageD11 grain maps (`.map` / `.ubi` text files, as
-//! `ImageD11.grain.write_grain_file` writes them) to grain stresses.
+//! `ImageD11.grain.write_grain_file` writes them, or HDF5 grain files, as
+//! `ImageD11.grain.write_grain_file_h5` writes them) to grain stresses.
+//!
+//! An HDF5 grain file holds a group per phase (`/<phase>/<i>/`, `i` = 0, 1, …)
+//! with datasets `ubi` (3 × 3) and `translation` (3, µm); it keeps the UBIs'
+//! full precision where a `.map` has 9 digits.
 //!
 //! A file is blank-line-separated blocks: optional `#translation: x y z`
 //! (µm, sample frame), other `#key value` lines (`#npks`, `#name`, …, skipped),
@@ -35,8 +40,159 @@ pub struct MapGrain {
     pub ubi: Mat3,
     /// µm, sample frame.
     pub translation: Option<[f64; 3]>,
-    /// The line of `#UBI:` (for messages).
-    pub line: usize,
+    /// Where it was read (for messages).
+    pub source: GrainSource,
+}
+
+/// Where a grain was read in its file.
+#[derive(Debug, Clone, PartialEq)]
+pub enum GrainSource {
+    /// The line of `#UBI:` in a `.map`.
+    Line(usize),
+    /// The grain's group in an HDF5 file (`/quartz/3`).
+    Group(String),
+}
+
+impl MapGrain {
+    /// An error about this grain's UBI or translation (`field`: `ubi` or
+    /// `translation`), located by line or by HDF5 dataset.
+    fn error(&self, path: &Path, field: &str, message: impl Into<String>) -> Error {
+        match &self.source {
+            GrainSource::Line(n) => {
+                let column = if field == "ubi" {
+                    "UBI"
+                } else {
+                    "#translation"
+                };
+                Error::data(path, Some(*n), Some(column), message)
+            }
+            GrainSource::Group(g) => {
+                Error::data(path, None, Some(&format!("{g}/{field}")), message)
+            }
+        }
+    }
+}
+
+/// The HDF5 file signature.
+const HDF5_SIGNATURE: &[u8; 8] = b"\x89HDF\r\n\x1a\n";
+
+/// Reads a grain file: HDF5 (by its signature) or a `.map`/`.ubi` text file.
+/// `phase` names the HDF5 group; without it a file with one group is read.
+pub fn read_grains(path: &Path, phase: Option<&str>) -> Result<Vec<MapGrain>> {
+    let mut head = [0u8; 8];
+    let is_hdf5 = std::fs::File::open(path)
+        .and_then(|mut f| std::io::Read::read_exact(&mut f, &mut head))
+        .is_ok()
+        && &head == HDF5_SIGNATURE;
+    if is_hdf5 {
+        read_h5(path, phase)
+    } else if let Some(phase) = phase {
+        Err(Error::Invalid(format!(
+            "--phase {phase} names a group of an HDF5 grain file; {} is a text grain map",
+            path.display()
+        )))
+    } else {
+        read_map(path)
+    }
+}
+
+/// Reads an ImageD11 HDF5 grain file (`/<phase>/<i>/{ubi, translation}`).
+pub fn read_h5(path: &Path, phase: Option<&str>) -> Result<Vec<MapGrain>> {
+    let bad = |at: Option<&str>, message: String| Error::data(path, None, at, message);
+    let file = hdf5_reader::Hdf5File::open(path)
+        .map_err(|e| bad(None, format!("not a readable HDF5 file: {e}")))?;
+    let root = file
+        .root_group()
+        .map_err(|e| bad(Some("/"), e.to_string()))?;
+    let (groups, _) = root
+        .member_names()
+        .map_err(|e| bad(Some("/"), e.to_string()))?;
+    let phase = match phase {
+        Some(p) if groups.iter().any(|g| g == p) => p.to_owned(),
+        Some(p) => {
+            return Err(bad(
+                None,
+                format!("no group `{p}`; its groups: {}", groups.join(", ")),
+            ))
+        }
+        None if groups.len() == 1 => groups[0].clone(),
+        None => {
+            return Err(bad(
+                None,
+                format!(
+                    "{} groups ({}): name the phase with --phase",
+                    groups.len(),
+                    groups.join(", ")
+                ),
+            ))
+        }
+    };
+    let at = format!("/{phase}");
+    let group = file.group(&at).map_err(|e| bad(Some(&at), e.to_string()))?;
+    let (names, _) = group
+        .member_names()
+        .map_err(|e| bad(Some(&at), e.to_string()))?;
+    // ImageD11 names the grains 0, 1, … and reads them in that order.
+    let mut numbered = Vec::with_capacity(names.len());
+    for name in names {
+        let i: usize = name.parse().map_err(|_| {
+            bad(
+                Some(&format!("{at}/{name}")),
+                "a grain group is named by its number".into(),
+            )
+        })?;
+        numbered.push((i, name));
+    }
+    numbered.sort();
+    if numbered.is_empty() {
+        return Err(bad(Some(&at), "no grains".into()));
+    }
+    let read = |dataset: &str, out: &mut [f64]| -> Result<()> {
+        let d = file
+            .dataset(dataset)
+            .map_err(|e| bad(Some(dataset), e.to_string()))?;
+        let len: u64 = d.shape().iter().product();
+        if len as usize != out.len() {
+            return Err(bad(
+                Some(dataset),
+                format!("{} values, expected {}", len, out.len()),
+            ));
+        }
+        d.read_into(out)
+            .map_err(|e| bad(Some(dataset), e.to_string()))?;
+        if out.iter().any(|x| !x.is_finite()) {
+            return Err(bad(Some(dataset), "a value is not finite".into()));
+        }
+        Ok(())
+    };
+    let mut grains = Vec::with_capacity(numbered.len());
+    for (index, name) in numbered {
+        let g = format!("{at}/{name}");
+        let mut ubi = [0.0; 9];
+        read(&format!("{g}/ubi"), &mut ubi)?;
+        let members = file
+            .group(&g)
+            .and_then(|grp| grp.member_names())
+            .map_err(|e| bad(Some(&g), e.to_string()))?;
+        let translation = if members.1.iter().any(|d| d == "translation") {
+            let mut t = [0.0; 3];
+            read(&format!("{g}/translation"), &mut t)?;
+            Some(t)
+        } else {
+            None
+        };
+        grains.push(MapGrain {
+            index,
+            ubi: [
+                [ubi[0], ubi[1], ubi[2]],
+                [ubi[3], ubi[4], ubi[5]],
+                [ubi[6], ubi[7], ubi[8]],
+            ],
+            translation,
+            source: GrainSource::Group(g),
+        });
+    }
+    Ok(grains)
 }
 
 /// Reads a `.map`/`.ubi` grain file.
@@ -94,7 +250,7 @@ pub fn read_map(path: &Path) -> Result<Vec<MapGrain>> {
                 index: grains.len(),
                 ubi: [rows[0], rows[1], rows[2]],
                 translation: translation.take(),
-                line: start,
+                source: GrainSource::Line(start),
             });
             rows.clear();
             ubi_line = None;
@@ -204,6 +360,8 @@ pub struct Options {
     pub stiffness: Stiffness,
     /// Volume of every grain [m³] when no tomography table gives it.
     pub grain_volume: Option<f64>,
+    /// The group (phase) of an HDF5 grain file; needed when it has several.
+    pub phase: Option<String>,
 }
 
 /// Sample-frame stress [Pa] of each grain of a map, in file order.
@@ -213,12 +371,7 @@ pub fn stresses(path: &Path, grains: &[MapGrain], options: &Options) -> Result<V
         .iter()
         .map(|g| {
             let s = grain_strain(&g.ubi, &b0).ok_or_else(|| {
-                Error::data(
-                    path,
-                    Some(g.line),
-                    Some("UBI"),
-                    "the UBI is singular or left-handed (det ≤ 0)",
-                )
+                g.error(path, "ubi", "the UBI is singular or left-handed (det ≤ 0)")
             })?;
             Ok(options.stiffness.stress(&s.rotation, &s.strain_sample))
         })
@@ -227,8 +380,9 @@ pub fn stresses(path: &Path, grains: &[MapGrain], options: &Options) -> Result<V
 
 /// Imports a grain map (and optionally a tomography contact list) into a 3D
 /// scene: positions from `#translation` (µm → m), stresses from the UBIs.
+/// `map` is a `.map`/`.ubi` text file or an HDF5 grain file.
 pub fn import(map: &Path, contacts: Option<&Path>, options: &Options) -> Result<ImportedScene> {
-    let grains = read_map(map)?;
+    let grains = read_grains(map, options.phase.as_deref())?;
     let sigma = stresses(map, &grains, options)?;
     let volume =
         match options.grain_volume {
@@ -248,12 +402,11 @@ pub fn import(map: &Path, contacts: Option<&Path>, options: &Options) -> Result<
     let mut index = HashMap::new();
     for (g, stress) in grains.iter().zip(sigma) {
         let Some(t) = g.translation else {
-            return Err(Error::data(
+            return Err(g.error(
                 map,
-                Some(g.line),
-                Some("#translation"),
+                "translation",
                 format!(
-                    "grain {} has no #translation: its position is unknown",
+                    "grain {} has no translation: its position is unknown",
                     g.index
                 ),
             ));
