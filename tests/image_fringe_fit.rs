@@ -729,7 +729,7 @@ fn detection_split(
             _ => false,
         }
     };
-    for fraction in [0.05, 0.1, 0.2] {
+    for fraction in [0.05, 0.1, 0.2, 0.3] {
         let mut candidates = found.clone();
         let n = found.grains.len();
         for i in 0..n {
