@@ -540,10 +540,241 @@ fn oedometer_58_disks() {
         fit.report.iterations,
         fit.report.flagged
     );
+    detection_split(&r, &frame, &found.scene, &matched.disk_of_grain, &s);
     // Round 2 gave all-zero forces here (relerr 1): five missed contacts left
     // disks unable to balance; round 3 measured 0.183 (release).
     let e = (num / den).sqrt();
     assert!(e < 0.3, "relerr {e} with detected geometry");
     assert!(!fit.report.balance_left_out.is_empty());
     assert!(fit.report.max_imbalance < 1e-6);
+}
+
+/// Which part of detection costs the detected fit its accuracy: the same
+/// photograph fitted with (true centres and contacts, detected radii),
+/// (detected centres and radii, the true contact list) and (true geometry,
+/// the detected contact list). Contacts whose disks were not matched count
+/// as fitted to zero.
+fn detection_split(
+    r: &Rendered,
+    frame: &PixelFrame,
+    found: &Scene,
+    disk_of_grain: &[Option<usize>],
+    s: &FringeFitSettings,
+) {
+    let radius_of = |sc: &Scene, g: usize| sc.grains[g].equivalent_radius(2);
+    let set_radius = |sc: &mut Scene, g: usize, rad: f64| {
+        sc.grains[g].radius = Some(rad);
+        sc.grains[g].volume = std::f64::consts::PI * rad * rad;
+    };
+    // Grain–grain normals and points from the scene's centres; wall normals kept.
+    let place = |sc: &Scene, mut c: Contact| -> Contact {
+        let a = sc.grains[c.a].position;
+        if let Body::Grain(j) = c.b {
+            let b = sc.grains[j].position;
+            let (dx, dy) = (b[0] - a[0], b[1] - a[1]);
+            let len = dx.hypot(dy);
+            c.normal = [dx / len, dy / len, 0.0];
+        }
+        let ra = radius_of(sc, c.a);
+        c.point = [a[0] + ra * c.normal[0], a[1] + ra * c.normal[1], 0.0];
+        c
+    };
+    let wall_named = |sc: &Scene, name: &str| sc.walls.iter().position(|w| w.name == name);
+    let relerr_with_lost = |fit: &[[f64; 2]], truth: &[[f64; 2]], lost: &[[f64; 2]]| {
+        let lost2: f64 = lost.iter().map(|t| t[0] * t[0] + t[1] * t[1]).sum();
+        let num: f64 = fit
+            .iter()
+            .zip(truth)
+            .map(|(f, t)| (f[0] - t[0]).powi(2) + (f[1] - t[1]).powi(2))
+            .sum::<f64>()
+            + lost2;
+        let den: f64 = truth.iter().map(|t| t[0] * t[0] + t[1] * t[1]).sum::<f64>() + lost2;
+        (num / den).sqrt()
+    };
+    let run = |name: &str, scene: &Scene, truth: &[[f64; 2]], lost: &[[f64; 2]]| {
+        let started = std::time::Instant::now();
+        let fit = fit_fringes(&r.image, frame, scene, s).unwrap();
+        eprintln!(
+            "split, {name}: relerr {:.4} (lost alone {:.4}; {} contacts fitted, {} lost), imbalance max {:.2e}, balance left out {:?}, {} steps, {:.2} s",
+            relerr_with_lost(&fit.forces, truth, lost),
+            relerr_with_lost(truth, truth, lost),
+            truth.len(),
+            lost.len(),
+            fit.report.max_imbalance,
+            fit.report.balance_left_out,
+            fit.report.iterations,
+            started.elapsed().as_secs_f64()
+        );
+    };
+
+    // (b) true centres and contact list, detected radii.
+    let mut radii = r.scene.clone();
+    for (g, k) in disk_of_grain.iter().enumerate() {
+        if let Some(k) = k {
+            set_radius(&mut radii, g, radius_of(found, *k));
+        }
+    }
+    radii.contacts = (r.scene.contacts.iter().cloned())
+        .map(|c| place(&radii, c))
+        .collect();
+    run(
+        "true centres and contacts, detected radii",
+        &radii,
+        &r.truth,
+        &[],
+    );
+
+    // (c) detected centres and radii, the true contact list.
+    let mut listed = found.clone();
+    listed.contacts.clear();
+    let (mut truth, mut lost) = (Vec::new(), Vec::new());
+    for (c, t) in r.scene.contacts.iter().zip(&r.truth) {
+        let b = match c.b {
+            Body::Grain(j) => disk_of_grain[j].map(Body::Grain),
+            Body::Wall(w) => wall_named(found, &r.scene.walls[w].name).map(Body::Wall),
+        };
+        match (disk_of_grain[c.a], b) {
+            (Some(a), Some(b)) => {
+                let mut c = c.clone();
+                c.a = a;
+                c.b = b;
+                listed.contacts.push(place(&listed, c));
+                truth.push(*t);
+            }
+            _ => lost.push(*t),
+        }
+    }
+    run(
+        "detected centres and radii, true contacts",
+        &listed,
+        &truth,
+        &lost,
+    );
+
+    // (d) true geometry, the detected contact list (a true contact it lacks is
+    // lost; an extra one counts against a zero truth).
+    let mut grain_of_disk = vec![None; found.grains.len()];
+    for (g, k) in disk_of_grain.iter().enumerate() {
+        if let Some(k) = k {
+            grain_of_disk[*k] = Some(g);
+        }
+    }
+    let mut detected_list = r.scene.clone();
+    detected_list.contacts.clear();
+    for c in &found.contacts {
+        let b = match c.b {
+            Body::Grain(j) => grain_of_disk[j].map(Body::Grain),
+            Body::Wall(w) => wall_named(&r.scene, &found.walls[w].name).map(Body::Wall),
+        };
+        if let (Some(a), Some(b)) = (grain_of_disk[c.a], b) {
+            let mut c = c.clone();
+            c.a = a;
+            c.b = b;
+            detected_list.contacts.push(place(&detected_list, c));
+        }
+    }
+    let same = |x: &Contact, y: &Contact| {
+        (x.a == y.a && x.b == y.b) || (Body::Grain(x.a) == y.b && Body::Grain(y.a) == x.b)
+    };
+    let (mut truth, mut lost) = (Vec::new(), Vec::new());
+    for c in &detected_list.contacts {
+        let hit = (r.scene.contacts.iter().zip(&r.truth)).find(|(t, _)| same(c, t));
+        truth.push(match hit {
+            Some((t, f)) if t.a == c.a => *f,
+            Some((_, f)) => [-f[0], -f[1]],
+            None => [0.0; 2],
+        });
+    }
+    for (t, f) in r.scene.contacts.iter().zip(&r.truth) {
+        if !detected_list.contacts.iter().any(|c| same(c, t)) {
+            lost.push(*f);
+        }
+    }
+    run(
+        "true geometry, detected contacts",
+        &detected_list,
+        &truth,
+        &lost,
+    );
+    // (f) the same with the missed true contacts added back: the extra
+    // contacts' cost alone.
+    let mut with_missed = detected_list.clone();
+    let mut truth_all = truth.clone();
+    for (t, f) in r.scene.contacts.iter().zip(&r.truth) {
+        if !detected_list.contacts.iter().any(|c| same(c, t)) {
+            with_missed.contacts.push(t.clone());
+            truth_all.push(*f);
+        }
+    }
+    run(
+        "true geometry, detected contacts + the missed ones",
+        &with_missed,
+        &truth_all,
+        &[],
+    );
+
+    // (e) the fully detected scene with every near-miss disk pair added as a
+    // candidate contact (gap below a fraction of the smaller radius): does the
+    // fringe evidence recover the missed contacts and zero the extra ones?
+    let pairs_match = |t: &Contact, c: &Contact| {
+        let a = disk_of_grain[t.a];
+        match (t.b, c.b) {
+            (Body::Grain(j), Body::Grain(k)) => {
+                let b = disk_of_grain[j];
+                (a == Some(c.a) && b == Some(k)) || (a == Some(k) && b == Some(c.a))
+            }
+            (Body::Wall(w), Body::Wall(v)) => {
+                a == Some(c.a) && r.scene.walls[w].name == found.walls[v].name
+            }
+            _ => false,
+        }
+    };
+    for fraction in [0.05, 0.1, 0.2, 0.3] {
+        let mut candidates = found.clone();
+        let n = found.grains.len();
+        for i in 0..n {
+            for j in i + 1..n {
+                let (pi, pj) = (found.grains[i].position, found.grains[j].position);
+                let (ri, rj) = (radius_of(found, i), radius_of(found, j));
+                let gap = (pj[0] - pi[0]).hypot(pj[1] - pi[1]) - ri - rj;
+                let listed = (found.contacts.iter()).any(|c| {
+                    (c.a, c.b) == (i, Body::Grain(j)) || (c.a, c.b) == (j, Body::Grain(i))
+                });
+                if gap < fraction * ri.min(rj) && !listed {
+                    let c = Contact {
+                        id: format!("near-{i}-{j}"),
+                        a: i,
+                        b: Body::Grain(j),
+                        point: [0.0; 3],
+                        normal: [1.0, 0.0, 0.0],
+                        mu: None,
+                    };
+                    candidates.contacts.push(place(&candidates, c));
+                }
+            }
+        }
+        let (mut truth, mut lost) = (Vec::new(), Vec::new());
+        for c in &candidates.contacts {
+            let hit = (r.scene.contacts.iter().zip(&r.truth)).find(|(t, _)| pairs_match(t, c));
+            truth.push(match hit {
+                Some((t, f)) if disk_of_grain[t.a] == Some(c.a) => *f,
+                Some((_, f)) => [-f[0], -f[1]],
+                None => [0.0; 2],
+            });
+        }
+        let added_true = truth[found.contacts.len()..]
+            .iter()
+            .filter(|t| t[0] != 0.0 || t[1] != 0.0)
+            .count();
+        for (t, f) in r.scene.contacts.iter().zip(&r.truth) {
+            if !candidates.contacts.iter().any(|c| pairs_match(t, c)) {
+                lost.push(*f);
+            }
+        }
+        let name = format!(
+            "detected + near-miss pairs (gap < {fraction} r): {} added, {added_true} of them true",
+            candidates.contacts.len() - found.contacts.len(),
+        );
+        run(&name, &candidates, &truth, &lost);
+    }
 }
