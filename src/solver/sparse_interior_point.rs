@@ -36,6 +36,22 @@ use super::sparse_ls::{EqualityLeastSquares, CONVERGED_TOL};
 use super::Cone;
 use super::{LeastSquares, Triplets};
 use crate::error::{Error, Result};
+use std::time::Instant;
+
+/// Set (to anything) to print each iteration's time split on stderr: where
+/// the interior point's time goes, for profiling only.
+const PROFILE_ENV: &str = "GRAINFORCE_IP_PROFILE";
+
+/// Seconds spent in one Newton step's parts (filled only when profiling).
+#[derive(Debug, Default, Clone, Copy)]
+struct StepTimes {
+    /// The predictor's solve, with the iteration's numeric factorisation.
+    predictor: f64,
+    /// The corrector's solve on the same factorisation.
+    corrector: f64,
+    /// Everything else: scaling, step lengths, the update.
+    rest: f64,
+}
 
 /// Fraction of the step to the cones' boundary taken.
 const STEP_FRACTION: f64 = 0.99;
@@ -543,9 +559,17 @@ pub fn solve(
     if cones.iter().any(|c| matches!(c, Cone::Pyramid { .. })) {
         return Ok(InteriorPointSolution::not_started(start));
     }
+    let profile = std::env::var_os(PROFILE_ENV).is_some();
+    let clock = Instant::now();
     let rows = ConeRows::new(cones);
     let mut aug = Augmented::new(problem, &rows);
     let mut ls = factor_of(&aug, problem, analysed)?;
+    if profile {
+        eprintln!(
+            "ip-profile setup (augmented rows + symbolic analysis) {:.4} s",
+            clock.elapsed().as_secs_f64()
+        );
+    }
 
     let mut it = match restart {
         Some(r) if r.fits(n, problem.c.nrows, rows.len()) => r.0.clone(),
@@ -582,7 +606,9 @@ pub fn solve(
         // (measured: 8-facet pyramids at μ = 0.01 "converged" 6e-4 from
         // clarabel's optimum), and near the end the solves' multipliers lose
         // accuracy faster than the forces do.
+        let clock = Instant::now();
         let certificate = it.certificate(problem, cones);
+        let certificate_time = clock.elapsed().as_secs_f64();
         let accurate_enough = target.is_some_and(|target| {
             certificate.distance <= target
                 && certificate.primal <= DISTANCE_RESIDUAL
@@ -637,7 +663,18 @@ pub fn solve(
         // iterations on a sheared 10³ packing; near the end they must be
         // finer than the gap (else it stalls near 1e-8 on small problems).
         ls.set_refinement_target((REFINE_SHARE * measures.gap).min(CONVERGED_TOL));
-        if let Err(reason) = it.newton_step(problem, &rows, &mut aug, &mut ls) {
+        let mut times = StepTimes::default();
+        let clock = Instant::now();
+        let step = it.newton_step(problem, &rows, &mut aug, &mut ls, &mut times);
+        times.rest = clock.elapsed().as_secs_f64() - times.predictor - times.corrector;
+        if profile {
+            eprintln!(
+                "ip-profile iteration {iteration} certificate {certificate_time:.4} \
+                 predictor {:.4} corrector {:.4} rest {:.4} s",
+                times.predictor, times.corrector, times.rest
+            );
+        }
+        if let Err(reason) = step {
             (stop, iterations) = (reason, iteration + 1);
             break;
         }
@@ -943,6 +980,7 @@ impl Iterate {
         rows: &ConeRows,
         aug: &mut Augmented,
         ls: &mut EqualityLeastSquares,
+        times: &mut StepTimes,
     ) -> std::result::Result<(), InteriorPointStop> {
         if !self.s.iter().chain(&self.z).all(|v| v.is_finite()) {
             return Err(InteriorPointStop::NotFinite);
@@ -955,7 +993,9 @@ impl Iterate {
 
         // Predictor (σ = 0): λ ∘ (W dz + W⁻¹ ds) = −λ ∘ λ.
         let minus_lambda: Vec<f64> = lambda.iter().map(|l| -l).collect();
+        let clock = Instant::now();
         let affine = self.direction(problem, rows, aug, ls, &w, &lambda, &minus_lambda)?;
+        times.predictor = clock.elapsed().as_secs_f64();
         // Step lengths in the scaled space, where s and z are both λ (W is an
         // automorphism of the cone): better centred than s and z near the boundary.
         let to_boundary = |d: &Direction| {
@@ -983,7 +1023,9 @@ impl Iterate {
             .map(|i| -ll[i] + sigma_mu[i] - second[i])
             .collect();
         let xi = jordan_divide(rows, &lambda, &rc);
+        let clock = Instant::now();
         let d = self.direction(problem, rows, aug, ls, &w, &lambda, &xi)?;
+        times.corrector = clock.elapsed().as_secs_f64();
         let alpha = (STEP_FRACTION * to_boundary(&d)).min(1.0);
         if alpha.is_nan() || alpha < MIN_STEP {
             return Err(InteriorPointStop::ShortStep { alpha });
