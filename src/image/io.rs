@@ -104,6 +104,10 @@ pub struct ChannelChoice {
     /// (red light), then the channel with the widest spread.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub signal: Option<String>,
+    /// The picture that was searched too and set aside, with the disks each
+    /// found, when `auto` chose a single channel over the colour distance.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub instead_of: Option<String>,
 }
 
 impl ChannelChoice {
@@ -121,9 +125,13 @@ impl ChannelChoice {
             ),
             None => format!("{} channel, disks {}", self.channel, self.polarity),
         };
-        match &self.signal {
+        let searched = match &self.signal {
             Some(c) if c != "green" => format!("{searched}; G² read in {c}"),
             _ => searched,
+        };
+        match &self.instead_of {
+            Some(other) => format!("{searched}, chosen over {other}"),
+            None => searched,
         }
     }
 }
@@ -173,6 +181,7 @@ pub fn read_for_detection(path: &Path, channel: Channel, polarity: &str) -> Resu
                 background_fraction: None,
                 polarity: polarity.to_owned(),
                 signal: None,
+                instead_of: None,
             },
             background_level: 0.0,
         });
@@ -192,6 +201,7 @@ pub fn read_for_detection(path: &Path, channel: Channel, polarity: &str) -> Resu
             background_fraction: Some(fraction),
             polarity: "bright".to_owned(),
             signal: Some(format!("{signal_channel:?}").to_ascii_lowercase()),
+            instead_of: None,
         },
         background_level,
     })
