@@ -100,9 +100,10 @@ pub struct FitSettings {
     pub min_exclusion: f64,
     /// Fewest surface faces a fit needs.
     pub min_faces: usize,
-    /// Refits (one more pass over the volume each) keeping only the faces
-    /// within `gate` voxels of the previous fitted sphere, so that flat
-    /// faces, edges and other lobes of a non-spherical grain drop out.
+    /// Refits keeping only the faces within `gate` voxels of the previous
+    /// fitted sphere, so that flat faces, edges and other lobes of a
+    /// non-spherical grain drop out (on the faces the one pass kept, not a
+    /// pass over the volume each).
     pub refits: usize,
     pub gate: f64,
 }
@@ -546,34 +547,10 @@ pub fn import_source(
             }
         }
     }
-    // Pass 2: the surface fits and the wall contact patches; then refits.
-    let mut fits = surface_pass(labels, &scan, &grains, &zones, &plane_hits, None, options)?;
-    if options.normals == NormalMethod::SurfaceFit {
-        for _ in 0..options.fit.refits {
-            let previous: Vec<[Option<Sphere>; 2]> = fits
-                .sides
-                .iter()
-                .map(|s| s.map(|f| f.solve(options.fit.min_faces)))
-                .collect();
-            let refit = surface_pass(
-                labels,
-                &scan,
-                &grains,
-                &zones,
-                &[],
-                Some(&previous),
-                options,
-            )?;
-            // A side whose refit lost too many faces keeps its previous fit.
-            for (old, new) in fits.sides.iter_mut().zip(refit.sides) {
-                for k in 0..2 {
-                    if new[k].solve(options.fit.min_faces).is_some() {
-                        old[k] = new[k];
-                    }
-                }
-            }
-        }
-    }
+    // Pass 2: the surface fits and the wall contact patches; then the
+    // refits, on the faces pass 2 kept.
+    let mut fits = surface_pass(labels, &scan, &grains, &zones, &plane_hits, options)?;
+    refit(&mut fits, &options.fit);
     let detected = contacts_of(&scan, &grains, &zones, &fits, &plane_hits, options);
     Ok(build(scan, grains, detected, options))
 }
@@ -834,9 +811,6 @@ fn unit(v: [f64; 3]) -> Option<[f64; 3]> {
     (l > 0.0 && l.is_finite()).then(|| v.map(|x| x / l))
 }
 
-/// A fitted sphere (centre, radius) in voxel units.
-type Sphere = ([f64; 3], f64);
-
 /// Normal equations of the algebraic sphere fit |x|² = 2 c·x + (r² − |c|²),
 /// in coordinates relative to `origin`.
 #[derive(Debug, Clone, Copy, Default)]
@@ -916,6 +890,10 @@ impl SphereFit {
 struct Fits {
     /// Per zone: the fits of side a and side b.
     sides: Vec<[SphereFit; 2]>,
+    /// Per zone and side: the faces in the fit, kept for the refits (empty
+    /// when there are none), as doubled coordinates (faces sit on half
+    /// voxels): 6 bytes a face.
+    faces: Vec<[Vec<[u16; 3]>; 2]>,
     /// Per plane hit: Σ position and count of the grain's voxels in its
     /// extreme layer towards the wall.
     patches: Vec<([f64; 3], f64)>,
@@ -929,27 +907,28 @@ fn surface_pass(
     grains: &[GrainGeometry],
     zones: &[Zone],
     plane_hits: &[(usize, usize, bool)],
-    previous: Option<&[[Option<Sphere>; 2]]>,
     options: &Options,
 ) -> Result<Fits> {
     let [nz, ny, nx] = labels.shape();
     let n = ny * nx;
     let container = options.container.unwrap_or(0);
     let mut sides = vec![[SphereFit::default(); 2]; zones.len()];
-    // Per grain: (zone, side, shell radii², previous sphere) to test its faces against.
-    type Test = (usize, usize, f64, f64, Option<Sphere>);
+    // Per grain: (zone, side, shell radii²) to test its faces against.
+    type Test = (usize, usize, f64, f64);
     let mut by_grain: Vec<Vec<Test>> = vec![Vec::new(); grains.len()];
     let fit = &options.fit;
-    let gate = fit.gate;
+    // Doubled coordinates fit u16 below 32 768 voxels an axis; a larger
+    // volume (not seen in CT) gets no refits.
+    let keep_faces = fit.refits > 0
+        && options.normals == NormalMethod::SurfaceFit
+        && [nz, ny, nx].iter().all(|&m| 2 * m < usize::from(u16::MAX));
     if options.normals == NormalMethod::SurfaceFit {
         for (k, z) in zones.iter().enumerate() {
             let inner = (fit.exclusion * z.radius).max(fit.min_exclusion);
             let mut add = |g: usize, side: usize| {
                 let outer = (fit.window * grains[g].radius_voxels).max(inner + fit.min_shell);
-                let before = previous.map(|p| p[k][side]);
-                // On a refit, a side without a previous fit is left out.
-                if outer > inner && before.is_none_or(|b| b.is_some()) {
-                    by_grain[g].push((k, side, inner * inner, outer * outer, before.flatten()));
+                if outer > inner {
+                    by_grain[g].push((k, side, inner * inner, outer * outer));
                     sides[k][side].origin = z.centre;
                 }
             };
@@ -966,18 +945,21 @@ fn surface_pass(
     if by_grain.iter().all(Vec::is_empty) && plane_hits.is_empty() {
         return Ok(Fits {
             sides,
+            faces: Vec::new(),
             patches: Vec::new(),
         });
     }
     // Slices z0 … z1−1 (with one on either side as neighbours): the faces
     // they add to each side's fit and each wall patch.
     let template = sides;
-    type Sums = (Vec<[SphereFit; 2]>, Vec<([f64; 3], f64)>);
+    type Faces = Vec<[Vec<[u16; 3]>; 2]>;
+    type Sums = (Vec<[SphereFit; 2]>, Faces, Vec<([f64; 3], f64)>);
     let slab = |z0: usize,
                 z1: usize,
                 read: &mut dyn FnMut(usize, &mut [u32]) -> Result<()>|
      -> Result<Sums> {
         let mut sides = template.clone();
+        let mut faces: Faces = vec![Default::default(); if keep_faces { sides.len() } else { 0 }];
         let mut patches = vec![([0.0; 3], 0.0); plane_hits.len()];
         let mut slices = [vec![0u32; n], vec![0u32; n], vec![0u32; n]];
         if z0 > 0 {
@@ -1032,7 +1014,7 @@ fn surface_pass(
                     }
                     let mut void_face = |d: [f64; 3]| {
                         let f = [x as f64 + d[0], y as f64 + d[1], z as f64 + d[2]];
-                        for &(k, side, inner2, outer2, before) in tests {
+                        for &(k, side, inner2, outer2) in tests {
                             let c = zones[k].centre;
                             let r2 = (f[0] - c[0]).powi(2)
                                 + (f[1] - c[1]).powi(2)
@@ -1040,12 +1022,10 @@ fn surface_pass(
                             if r2 < inner2 || r2 > outer2 {
                                 continue;
                             }
-                            if let Some((centre, radius)) = before {
-                                if (scene::norm(scene::sub(f, centre)) - radius).abs() > gate {
-                                    continue;
-                                }
-                            }
                             sides[k][side].add(f);
+                            if keep_faces {
+                                faces[k][side].push(f.map(|v| (2.0 * v) as u16));
+                            }
                         }
                     };
                     if x > 0 && here[i - 1] == 0 {
@@ -1069,14 +1049,19 @@ fn surface_pass(
                 }
             }
         }
-        Ok((sides, patches))
+        Ok((sides, faces, patches))
     };
     let mut sides = template.clone();
+    let mut faces: Faces = vec![Default::default(); if keep_faces { sides.len() } else { 0 }];
     let mut patches = vec![([0.0; 3], 0.0); plane_hits.len()];
-    let mut add = |(s, p): Sums| {
+    let mut add = |(s, mut f, p): Sums| {
         for (into, from) in sides.iter_mut().zip(&s) {
             into[0].merge(&from[0]);
             into[1].merge(&from[1]);
+        }
+        for (into, from) in faces.iter_mut().zip(&mut f) {
+            into[0].append(&mut from[0]);
+            into[1].append(&mut from[1]);
         }
         for (into, from) in patches.iter_mut().zip(&p) {
             for k in 0..3 {
@@ -1109,7 +1094,43 @@ fn surface_pass(
     } else {
         add(slab(0, nz, &mut |z, out| labels.labels(z, out))?);
     }
-    Ok(Fits { sides, patches })
+    for side in faces.iter_mut().flatten() {
+        side.shrink_to_fit();
+    }
+    Ok(Fits {
+        sides,
+        faces,
+        patches,
+    })
+}
+
+/// The refits: each side refitted to the faces within `gate` voxels of its
+/// previous sphere; a refit that loses too many faces keeps the fit before.
+fn refit(fits: &mut Fits, settings: &FitSettings) {
+    let faces = std::mem::take(&mut fits.faces);
+    for (fit, faces) in fits.sides.iter_mut().zip(&faces) {
+        for k in 0..2 {
+            for _ in 0..settings.refits {
+                let Some((centre, radius)) = fit[k].solve(settings.min_faces) else {
+                    break;
+                };
+                let mut next = SphereFit {
+                    origin: fit[k].origin,
+                    ..SphereFit::default()
+                };
+                for f in &faces[k] {
+                    let f = f.map(|v| 0.5 * f64::from(v));
+                    if (scene::norm(scene::sub(f, centre)) - radius).abs() <= settings.gate {
+                        next.add(f);
+                    }
+                }
+                if next.solve(settings.min_faces).is_none() {
+                    break;
+                }
+                fit[k] = next;
+            }
+        }
+    }
 }
 
 /// Slices per slab of the parallel surface passes.
