@@ -316,11 +316,7 @@ fn single_channel_instead(
         return Ok(None);
     }
     let name = choice.signal.clone().unwrap_or_else(|| "green".to_owned());
-    let polarity = match options.polarity {
-        Polarity::Bright => "bright",
-        Polarity::Dark => "dark",
-        Polarity::Either => "either",
-    };
+    let polarity = options.polarity.name();
     let picked = ChannelChoice {
         channel: name.clone(),
         background: None,
@@ -409,11 +405,7 @@ pub fn detect_images(
     let mut pixel_frame = None;
     let mut walls = Vec::new();
     for (k, path) in paths.iter().enumerate() {
-        let polarity = match settings.detect.polarity {
-            Polarity::Bright => "bright",
-            Polarity::Dark => "dark",
-            Polarity::Either => "either",
-        };
+        let polarity = settings.detect.polarity.name();
         let DetectionImage {
             search,
             signal,

@@ -10,6 +10,17 @@ pub enum Polarity {
     Either,
 }
 
+impl Polarity {
+    /// The name reported in the run summary and `image-frame.json`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Polarity::Bright => "bright",
+            Polarity::Dark => "dark",
+            Polarity::Either => "either",
+        }
+    }
+}
+
 #[derive(Debug, Clone)]
 pub struct DetectOptions {
     /// Radius range [px] of the disks to find.
