@@ -116,6 +116,21 @@ fn hdf5_grain_files_match_imaged11_to_1e_8_mpa() {
 }
 
 #[test]
+fn hdf5_after_a_user_block_is_still_hdf5() {
+    // The signature at byte 512 (h5py's userblock_size=512): read as HDF5,
+    // not refused as a text map that is not UTF-8.
+    let plain = imaged11::read_grains(&dir().join("quartz.h5"), None).unwrap();
+    let behind = imaged11::read_grains(&dir().join("quartz_userblock.h5"), None).unwrap();
+    assert_eq!(plain.len(), behind.len());
+    for (a, b) in plain.iter().zip(&behind) {
+        assert_eq!(
+            (a.index, a.ubi, a.translation),
+            (b.index, b.ubi, b.translation)
+        );
+    }
+}
+
+#[test]
 fn bad_hdf5_grain_files_are_named_errors() {
     let tmp = tempfile::tempdir().unwrap();
     let quartz = dir().join("quartz.h5");

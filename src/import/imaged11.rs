@@ -76,15 +76,35 @@ impl MapGrain {
 /// The HDF5 file signature.
 const HDF5_SIGNATURE: &[u8; 8] = b"\x89HDF\r\n\x1a\n";
 
+/// Whether the file is HDF5: its signature at byte 0, or after a user block
+/// (at 512, 1024, 2048, … as the format allows).
+fn is_hdf5(path: &Path) -> bool {
+    use std::io::{Read, Seek, SeekFrom};
+    let Ok(mut file) = std::fs::File::open(path) else {
+        return false;
+    };
+    let len = file.metadata().map_or(0, |m| m.len());
+    let mut offset = 0u64;
+    while offset + 8 <= len {
+        let mut head = [0u8; 8];
+        let read = file
+            .seek(SeekFrom::Start(offset))
+            .and_then(|_| file.read_exact(&mut head));
+        if read.is_err() {
+            return false;
+        }
+        if &head == HDF5_SIGNATURE {
+            return true;
+        }
+        offset = if offset == 0 { 512 } else { 2 * offset };
+    }
+    false
+}
+
 /// Reads a grain file: HDF5 (by its signature) or a `.map`/`.ubi` text file.
 /// `phase` names the HDF5 group; without it a file with one group is read.
 pub fn read_grains(path: &Path, phase: Option<&str>) -> Result<Vec<MapGrain>> {
-    let mut head = [0u8; 8];
-    let is_hdf5 = std::fs::File::open(path)
-        .and_then(|mut f| std::io::Read::read_exact(&mut f, &mut head))
-        .is_ok()
-        && &head == HDF5_SIGNATURE;
-    if is_hdf5 {
+    if is_hdf5(path) {
         read_h5(path, phase)
     } else if let Some(phase) = phase {
         Err(Error::Invalid(format!(
