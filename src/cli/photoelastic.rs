@@ -3,7 +3,6 @@
 
 use grainforce::image::fringe_run::{self, ContactChoice, PhotoelasticConfig};
 use grainforce::image::Channel;
-use grainforce::scene::{write_file_atomically, write_forces};
 use grainforce::{Error, Result};
 use std::path::PathBuf;
 
@@ -75,20 +74,19 @@ pub fn run(args: Args) -> Result<()> {
         contacts: args.contacts,
     };
     let done = fringe_run::run(&args.image, &args.scene, &config).map_err(spell_flags)?;
-    // Everything that can fail is computed before the first file is written.
-    let overlay = match &args.overlay {
-        Some(_) => Some(done.overlay()?),
-        None => None,
-    };
-    write_forces(&args.output, &done.forces())?;
-    status!("wrote {}", args.output.display());
-    if let Some(path) = &args.report {
-        let text = serde_json::to_string_pretty(&done.report_json()).expect("json");
-        write_file_atomically(path, (text + "\n").as_bytes())?;
-        status!("wrote {}", path.display());
-    }
-    if let (Some(path), Some(both)) = (&args.overlay, &overlay) {
-        grainforce::image::save_gray(path, both, 8)?;
+    done.write(
+        Some(&args.output),
+        args.report.as_deref(),
+        args.overlay.as_deref(),
+    )?;
+    for path in [
+        Some(&args.output),
+        args.report.as_ref(),
+        args.overlay.as_ref(),
+    ]
+    .into_iter()
+    .flatten()
+    {
         status!("wrote {}", path.display());
     }
     let r = &done.fit.report;

@@ -12,7 +12,7 @@ use super::fringe_fit::{
 };
 use super::{load_channel, Channel, FloatImage, PixelFrame, FRAME_FILE};
 use crate::error::{Error, Result};
-use crate::scene::{read_scene, Forces, Scene};
+use crate::scene::{read_scene, write_file_atomically, write_forces, Forces, Scene};
 use std::path::Path;
 
 /// Which of the scene's contacts are fitted.
@@ -105,6 +105,36 @@ impl PhotoelasticRun {
             value["fsigma_thickness_assumed"] = serde_json::json!(assumed);
         }
         value
+    }
+
+    /// The report's text as `--report` writes it.
+    pub fn report_text(&self) -> String {
+        let text =
+            serde_json::to_string_pretty(&self.report_json()).expect("the report serialises");
+        text + "\n"
+    }
+
+    /// Writes what `grainforce photoelastic -o FORCES --report REPORT
+    /// --overlay OVERLAY` writes (`None` skips one), each file atomically;
+    /// the overlay, the only part that can fail, is drawn before the first
+    /// file is written.
+    pub fn write(
+        &self,
+        forces: Option<&Path>,
+        report: Option<&Path>,
+        overlay: Option<&Path>,
+    ) -> Result<()> {
+        let both = overlay.map(|_| self.overlay()).transpose()?;
+        if let Some(path) = forces {
+            write_forces(path, &self.forces())?;
+        }
+        if let Some(path) = report {
+            write_file_atomically(path, self.report_text().as_bytes())?;
+        }
+        if let (Some(path), Some(both)) = (overlay, &both) {
+            super::save_gray(path, both, 8)?;
+        }
+        Ok(())
     }
 
     /// The photograph (left) and the fitted fringes (right) side by side.
