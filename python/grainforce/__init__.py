@@ -45,6 +45,8 @@ __all__ = [
     "LabelImport",
     "import_labels",
     "import_imaged11",
+    "Photoelastic",
+    "photoelastic",
     "InfeasibleError",
     "SolverError",
     "FrameFailureWarning",
@@ -678,3 +680,94 @@ def import_imaged11(
             phase,
         )
     )
+
+
+class Photoelastic:
+    """A photoelastic fit (``grainforce photoelastic``).
+
+    forces: forces.csv as a DataFrame (contact, f_x, f_y: N/m per unit
+    thickness; zero for a contact left out). report: the fit report as a
+    dict (per-disk residuals, balance, ``left_out``, f_σ when fitted to the
+    walls). ``overlay()`` gives the photograph and the fitted fringes side
+    by side as an array; ``save()`` writes the CLI's files.
+    """
+
+    __slots__ = ("_native", "forces", "report")
+
+    def __init__(self, native: "_native.Photoelastic"):
+        self._native = native
+        self.forces = _table(native.forces())
+        self.report = json.loads(native.report())
+
+    def overlay(self) -> np.ndarray:
+        """The photograph (left half) and the fitted fringes (right half),
+        rows = y down, intensities in [0, 1] (float32)."""
+        return self._native.overlay()
+
+    def save(
+        self,
+        forces: Union[None, str, os.PathLike] = None,
+        *,
+        report: Union[None, str, os.PathLike] = None,
+        overlay: Union[None, str, os.PathLike] = None,
+    ) -> None:
+        """Writes the files ``grainforce photoelastic -o FORCES --report
+        REPORT --overlay OVERLAY`` writes."""
+        path = lambda p: None if p is None else os.fspath(p)
+        self._native.save(path(forces), path(report), path(overlay))
+
+    def __repr__(self) -> str:
+        r = self.report
+        return (
+            f"Photoelastic({len(self.forces)} forces, {len(r['disks'])} disks, "
+            f"{len(r['flagged'])} flagged)"
+        )
+
+
+def photoelastic(
+    image: Union[str, os.PathLike],
+    scene: Union[str, os.PathLike],
+    *,
+    fsigma: Optional[float] = None,
+    thickness: Optional[float] = None,
+    scale: Optional[float] = None,
+    channel: Optional[str] = None,
+    mu: Optional[float] = None,
+    balance_weight: Optional[float] = None,
+    blur: Optional[float] = None,
+    edge: Optional[float] = None,
+    iterations: Optional[int] = None,
+    per_disk: bool = False,
+    contacts: Optional[str] = None,
+) -> Photoelastic:
+    """Contact forces fitted to a photoelastic photograph's fringes, all
+    disks at once under balance and friction (``grainforce photoelastic``,
+    docs/photoelastic.md).
+
+    image: the photograph (dark-field circular polariscope). scene: the scene
+    folder from ``grainforce detect`` or ``import pegs`` (disks, contacts,
+    image-frame.json). fsigma: the fringe constant f_σ [N/m]; without it f_σ
+    is fitted to the walls' load cells (walls.csv). thickness [m] and scale
+    [px/m] default to the scene's. Every keyword left None keeps the CLI's
+    default: channel green, mu 0.5, exact balance (balance_weight makes it a
+    penalty), blur 1 px, edge 6 px, 60 iterations, contacts "evidence".
+    """
+    opt = lambda v: None if v is None else float(v)
+    return Photoelastic(
+        _native.photoelastic(
+            os.fspath(image),
+            os.fspath(scene),
+            opt(fsigma),
+            opt(thickness),
+            opt(scale),
+            channel,
+            opt(mu),
+            opt(balance_weight),
+            opt(blur),
+            opt(edge),
+            None if iterations is None else int(iterations),
+            bool(per_disk),
+            contacts,
+        )
+    )
+

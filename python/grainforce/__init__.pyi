@@ -207,3 +207,37 @@ def import_imaged11(
     phase: Optional[str] = None,
 ) -> Scene:
     """A 3D scene from an ImageD11 grain map, text or HDF5 (`grainforce import imaged11`)."""
+
+class Photoelastic:
+    """A photoelastic fit: forces (forces.csv), report (the fit report)."""
+
+    forces: Table
+    report: dict[str, Any]
+    def overlay(self) -> npt.NDArray[np.float32]:
+        """The photograph and the fitted fringes side by side."""
+    def save(
+        self,
+        forces: Optional[PathLike] = None,
+        *,
+        report: Optional[PathLike] = None,
+        overlay: Optional[PathLike] = None,
+    ) -> None:
+        """Writes the files `grainforce photoelastic` writes."""
+
+def photoelastic(
+    image: PathLike,
+    scene: PathLike,
+    *,
+    fsigma: Optional[float] = None,
+    thickness: Optional[float] = None,
+    scale: Optional[float] = None,
+    channel: Optional[Literal["green", "red", "blue", "luma", "auto"]] = None,
+    mu: Optional[float] = None,
+    balance_weight: Optional[float] = None,
+    blur: Optional[float] = None,
+    edge: Optional[float] = None,
+    iterations: Optional[int] = None,
+    per_disk: bool = False,
+    contacts: Optional[Literal["all", "evidence"]] = None,
+) -> Photoelastic:
+    """Contact forces fitted to a photoelastic photograph's fringes (`grainforce photoelastic`)."""

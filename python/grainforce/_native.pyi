@@ -96,3 +96,30 @@ def import_imaged11(
     contacts: Optional[str] = None,
     phase: Optional[str] = None,
 ) -> Scene: ...
+
+class Photoelastic:
+    def forces(self) -> Columns: ...
+    def report(self) -> str: ...
+    def overlay(self) -> npt.NDArray[np.float32]: ...
+    def save(
+        self,
+        forces: Optional[str] = None,
+        report: Optional[str] = None,
+        overlay: Optional[str] = None,
+    ) -> None: ...
+
+def photoelastic(
+    image: str,
+    scene: str,
+    fsigma: Optional[float] = None,
+    thickness: Optional[float] = None,
+    scale: Optional[float] = None,
+    channel: Optional[str] = None,
+    mu: Optional[float] = None,
+    balance_weight: Optional[float] = None,
+    blur: Optional[float] = None,
+    edge: Optional[float] = None,
+    iterations: Optional[int] = None,
+    per_disk: bool = False,
+    contacts: Optional[str] = None,
+) -> Photoelastic: ...

@@ -729,6 +729,109 @@ fn import_imaged11(
     })
 }
 
+/// A photoelastic fit (`grainforce::image::fringe_run`): forces, report,
+/// overlay and the files `grainforce photoelastic` writes.
+#[pyclass(frozen, module = "grainforce._native")]
+struct Photoelastic {
+    run: grainforce::image::fringe_run::PhotoelasticRun,
+}
+
+#[pymethods]
+impl Photoelastic {
+    /// forces.csv's columns.
+    fn forces<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        forces_table(py, &self.run.forces())
+    }
+
+    /// The report as `--report` writes it (JSON).
+    fn report(&self) -> String {
+        self.run.report_text()
+    }
+
+    /// The photograph (left) and the fitted fringes (right) side by side,
+    /// rows = y down, intensities in [0, 1].
+    fn overlay<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, numpy::PyArray2<f32>>> {
+        let both = py.detach(|| self.run.overlay()).map_err(to_py)?;
+        let (w, h) = both.dimensions();
+        let array =
+            numpy::ndarray::Array2::from_shape_vec((h as usize, w as usize), both.into_raw())
+                .map_err(|e| PyValueError::new_err(e.to_string()))?;
+        Ok(numpy::PyArray2::from_owned_array(py, array))
+    }
+
+    /// Writes what `grainforce photoelastic -o FORCES --report REPORT
+    /// --overlay OVERLAY` writes (`None` skips one).
+    #[pyo3(signature = (forces=None, report=None, overlay=None))]
+    fn save(
+        &self,
+        py: Python<'_>,
+        forces: Option<PathBuf>,
+        report: Option<PathBuf>,
+        overlay: Option<PathBuf>,
+    ) -> PyResult<()> {
+        py.detach(|| {
+            self.run
+                .write(forces.as_deref(), report.as_deref(), overlay.as_deref())
+        })
+        .map_err(to_py)
+    }
+}
+
+/// Contact forces fitted to a photoelastic photograph's fringes, all disks
+/// at once under balance and friction (`grainforce photoelastic`). `None`
+/// keeps the CLI's default.
+#[pyfunction]
+#[pyo3(signature = (image, scene, fsigma=None, thickness=None, scale=None, channel=None, mu=None, balance_weight=None, blur=None, edge=None, iterations=None, per_disk=false, contacts=None))]
+#[allow(clippy::too_many_arguments)]
+fn photoelastic(
+    py: Python<'_>,
+    image: PathBuf,
+    scene: PathBuf,
+    fsigma: Option<f64>,
+    thickness: Option<f64>,
+    scale: Option<f64>,
+    channel: Option<&str>,
+    mu: Option<f64>,
+    balance_weight: Option<f64>,
+    blur: Option<f64>,
+    edge: Option<f64>,
+    iterations: Option<usize>,
+    per_disk: bool,
+    contacts: Option<&str>,
+) -> PyResult<Photoelastic> {
+    use grainforce::image::fringe_run::{self, ContactChoice, PhotoelasticConfig};
+    // Fields a caller leaves out keep the library's defaults (the CLI's).
+    let mut config = PhotoelasticConfig {
+        fsigma,
+        thickness,
+        scale,
+        balance_weight,
+        per_disk,
+        ..PhotoelasticConfig::default()
+    };
+    if let Some(name) = channel {
+        config.channel = grainforce::image::Channel::parse(name).map_err(to_py)?;
+    }
+    config.contacts = match contacts {
+        None => config.contacts,
+        Some("all") => ContactChoice::All,
+        Some("evidence") => ContactChoice::Evidence,
+        Some(other) => {
+            return Err(PyValueError::new_err(format!(
+                "contacts must be 'all' or 'evidence', not '{other}'"
+            )))
+        }
+    };
+    config.mu = mu.unwrap_or(config.mu);
+    config.blur = blur.unwrap_or(config.blur);
+    config.edge = edge.unwrap_or(config.edge);
+    config.iterations = iterations.unwrap_or(config.iterations);
+    let run = py
+        .detach(|| fringe_run::run(&image, &scene, &config))
+        .map_err(to_py)?;
+    Ok(Photoelastic { run })
+}
+
 #[pymodule]
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Scene>()?;
@@ -743,6 +846,8 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<LabelImport>()?;
     m.add_function(wrap_pyfunction!(import_labels, m)?)?;
     m.add_function(wrap_pyfunction!(import_imaged11, m)?)?;
+    m.add_class::<Photoelastic>()?;
+    m.add_function(wrap_pyfunction!(photoelastic, m)?)?;
     m.add("InfeasibleError", m.py().get_type::<InfeasibleError>())?;
     m.add("SolverError", m.py().get_type::<SolverError>())?;
     Ok(())

@@ -1,26 +1,16 @@
 """import_labels and import_imaged11 against the CLI, ImageD11's own stresses
 and bad input."""
 
-import os
-import shutil
 import subprocess
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
 
 import grainforce as gf
+from test_grainforce import REPO, cli
 
-REPO = Path(__file__).resolve().parents[2]
 IMAGED11 = REPO / "fixtures" / "import" / "imaged11"
-
-
-def cli():
-    binary = os.environ.get("GRAINFORCE_BIN") or shutil.which("grainforce")
-    if not binary:
-        pytest.fail("set GRAINFORCE_BIN to the grainforce binary (python/ci.sh does)")
-    return binary
 
 
 def packed_balls(seed=3, n=4, spacing=16.0, jitter=2.0):
