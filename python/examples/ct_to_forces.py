@@ -1,10 +1,12 @@
-"""A CT label volume and another instrument's grain stresses going to forces.
+"""A CT label volume and a 3DXRD grain map going to forces.
 
 The 77 spheres of the 3D DEM oedometer (fixtures/regression/oedometer3d_seed1,
 exact forces known) are voxelised at 30 voxels per diameter into a label
-volume, as a segmented tomography scan gives it; their stresses come as a
-diffraction instrument reports them, in its own frame (turned 120° about a
-skew axis and shifted). `import_labels` finds grains, contacts and normals
+volume, as a segmented tomography scan gives it. Their stresses come as a
+diffraction instrument reports them: an ImageD11 grain map (`.map`, quartz,
+a random orientation per grain, UBIs to 9 digits) in the instrument's own
+frame (turned 120° about a skew axis and shifted). `import_imaged11` turns
+the map into stresses, `import_labels` finds grains, contacts and normals
 in the volume, fits the transform between the frames and attaches the
 stresses; `infer` gives the forces, compared with the DEM's. With `--vtk
 FOLDER` the scene and forces are exported for ParaView; with `--picture
@@ -77,6 +79,87 @@ def turned(grains: pd.DataFrame) -> pd.DataFrame:
     return out
 
 
+# α-quartz: the cell ImageD11 is given and the constants of the `quartz`
+# preset (GPa, IEEE axes x ∥ a; McSkimin et al. 1965).
+QUARTZ_CELL = (4.9134, 4.9134, 5.4052, 90.0, 90.0, 120.0)
+C11, C12, C13, C14, C33, C44 = 86.74, 6.99, 11.91, -17.91, 107.2, 57.94
+VOIGT = [(0, 0), (1, 1), (2, 2), (1, 2), (0, 2), (0, 1)]
+
+
+def busing_levy_b(cell) -> np.ndarray:
+    """The B matrix of a cell (reciprocal vectors, crystal frame x ∥ a*)."""
+    a, b, c = cell[:3]
+    al, be, ga = np.radians(cell[3:])
+    direct = np.array([
+        [a, 0, 0],
+        [b * np.cos(ga), b * np.sin(ga), 0],
+        [c * np.cos(be), c * (np.cos(al) - np.cos(be) * np.cos(ga)) / np.sin(ga), 0],
+    ])
+    direct[2, 2] = np.sqrt(c * c - direct[2, 0] ** 2 - direct[2, 1] ** 2)
+    recip = np.linalg.inv(direct).T  # rows a*, b*, c*
+    la, lb, lc = np.linalg.norm(recip, axis=1)
+    cos_al = recip[1] @ recip[2] / (lb * lc)
+    cos_be = recip[0] @ recip[2] / (la * lc)
+    cos_ga = recip[0] @ recip[1] / (la * lb)
+    sin_ga = np.sqrt(1 - cos_ga**2)
+    sin_be = np.sqrt(1 - cos_be**2)
+    cos_alpha = np.cos(al)
+    return np.array([
+        [la, lb * cos_ga, lc * cos_be],
+        [0, lb * sin_ga, -lc * sin_be * cos_alpha],
+        [0, 0, 1 / c],
+    ])
+
+
+def quartz_compliance() -> np.ndarray:
+    """S = C⁻¹ in Voigt form (engineering shears), IEEE axes, 1/Pa."""
+    c66 = (C11 - C12) / 2
+    c = np.array([
+        [C11, C12, C13, C14, 0, 0],
+        [C12, C11, C13, -C14, 0, 0],
+        [C13, C13, C33, 0, 0, 0],
+        [C14, -C14, 0, C44, 0, 0],
+        [0, 0, 0, 0, C44, C14],
+        [0, 0, 0, 0, C14, c66],
+    ]) * 1e9
+    return np.linalg.inv(c)
+
+
+def write_imaged11_map(grains: pd.DataFrame, path: Path, seed: int = 7) -> None:
+    """The grains' stresses as a 3DXRD grain map: for each grain a random
+    orientation R, the crystal strain from the stress (Hooke's law in IEEE
+    axes, turned 30° about c into ImageD11's x ∥ a*), the Biot stretch
+    S = I + ε, F = R S and UBI = B0⁻¹ Fᵀ (ImageD11: F = UBIᵀ B0ᵀ)."""
+    rng = np.random.default_rng(seed)
+    b0_inv = np.linalg.inv(busing_levy_b(QUARTZ_CELL))
+    compliance = quartz_compliance()
+    turn = np.radians(30.0)
+    ieee = np.array([[np.cos(turn), -np.sin(turn), 0], [np.sin(turn), np.cos(turn), 0], [0, 0, 1]])
+    names = [["s_xx", "s_xy", "s_xz"], ["s_xy", "s_yy", "s_yz"], ["s_xz", "s_yz", "s_zz"]]
+    blocks = []
+    for _, g in grains.iterrows():
+        q = rng.normal(size=4)
+        w, x, y, z = q / np.linalg.norm(q)
+        rotation = np.array([
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ])
+        sigma_sample = np.array([[g[n] for n in row] for row in names])
+        sigma = ieee @ rotation.T @ sigma_sample @ rotation @ ieee.T
+        strain_voigt = compliance @ np.array([sigma[i, j] for i, j in VOIGT])
+        strain = np.zeros((3, 3))
+        for k, (i, j) in enumerate(VOIGT):
+            strain[i, j] = strain[j, i] = strain_voigt[k] * (1.0 if i == j else 0.5)
+        stretch = np.eye(3) + ieee.T @ strain @ ieee
+        ubi = b0_inv @ (rotation @ stretch).T
+        rows = "\n".join(" ".join(f"{v:.9g}" for v in row) for row in ubi)
+        position = 1e6 * np.array([g.x, g.y, g.z])  # µm
+        blocks.append("#translation: " + " ".join(f"{v:.6g}" for v in position)
+                      + "\n#npks 100\n#UBI:\n" + rows + "\n")
+    path.write_text("\n".join(blocks))
+
+
 def relerr_by_pair(scene_dir: Path, forces: pd.DataFrame, truth_dir: Path) -> float:
     """‖f − f_DEM‖ / ‖f_DEM‖ over contacts matched by their pair of bodies
     (labels are DEM rows + 1); a missed or a false contact counts whole."""
@@ -101,8 +184,9 @@ def relerr_by_pair(scene_dir: Path, forces: pd.DataFrame, truth_dir: Path) -> fl
     return float(np.sqrt(num / sum(np.sum(f**2) for f in truth.values())))
 
 
-def ct_to_forces(vtk_dir=None, picture=None, verbose=True) -> float:
-    """The whole path; returns the forces' relerr against the DEM's."""
+def ct_to_forces(vtk_dir=None, picture=None, verbose=True) -> dict:
+    """The whole path; returns how far the map's stresses [Pa] and the
+    forces (relerr) land from the DEM's."""
     say = print if verbose else (lambda *a: None)
     grains = pd.read_csv(DEM / "grains.csv", dtype={"id": str})
     voxel = 2 * grains["radius"].mean() / VOXELS_PER_DIAMETER
@@ -121,7 +205,17 @@ def ct_to_forces(vtk_dir=None, picture=None, verbose=True) -> float:
                        ("back", "z"), ("front", "z")]:
         walls[name] = (axis, float(contacts.loc[contacts["b"] == name, axis].mean()))
 
-    ct = gf.import_labels(labels, voxel, origin=list(lo), walls=walls, stresses=turned(grains))
+    # The diffraction instrument's grain map, in its own frame.
+    with tempfile.TemporaryDirectory() as tmp:
+        write_imaged11_map(turned(grains), Path(tmp) / "grains.map")
+        xrd = gf.import_imaged11(Path(tmp) / "grains.map", cell=QUARTZ_CELL, stiffness="quartz",
+                                 grain_volume=1e-12)
+    measured = xrd.to_frames()[0]
+    stress = ["s_xx", "s_yy", "s_zz", "s_xy", "s_xz", "s_yz"]
+    off = np.abs(measured[stress].to_numpy() - turned(grains)[stress].to_numpy()).max()
+    say(f"grain map: {xrd.n_grains} grains, stresses {off / 1e6:.1e} MPa from the DEM's")
+
+    ct = gf.import_labels(labels, voxel, origin=list(lo), walls=walls, stresses=xrd)
     t = ct.transform
     say(f"{ct.scene.n_grains} grains, {ct.scene.n_contacts} contacts; stresses matched: "
         f"{t['matched']} grains, rotation {t['rotation_angle_degrees']:.2f}°, "
@@ -142,7 +236,7 @@ def ct_to_forces(vtk_dir=None, picture=None, verbose=True) -> float:
             if picture:
                 draw(vtk_dir / "ct.vtp", vtk_dir / "ct_contacts.vtp", picture)
                 say(f"wrote {picture}")
-    return error
+    return {"map_stress_off": off, "relerr": error}
 
 
 def main() -> None:
