@@ -11,7 +11,7 @@ export CARGO_TARGET_DIR="${CARGO_TARGET_DIR:-$repo/target}"
 venv=$(mktemp -d)
 trap 'rm -rf "$venv"' EXIT
 python3 -m venv "$venv"
-"$venv/bin/pip" install --quiet --disable-pip-version-check maturin pytest pandas numpy "dask[distributed]"
+"$venv/bin/pip" install --quiet --disable-pip-version-check maturin pytest pandas numpy "dask[distributed]" scipy pillow
 
 # The CLI the tests compare with.
 (cd "$repo" && cargo build --quiet --bin grainforce)
