@@ -1809,7 +1809,8 @@ fn report(
             .disks
             .iter()
             .zip(&p.balanced)
-            .filter(|(_, b)| !**b)
+            // A rattler has no balance to leave out.
+            .filter(|(d, b)| !**b && !d.loads.is_empty())
             .map(|(d, _)| scene.grains[d.grain].id.clone())
             .collect(),
         flagged: disks
