@@ -5,7 +5,7 @@
 //! data and a tolerance asked for keep their routes.
 
 use grainforce::bench::{perturb, Noise};
-use grainforce::infer::{infer, InferOptions, Inference, Method};
+use grainforce::infer::{infer, InferOptions, Inference, Method, StressNoise};
 use grainforce::report::metrics::relative_error;
 use grainforce::scene::{read_forces, read_scene, Scene, Vec3};
 use grainforce::solver::clarabel::DEFAULT_NOISE_SHARE;
@@ -197,4 +197,58 @@ fn the_datas_accuracy_at_the_extremes() {
     assert!(!at_datas_accuracy(&default));
     assert_eq!(default.report.solver_status, asked.report.solver_status);
     assert!(default.forces == asked.forces, "tiny noise: forces differ");
+}
+
+/// Interior-point iterations of each solve the report lists, in order.
+fn interior_point_iterations(run: &Inference) -> Vec<usize> {
+    run.report
+        .solver_stages
+        .iter()
+        .filter_map(|a| match a {
+            Attempt::SparseInteriorPoint { iterations, .. } => Some(*iterations),
+            _ => None,
+        })
+        .collect()
+}
+
+/// The relative noise model's reweighting passes before the last only set
+/// weights: their interior point stops sooner than the absolute model's
+/// own (same problem) solve, and the final forces stay within the data's
+/// accuracy of the passes all solved to 1e-10, with the same relerr to the
+/// truth to four digits.
+#[test]
+fn reweighting_passes_stop_sooner_on_a_sheared_packing() {
+    let (clean, truth) = sheared();
+    let scene = perturb(&clean, Noise::Stress, 18);
+    let absolute = infer(&scene, &qs()).unwrap();
+    let relative_opts = InferOptions {
+        stress_noise: StressNoise::Relative,
+        ..qs()
+    };
+    let fast = infer(&scene, &relative_opts).unwrap();
+    let mut tight_opts = relative_opts.clone();
+    tight_opts.conic.tolerance = 1e-10;
+    tight_opts.conic.noise_share = None;
+    let tight = infer(&scene, &tight_opts).unwrap();
+    let (passes, single) = (
+        interior_point_iterations(&fast),
+        interior_point_iterations(&absolute),
+    );
+    let off = relative_error(&tight.forces_or_zero(), &fast.forces_or_zero());
+    let (e_fast, e_tight) = (
+        relative_error(&truth, &fast.forces_or_zero()),
+        relative_error(&truth, &tight.forces_or_zero()),
+    );
+    eprintln!(
+        "passes {passes:?} against {single:?}; {off:.2e} from the tight passes, relerr {e_fast:.6} / {e_tight:.6}"
+    );
+    assert_eq!((passes.len(), single.len()), (3, 1));
+    // Measured 10 against 13 (all three passes: 25 against 30 before).
+    assert!(passes[0] < single[0], "{passes:?} against {single:?}");
+    // Measured 1.3e-5 (1.2e-5 before the change).
+    assert!(off < 1e-3, "{off:.2e} from the tight passes");
+    assert!(
+        (e_fast - e_tight).abs() < 1e-4,
+        "{e_fast} against {e_tight}"
+    );
 }

@@ -141,6 +141,11 @@ pub(crate) fn infer_once(scene: &Scene, opts: &InferOptions) -> Result<Inference
     Ok(Inference { forces, report })
 }
 
+/// How much looser than the final solve's share of the noise the
+/// reweighting passes before it may stop the interior point: only their
+/// weights are kept (measured in docs/bench.md, round 6).
+const WEIGHTING_PASS_LOOSENING: f64 = 30.0;
+
 /// The chosen method's solve under the chosen stress-noise model.
 fn solve_with_noise_model(
     cx: &Context,
@@ -161,13 +166,28 @@ fn solve_with_noise_model(
             )?
         }
         StressNoise::Relative => {
-            let mut solved = solve_method(cx, report)?;
-            for _ in 0..noise::IRLS_STEPS {
+            // The passes before the last only set weights: at the data's
+            // accuracy they stop at a looser share of their noise.
+            let mut looser = cx.opts.clone();
+            looser.conic.noise_share = looser
+                .conic
+                .noise_share
+                .map(|share| share * WEIGHTING_PASS_LOOSENING);
+            let mut solved = solve_method(
+                &Context {
+                    opts: &looser,
+                    ..*cx
+                },
+                report,
+            )?;
+            for step in 0..noise::IRLS_STEPS {
                 let weights = noise::relative_weights(assembly, &solved.0);
                 let weighted = noise::weight_stress_rows(assembly, &weights);
+                let last = step + 1 == noise::IRLS_STEPS;
                 solved = solve_method(
                     &Context {
                         assembly: &weighted,
+                        opts: if last { cx.opts } else { &looser },
                         ..*cx
                     },
                     report,

@@ -49,6 +49,11 @@ struct StepTimes {
     predictor: f64,
     /// The corrector's solve on the same factorisation.
     corrector: f64,
+    /// The centrality correctors' solves on the same factorisation.
+    centrality: f64,
+    /// Centrality correctors solved, and of those kept.
+    correctors_tried: usize,
+    correctors_kept: usize,
     /// Everything else: scaling, step lengths, the update.
     rest: f64,
 }
@@ -74,6 +79,10 @@ pub struct InteriorPointSettings {
     /// squares without inequalities) and the balance and dual residuals at
     /// most [`DISTANCE_RESIDUAL`]: the data's accuracy.
     pub noise_share: Option<f64>,
+    /// At most this many Gondzio centrality correctors per iteration, each
+    /// one more solve on the iteration's factorisation, kept only while it
+    /// lengthens the step.
+    pub centrality_correctors: usize,
 }
 
 impl Default for InteriorPointSettings {
@@ -82,9 +91,14 @@ impl Default for InteriorPointSettings {
             max_iterations: 60,
             tolerance: 1e-8,
             noise_share: None,
+            centrality_correctors: 0,
         }
     }
 }
+
+/// Set to a count to override [`InteriorPointSettings::centrality_correctors`]
+/// (for measuring only).
+const CORRECTORS_ENV: &str = "GRAINFORCE_IP_CORRECTORS";
 
 /// Balance and dual residuals (relative) below which the certified
 /// distance is trusted for [`InteriorPointSettings::noise_share`]: its bound
@@ -560,6 +574,10 @@ pub fn solve(
         return Ok(InteriorPointSolution::not_started(start));
     }
     let profile = std::env::var_os(PROFILE_ENV).is_some();
+    let correctors = std::env::var(CORRECTORS_ENV)
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(settings.centrality_correctors);
     let clock = Instant::now();
     let rows = ConeRows::new(cones);
     let mut aug = Augmented::new(problem, &rows);
@@ -665,13 +683,19 @@ pub fn solve(
         ls.set_refinement_target((REFINE_SHARE * measures.gap).min(CONVERGED_TOL));
         let mut times = StepTimes::default();
         let clock = Instant::now();
-        let step = it.newton_step(problem, &rows, &mut aug, &mut ls, &mut times);
-        times.rest = clock.elapsed().as_secs_f64() - times.predictor - times.corrector;
+        let step = it.newton_step(problem, &rows, &mut aug, &mut ls, correctors, &mut times);
+        times.rest =
+            clock.elapsed().as_secs_f64() - times.predictor - times.corrector - times.centrality;
         if profile {
             eprintln!(
                 "ip-profile iteration {iteration} certificate {certificate_time:.4} \
-                 predictor {:.4} corrector {:.4} rest {:.4} s",
-                times.predictor, times.corrector, times.rest
+                 predictor {:.4} corrector {:.4} centrality {:.4} ({} of {} kept) rest {:.4} s",
+                times.predictor,
+                times.corrector,
+                times.centrality,
+                times.correctors_kept,
+                times.correctors_tried,
+                times.rest
             );
         }
         if let Err(reason) = step {
@@ -972,14 +996,17 @@ impl Iterate {
         }
     }
 
-    /// One Mehrotra predictor–corrector step on one factorisation; `Err`
-    /// says why no step could be taken.
+    /// One Mehrotra predictor–corrector step on one factorisation, with up
+    /// to `correctors` centrality correctors; `Err` says why no step could
+    /// be taken.
+    #[allow(clippy::too_many_arguments)]
     fn newton_step(
         &mut self,
         problem: &LeastSquares,
         rows: &ConeRows,
         aug: &mut Augmented,
         ls: &mut EqualityLeastSquares,
+        correctors: usize,
         times: &mut StepTimes,
     ) -> std::result::Result<(), InteriorPointStop> {
         if !self.s.iter().chain(&self.z).all(|v| v.is_finite()) {
@@ -1024,8 +1051,39 @@ impl Iterate {
             .collect();
         let xi = jordan_divide(rows, &lambda, &rc);
         let clock = Instant::now();
-        let d = self.direction(problem, rows, aug, ls, &w, &lambda, &xi)?;
+        let mut d = self.direction(problem, rows, aug, ls, &w, &lambda, &xi)?;
         times.corrector = clock.elapsed().as_secs_f64();
+        let clock = Instant::now();
+        // Gondzio: aim at a longer step; where its scaled products s∘z fall
+        // outside [β₋σμ, β₊σμ], pull them back in, on the same factor.
+        let mut rc = rc;
+        let mut reach = to_boundary(&d).min(1.0);
+        for _ in 0..correctors {
+            if reach >= 1.0 {
+                break;
+            }
+            let aim = (reach + GONDZIO_STRETCH).min(1.0);
+            let trial = |v: &[f64]| -> Vec<f64> {
+                lambda.iter().zip(v).map(|(l, dv)| l + aim * dv).collect()
+            };
+            let products = jordan(
+                rows,
+                &trial(&w.apply(rows, &d.ds, true)),
+                &trial(&w.apply(rows, &d.dz, false)),
+            );
+            let pull = centrality_pull(rows, &products, sigma * mu);
+            let rc_try: Vec<f64> = rc.iter().zip(&pull).map(|(a, b)| a + b).collect();
+            let xi_try = jordan_divide(rows, &lambda, &rc_try);
+            let d_try = self.direction(problem, rows, aug, ls, &w, &lambda, &xi_try)?;
+            times.correctors_tried += 1;
+            let reach_try = to_boundary(&d_try).min(1.0);
+            if reach_try < reach + GONDZIO_GAIN * (aim - reach) {
+                break;
+            }
+            times.correctors_kept += 1;
+            (d, rc, reach) = (d_try, rc_try, reach_try);
+        }
+        times.centrality = clock.elapsed().as_secs_f64();
         let alpha = (STEP_FRACTION * to_boundary(&d)).min(1.0);
         if alpha.is_nan() || alpha < MIN_STEP {
             return Err(InteriorPointStop::ShortStep { alpha });
@@ -1107,6 +1165,50 @@ impl Iterate {
             restart: None,
         }
     }
+}
+
+/// How much longer than the corrector's step a centrality corrector aims.
+const GONDZIO_STRETCH: f64 = 0.2;
+/// A corrector is kept when its step gains this share of the aim.
+const GONDZIO_GAIN: f64 = 0.1;
+/// Scaled products are pulled into [β₋σμ, β₊σμ].
+const GONDZIO_LOW: f64 = 0.1;
+const GONDZIO_HIGH: f64 = 10.0;
+
+/// The change of the complementarity target that moves each product's
+/// eigenvalues into [β₋, β₊]·target (a large one by at most β₊·target).
+fn centrality_pull(rows: &ConeRows, products: &[f64], target: f64) -> Vec<f64> {
+    let (low, high) = (GONDZIO_LOW * target, GONDZIO_HIGH * target);
+    let pull = |v: f64| {
+        if v < low {
+            low - v
+        } else if v > high {
+            (high - v).max(-high)
+        } else {
+            0.0
+        }
+    };
+    let mut out = vec![0.0; products.len()];
+    let lines = rows.lines.len();
+    for i in 0..lines {
+        out[i] = pull(products[i]);
+    }
+    for k in 0..rows.socs.len() {
+        let r = rows.soc(k);
+        let p = &products[r.clone()];
+        let t = p[1].hypot(p[2]);
+        // Eigenvalues p₀ ∓ t on the frame ½(1, ∓p̄/t); any unit p̄ when t = 0.
+        let (u1, u2) = if t > 0.0 {
+            (p[1] / t, p[2] / t)
+        } else {
+            (1.0, 0.0)
+        };
+        let (a, b) = (pull(p[0] - t), pull(p[0] + t));
+        out[r.start] = 0.5 * (a + b);
+        out[r.start + 1] = 0.5 * (b - a) * u1;
+        out[r.start + 2] = 0.5 * (b - a) * u2;
+    }
+    out
 }
 
 struct Direction {
@@ -1384,6 +1486,71 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// Gondzio's correctors land on clarabel's optimum as the plain
+    /// Mehrotra step does, and at μ ≥ 0.5 in fewer iterations
+    /// (factorisations) over the cases, never more on any one. Measured: at
+    /// μ = 0.01 they cost iterations (14 → 19, 10 → 14), one reason they
+    /// stay off by default.
+    #[test]
+    fn centrality_correctors_save_factorisations() {
+        let (mut plain, mut corrected) = (0, 0);
+        for (seed, kind) in [(3, "circular"), (8, "circular"), (4, "wedge")] {
+            for mu in [0.01, 0.5, 10.0] {
+                let case = format!("{kind} (seed {seed}) μ = {mu}");
+                let p = random_problem(seed, 40, kind, mu, 1.0);
+                let reference = clarabel::solve(
+                    &ConicProblem {
+                        n: p.a.ncols,
+                        terms: vec![Term {
+                            matrix: &p.a,
+                            rhs: &p.b,
+                            weight: 1.0,
+                        }],
+                        equalities: vec![(&p.c, &p.d)],
+                        lambda: 0.0,
+                        regularized: 0,
+                        cones: p.cones.clone(),
+                    },
+                    &ConicSettings {
+                        tolerance: 1e-10,
+                        ..Default::default()
+                    },
+                )
+                .unwrap();
+                let mut factor =
+                    EqualityLeastSquares::with_ordering(&p.a, &p.c, &p.coupling, Ordering::Amd)
+                        .unwrap();
+                let start = factor.solve(&p.a, &p.c, &p.b, &p.d, 0.0).unwrap().x;
+                let mut iterations = [0; 2];
+                for (k, correctors) in [0, 3].into_iter().enumerate() {
+                    let settings = InteriorPointSettings {
+                        centrality_correctors: correctors,
+                        ..Default::default()
+                    };
+                    let out = solve(&p.view(), &p.cones, &start, &factor, None, &settings).unwrap();
+                    assert!(
+                        out.converged,
+                        "{case}, {correctors} correctors: {:?}",
+                        out.stop
+                    );
+                    let gap = relative_gap(&out.x, &reference.x);
+                    assert!(gap < 2e-5, "{case}, {correctors} correctors: {gap:.1e}");
+                    iterations[k] = out.iterations;
+                }
+                eprintln!(
+                    "{case}: {} iterations plain, {} corrected",
+                    iterations[0], iterations[1]
+                );
+                if mu >= 0.5 {
+                    assert!(iterations[1] <= iterations[0], "{case}: {iterations:?}");
+                    plain += iterations[0];
+                    corrected += iterations[1];
+                }
+            }
+        }
+        assert!(corrected < plain, "{corrected} iterations against {plain}");
     }
 
     #[test]
