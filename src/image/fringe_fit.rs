@@ -1183,7 +1183,7 @@ struct Stepper<'a> {
 }
 
 /// ε of the sparsity term, in the unknowns' force unit F₀ = f_σ R (about one
-/// fringe): a tenth of a fringe's force, below what the fringes resolve.
+/// fringe): a twentieth of it, below what the fringes resolve.
 const SPARSE_EPS: f64 = 0.05;
 
 /// The sparsity term α Σ_c u_n²/(u_n² + ε²) at x.
