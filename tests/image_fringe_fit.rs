@@ -4,7 +4,7 @@
 //! contacts kept as loads from an "outside" body.
 
 use grainforce::image::fringe_fit::{
-    fit_fringes, fit_fringes_per_disk, imbalances, FringeFit, FringeFitSettings,
+    contact_support, fit_fringes, fit_fringes_per_disk, imbalances, FringeFit, FringeFitSettings,
 };
 use grainforce::image::photoelastic::{render_photoelastic, PhotoelasticOptions};
 use grainforce::image::{FloatImage, PixelFrame};
@@ -551,6 +551,14 @@ fn oedometer_58_disks() {
                 .expect("GRAINFORCE_SPARSITY: numbers, comma-separated")
         })
         .collect();
+    let mut pruned = s.clone();
+    pruned.support_prune = Some(0.1);
+    let fit = fit_fringes(&r.image, &r.frame, &r.scene, &pruned).unwrap();
+    let name = format!(
+        "58 disks, joint, support floor 0.1 (dropped {})",
+        fit.report.dropped.len()
+    );
+    summary(&name, &r, &fit);
     for &sparsity in &sweep {
         let mut sparse = s.clone();
         sparse.sparsity = sparsity;
@@ -934,6 +942,12 @@ fn detection_split(
     // (g) candidates at gap < 0.2 r built inside the fit, with the sparsity
     // term; on the detected list and on its force-bearing part.
     let mut variants = vec![("detected, force-bearing only", bearing, s.clone())];
+    for floor in [0.1, 0.3] {
+        let mut pruned = s.clone();
+        pruned.candidate_gap = Some(0.2);
+        pruned.support_prune = Some(floor);
+        variants.push(("detected, support-pruned", found, pruned));
+    }
     for &sparsity in &sweep {
         let mut sparse = s.clone();
         sparse.sparsity = sparsity;
@@ -986,6 +1000,30 @@ fn detection_split(
             }
         }
         let is_true = |k: usize| truth[k][0] != 0.0 || truth[k][1] != 0.0;
+        // Each contact's support by its disks' fringes: false against true ones.
+        let support = contact_support(&r.image, frame, &scene, &forces, &sparse).unwrap();
+        let mut of_true: Vec<f64> = (0..scene.contacts.len())
+            .filter(|&k| is_true(k))
+            .map(|k| support[k])
+            .collect();
+        of_true.sort_by(f64::total_cmp);
+        let of_false: Vec<String> = (0..scene.contacts.len())
+            .filter(|&k| !is_true(k))
+            .map(|k| {
+                format!(
+                    "{:.3} ({:.0} N/m)",
+                    support[k],
+                    forces[k][0].hypot(forces[k][1])
+                )
+            })
+            .collect();
+        eprintln!(
+            "  support of the true contacts: min {:.3}, 10 % {:.3}, median {:.3}; of the false ones: {}",
+            of_true[0],
+            of_true[of_true.len() / 10],
+            of_true[of_true.len() / 2],
+            of_false.join(", ")
+        );
         let dropped: Vec<usize> = (0..scene.contacts.len())
             .filter(|&k| fit.report.dropped.contains(&scene.contacts[k].id))
             .collect();
@@ -995,9 +1033,10 @@ fn detection_split(
             .map(|k| forces[k][0].hypot(forces[k][1]))
             .sum();
         eprintln!(
-            "{label} ({} contacts) with candidates (gap < {:?} r) and sparsity {sparsity}: {} candidates, relerr {:.4} (lost alone {:.4}), dropped {} ({} true, {} extra of {extras} extra carrying {extra_force:.1} N/m after), imbalance max {:.2e}, balance left out {:?}, {} steps, {:.2} s",
+            "{label} ({} contacts) with candidates (gap < {:?} r), sparsity {sparsity}, support floor {:?}: {} candidates, relerr {:.4} (lost alone {:.4}), dropped {} ({} true, {} extra of {extras} extra carrying {extra_force:.1} N/m after), imbalance max {:.2e}, balance left out {:?}, {} steps, {:.2} s",
             input.contacts.len(),
             sparse.candidate_gap,
+            sparse.support_prune,
             fit.report.candidates.len(),
             relerr_with_lost(&forces, &truth, &lost),
             relerr_with_lost(&truth, &truth, &lost),

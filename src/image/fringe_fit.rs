@@ -76,6 +76,9 @@ pub struct FringeFitSettings {
     /// the scene are fitted too, as candidate contacts (normal and point on
     /// the centre line; None: off). Reported in `candidates`.
     pub candidate_gap: Option<f64>,
+    /// After the fit, contacts whose [`contact_support`] is below this are
+    /// dropped and the rest refitted (None: off).
+    pub support_prune: Option<f64>,
 }
 
 impl FringeFitSettings {
@@ -91,6 +94,7 @@ impl FringeFitSettings {
             start: None,
             sparsity: 0.0,
             candidate_gap: None,
+            support_prune: None,
         }
     }
 
@@ -106,7 +110,8 @@ impl FringeFitSettings {
             && ok(self.blur_px)
             && ok(self.edge_px)
             && ok(self.sparsity)
-            && self.candidate_gap.is_none_or(ok))
+            && self.candidate_gap.is_none_or(ok)
+            && self.support_prune.is_none_or(f64::is_finite))
         {
             return Err(Error::Invalid(
                 "fringe fit: friction, blur, edge band, sparsity and candidate gap must be finite and not negative".into(),
@@ -1567,6 +1572,12 @@ pub fn fit_fringes(
             *d = x[2 * k] < SPARSE_EPS;
         }
     }
+    if let Some(floor) = settings.support_prune {
+        let support = contact_support(image, frame, &work, &fit.forces, settings)?;
+        for (d, s) in dropped.iter_mut().zip(&support) {
+            *d |= *s < floor;
+        }
+    }
     if dropped.iter().any(|d| *d) {
         // Refit the kept contacts without the term, from the sparse fit.
         let mut kept = work.clone().into_owned();
@@ -1783,6 +1794,81 @@ fn fit_scene(
         timing,
     );
     Ok((FringeFit { forces, report }, x))
+}
+
+/// How much each contact's load explains of its disks' fringes: for each
+/// contact of `scene` (with `forces`, e.g. a fit's), its disks' squared
+/// intensity residual when it is removed and their other loads refitted
+/// freely (each disk alone, 10 steps), less the residual with it, over the
+/// residual with it. Near 0: the fringes do not need the contact; a
+/// statistic relative to the disks' own residual level.
+pub fn contact_support(
+    image: &FloatImage,
+    frame: &PixelFrame,
+    scene: &Scene,
+    forces: &[[f64; 2]],
+    settings: &FringeFitSettings,
+) -> Result<Vec<f64>> {
+    let p = prepare(image, frame, scene, settings, false)?;
+    let x = to_unknowns(scene, forces, p.scale)?;
+    let optics = stage_optics(&p, frame, settings, 0.0);
+    // Disk d's residual with its loads but `skip` refitted freely from x.
+    let refitted = |d: &DiskData, skip: Option<usize>| -> Result<f64> {
+        let mut local = DiskData {
+            grain: d.grain,
+            centre: d.centre,
+            radius: d.radius,
+            loads: (d.loads.iter())
+                .filter(|l| Some(l.unknown) != skip)
+                .copied()
+                .collect(),
+            points: d.points.clone(),
+            intensity: d.intensity.clone(),
+            pixels: d.pixels.clone(),
+        };
+        let u0: Vec<f64> = (local.loads.iter())
+            .flat_map(|l| [x[2 * l.unknown], x[2 * l.unknown + 1]])
+            .collect();
+        for (i, l) in local.loads.iter_mut().enumerate() {
+            l.unknown = i;
+        }
+        if u0.is_empty() {
+            return Ok(local.evaluate(&[], &optics, false).ssr);
+        }
+        let sub = Prepared {
+            unknowns: local.loads.len(),
+            disks: vec![local],
+            scale: p.scale,
+            optics: p.optics,
+            pixel: p.pixel,
+            balanced: vec![false],
+        };
+        let stepper = Stepper {
+            p: &sub,
+            scene: None,
+            settings,
+            sparsity: 0.0,
+        };
+        let out = stepper.run(u0, &optics, 10, FINAL_TOLERANCE, &mut FitTiming::default())?;
+        Ok(sub.disks[0].evaluate(&out.x, &optics, false).ssr)
+    };
+    // Each disk refitted with all its loads: the baseline of the same freedom.
+    let full: Vec<f64> = (p.disks.par_iter())
+        .map(|d| refitted(d, None))
+        .collect::<Result<_>>()?;
+    (0..scene.contacts.len())
+        .into_par_iter()
+        .map(|k| {
+            let (mut with, mut without) = (0.0, 0.0);
+            for (d, f) in p.disks.iter().zip(&full) {
+                if d.loads.iter().any(|l| l.unknown == k) {
+                    with += f;
+                    without += refitted(d, Some(k))?;
+                }
+            }
+            Ok((without - with) / with.max(1e-300))
+        })
+        .collect()
 }
 
 /// The per-disk fit the field uses (PeGS-like), as a baseline: each disk's
