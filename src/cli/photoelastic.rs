@@ -51,6 +51,17 @@ pub struct Args {
     /// judge force-bearing (contacts-evidence.csv; all without the file).
     #[arg(long, value_enum, default_value_t = ContactChoice::Evidence)]
     contacts: ContactChoice,
+    /// Also fit every disk pair closer than this share of the smaller radius
+    /// as a candidate contact (a contact detection may have missed); the
+    /// candidates' forces are listed in the report, not in forces.csv.
+    #[arg(long)]
+    candidates: Option<f64>,
+    /// Fit contacts the fringes do not support to zero and drop them (listed
+    /// in the report): a contact must explain this many pixels' worth of
+    /// residual variance. Off (0) by default: measured, it drops weak true
+    /// contacts and leaves the costly false ones (docs/photoelastic.md).
+    #[arg(long, default_value_t = 0.0)]
+    sparsity: f64,
     /// Write the photograph and the fitted fringes side by side (PNG).
     #[arg(long)]
     overlay: Option<PathBuf>,
@@ -72,6 +83,8 @@ pub fn run(args: Args) -> Result<()> {
         iterations: args.iterations,
         per_disk: args.per_disk,
         contacts: args.contacts,
+        candidate_gap: args.candidates,
+        sparsity: args.sparsity,
     };
     let done = fringe_run::run(&args.image, &args.scene, &config).map_err(spell_flags)?;
     done.write(

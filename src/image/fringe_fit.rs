@@ -64,6 +64,21 @@ pub struct FringeFitSettings {
     /// Start from these forces (scene contact order, force on `a` by `b`
     /// [N/m]; e.g. the previous frame's) instead of the fringe gradients.
     pub start: Option<Vec<[f64; 2]>>,
+    /// Contacts the fringes do not support are fitted to zero and dropped
+    /// (0: off). The final stage adds α Σ_c u_n²/(u_n² + ε²) (a smoothed
+    /// count of loaded contacts, reweighted each step) with α this many
+    /// times the per-pixel residual variance at the stage's start: a contact
+    /// stays only if it explains that many pixels' worth of residual. Those
+    /// left below ε are dropped and the rest refitted without the term, so
+    /// the kept forces carry no bias from it.
+    pub sparsity: f64,
+    /// Disk pairs closer than this share of the smaller radius and not in
+    /// the scene are fitted too, as candidate contacts (normal and point on
+    /// the centre line; None: off). Reported in `candidates`.
+    pub candidate_gap: Option<f64>,
+    /// After the fit, contacts whose [`contact_support`] is below this are
+    /// dropped and the rest refitted (None: off).
+    pub support_prune: Option<f64>,
 }
 
 impl FringeFitSettings {
@@ -77,6 +92,9 @@ impl FringeFitSettings {
             max_iterations: 60,
             poor_fit: 0.5,
             start: None,
+            sparsity: 0.0,
+            candidate_gap: None,
+            support_prune: None,
         }
     }
 
@@ -88,9 +106,15 @@ impl FringeFitSettings {
                 self.fringe_stress
             )));
         }
-        if !(ok(self.mu) && ok(self.blur_px) && ok(self.edge_px)) {
+        if !(ok(self.mu)
+            && ok(self.blur_px)
+            && ok(self.edge_px)
+            && ok(self.sparsity)
+            && self.candidate_gap.is_none_or(ok)
+            && self.support_prune.is_none_or(f64::is_finite))
+        {
             return Err(Error::Invalid(
-                "fringe fit: friction, blur and edge band must be finite and not negative".into(),
+                "fringe fit: friction, blur, edge band, sparsity and candidate gap must be finite and not negative".into(),
             ));
         }
         if let Balance::Penalty(w) = self.balance {
@@ -195,6 +219,26 @@ pub struct FringeFitReport {
     pub seconds: f64,
     pub timing: FitTiming,
     pub disks: Vec<DiskFit>,
+    /// Contacts (scene ids, then candidates') the sparsity term fitted to
+    /// zero and the refit left out.
+    pub dropped: Vec<String>,
+    /// Near-miss disk pairs fitted as candidate contacts (`candidate_gap`).
+    pub candidates: Vec<CandidateContact>,
+}
+
+/// A near-miss disk pair fitted as a contact: grains by index into the
+/// scene, force on `a` by `b` [N/m] (zero when dropped).
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct CandidateContact {
+    pub id: String,
+    pub a: usize,
+    pub b: usize,
+    pub point: [f64; 2],
+    pub normal: [f64; 2],
+    /// Gap between the disks over the smaller radius.
+    pub gap: f64,
+    pub force: [f64; 2],
+    pub dropped: bool,
 }
 
 /// The fitted forces (force on grain `a` by `b`, scene axes, N/m, in the
@@ -1139,6 +1183,39 @@ struct Stepper<'a> {
     p: &'a Prepared,
     scene: Option<&'a Scene>,
     settings: &'a FringeFitSettings,
+    /// The sparsity term's weight in per-pixel residual variances (0: none).
+    sparsity: f64,
+}
+
+/// ε of the sparsity term, in the unknowns' force unit F₀ = f_σ R (about one
+/// fringe): a twentieth of it, below what the fringes resolve.
+const SPARSE_EPS: f64 = 0.05;
+
+/// The sparsity term α Σ_c u_n²/(u_n² + ε²) at x.
+fn sparsity_penalty(x: &[f64], alpha: f64) -> f64 {
+    if alpha == 0.0 {
+        return 0.0;
+    }
+    let e2 = SPARSE_EPS * SPARSE_EPS;
+    x.chunks(2)
+        .map(|u| {
+            let n2 = u[0] * u[0];
+            alpha * n2 / (n2 + e2)
+        })
+        .sum()
+}
+
+/// The sparsity term's quadratic majorizer at x as least-squares rows
+/// √(α/(u_n² + ε²)) u_n ≈ 0 (u²/(u² + ε²) is concave in u², so its tangent
+/// in u² lies above it: each step lowers the true term).
+fn sparsity_rows(x: &[f64], alpha: f64) -> Triplets {
+    let n = x.len();
+    let mut rows = Triplets::new(n / 2, n);
+    for k in 0..n / 2 {
+        let w = alpha / (x[2 * k] * x[2 * k] + SPARSE_EPS * SPARSE_EPS);
+        rows.push(k, 2 * k, w.sqrt());
+    }
+    rows
 }
 
 struct LmOutcome {
@@ -1175,8 +1252,14 @@ impl Stepper<'_> {
         let clock = std::time::Instant::now();
         let mut evals = evaluate(&x, true);
         timing.evaluate += clock.elapsed().as_secs_f64();
+        // The sparsity weight from this stage's own residual level.
+        let pixels: usize = p.disks.iter().map(|d| d.points.len()).sum();
+        let ssr0: f64 = evals.iter().map(|e| e.ssr).sum();
+        let alpha = self.sparsity * ssr0 / pixels.max(1) as f64;
+        let sparse_zeros = vec![0.0; p.unknowns];
         while iterations < max_iterations {
-            current = evals.iter().map(|e| e.ssr).sum();
+            current = evals.iter().map(|e| e.ssr).sum::<f64>() + sparsity_penalty(&x, alpha);
+            let sparse = (alpha > 0.0).then(|| sparsity_rows(&x, alpha));
             // Each disk's normal equations as rows: G = V Λ Vᵀ → √λ vᵀ x ≈ vᵀ(h + G u)/√λ.
             let mut rows = Triplets::new(0, n);
             let mut rhs = Vec::new();
@@ -1234,6 +1317,7 @@ impl Stepper<'_> {
                     &rhs,
                     &damp,
                     &damp_rhs,
+                    sparse.as_ref().map(|m| (m, sparse_zeros.as_slice())),
                     &balance,
                     &zeros,
                     &x,
@@ -1244,7 +1328,11 @@ impl Stepper<'_> {
                 let clock = std::time::Instant::now();
                 // The residual only: most trials of a hard step are rejected,
                 // and the Jacobian is needed at the accepted one alone.
-                let trial: f64 = evaluate(&candidate, false).iter().map(|e| e.ssr).sum();
+                let trial: f64 = evaluate(&candidate, false)
+                    .iter()
+                    .map(|e| e.ssr)
+                    .sum::<f64>()
+                    + sparsity_penalty(&candidate, alpha);
                 timing.trials += clock.elapsed().as_secs_f64();
                 if trial.is_finite() && trial < current {
                     let gain = (current - trial) / current.max(1e-300);
@@ -1280,13 +1368,14 @@ impl Stepper<'_> {
         rhs: &[f64],
         damp: &Triplets,
         damp_rhs: &[f64],
+        sparse: Option<(&Triplets, &[f64])>,
         balance: &Triplets,
         zeros: &[f64],
         x: &[f64],
         solver: &mut StepSolver,
     ) -> Result<Vec<f64>> {
         let n = x.len();
-        let terms = vec![
+        let mut terms = vec![
             Term {
                 matrix: rows,
                 rhs,
@@ -1298,6 +1387,13 @@ impl Stepper<'_> {
                 weight: 1.0,
             },
         ];
+        if let Some((matrix, rhs)) = sparse {
+            terms.push(Term {
+                matrix,
+                rhs,
+                weight: 1.0,
+            });
+        }
         match self.scene {
             Some(scene) => {
                 let problem = constrained_problem(
@@ -1448,12 +1544,150 @@ fn stage_optics(
 /// Fits every contact force of `scene` to the fringes of `image` (one
 /// channel, intensities in [0, 1]; green for a colour photograph) placed in
 /// the scene by `frame`: all disks at once, under balance and friction.
+/// With `candidate_gap`, near-miss disk pairs are fitted too; with
+/// `sparsity`, contacts the fringes do not support are fitted to zero,
+/// dropped (listed in the report) and the rest refitted.
 pub fn fit_fringes(
     image: &FloatImage,
     frame: &PixelFrame,
     scene: &Scene,
     settings: &FringeFitSettings,
 ) -> Result<FringeFit> {
+    let started = std::time::Instant::now();
+    settings.validate()?;
+    let (work, gaps) = with_candidates(scene, settings.candidate_gap);
+    let mut start = settings.clone();
+    // Candidates start unloaded (a start of the wrong length is refused below).
+    if let Some(forces) = start
+        .start
+        .as_mut()
+        .filter(|f| f.len() == scene.contacts.len())
+    {
+        forces.resize(work.contacts.len(), [0.0; 2]);
+    }
+    let (mut fit, x) = fit_scene(image, frame, &work, &start, settings.sparsity)?;
+    let mut dropped = vec![false; work.contacts.len()];
+    if settings.sparsity > 0.0 {
+        for (k, d) in dropped.iter_mut().enumerate() {
+            *d = x[2 * k] < SPARSE_EPS;
+        }
+    }
+    if let Some(floor) = settings.support_prune {
+        let support = contact_support(image, frame, &work, &fit.forces, settings)?;
+        for (d, s) in dropped.iter_mut().zip(&support) {
+            *d |= *s < floor;
+        }
+    }
+    if dropped.iter().any(|d| *d) {
+        // Refit the kept contacts without the term, from the sparse fit.
+        let mut kept = work.clone().into_owned();
+        kept.contacts = (work.contacts.iter().zip(&dropped))
+            .filter(|(_, d)| !**d)
+            .map(|(c, _)| c.clone())
+            .collect();
+        let mut refit = settings.clone();
+        refit.start = Some(
+            (fit.forces.iter().zip(&dropped))
+                .filter(|(_, d)| !**d)
+                .map(|(f, _)| *f)
+                .collect(),
+        );
+        let (again, _) = fit_scene(image, frame, &kept, &refit, 0.0)?;
+        let mut next = again.forces.iter();
+        let forces = (dropped.iter())
+            .map(|d| match d {
+                true => [0.0; 2],
+                false => *next.next().expect("one force per kept contact"),
+            })
+            .collect();
+        let first = fit.report;
+        fit = FringeFit {
+            forces,
+            report: again.report,
+        };
+        fit.report.iterations += first.iterations;
+        fit.report.objective_start = first.objective_start;
+        let mut steps = first.timing.steps;
+        steps.extend(&fit.report.timing.steps);
+        fit.report.timing.steps = steps;
+    }
+    fit.report.dropped = (work.contacts.iter().zip(&dropped))
+        .filter(|(_, d)| **d)
+        .map(|(c, _)| c.id.clone())
+        .collect();
+    let n = scene.contacts.len();
+    fit.report.candidates = (work.contacts[n..].iter().zip(&gaps))
+        .zip(fit.forces[n..].iter().zip(&dropped[n..]))
+        .map(|((c, &gap), (f, &dropped))| CandidateContact {
+            id: c.id.clone(),
+            a: c.a,
+            b: match c.b {
+                Body::Grain(b) => b,
+                Body::Wall(_) => unreachable!("candidates join two disks"),
+            },
+            point: [c.point[0], c.point[1]],
+            normal: [c.normal[0], c.normal[1]],
+            gap,
+            force: *f,
+            dropped,
+        })
+        .collect();
+    fit.forces.truncate(n);
+    fit.report.seconds = started.elapsed().as_secs_f64();
+    Ok(fit)
+}
+
+/// `scene` with every disk pair closer than `gap` × the smaller radius and
+/// not already in contact added as a contact (normal and point on the
+/// centre line), and each added pair's gap over the smaller radius.
+fn with_candidates(scene: &Scene, gap: Option<f64>) -> (std::borrow::Cow<'_, Scene>, Vec<f64>) {
+    let Some(gap) = gap else {
+        return (std::borrow::Cow::Borrowed(scene), Vec::new());
+    };
+    let listed: std::collections::HashSet<(usize, usize)> = (scene.contacts.iter())
+        .filter_map(|c| match c.b {
+            Body::Grain(b) => Some((c.a.min(b), c.a.max(b))),
+            Body::Wall(_) => None,
+        })
+        .collect();
+    let mut out = scene.clone();
+    let mut gaps = Vec::new();
+    let g = &scene.grains;
+    for i in 0..g.len() {
+        for j in i + 1..g.len() {
+            let (pi, pj) = (g[i].position, g[j].position);
+            let (ri, rj) = (g[i].equivalent_radius(2), g[j].equivalent_radius(2));
+            let (dx, dy) = (pj[0] - pi[0], pj[1] - pi[1]);
+            let distance = dx.hypot(dy);
+            let smaller = ri.min(rj);
+            let relative = (distance - ri - rj) / smaller;
+            if !(relative < gap && distance > 0.0) || listed.contains(&(i, j)) {
+                continue;
+            }
+            let n = [dx / distance, dy / distance, 0.0];
+            out.contacts.push(crate::scene::Contact {
+                id: format!("candidate:{}-{}", g[i].id, g[j].id),
+                a: i,
+                b: Body::Grain(j),
+                point: [pi[0] + ri * n[0], pi[1] + ri * n[1], 0.0],
+                normal: n,
+                mu: None,
+            });
+            gaps.push(relative);
+        }
+    }
+    (std::borrow::Cow::Owned(out), gaps)
+}
+
+/// The joint fit of `scene`'s contacts, `sparsity` in the final stage; the
+/// forces, the report and the final unknowns.
+fn fit_scene(
+    image: &FloatImage,
+    frame: &PixelFrame,
+    scene: &Scene,
+    settings: &FringeFitSettings,
+    sparsity: f64,
+) -> Result<(FringeFit, Vec<f64>)> {
     let started = std::time::Instant::now();
     let mut timing = FitTiming::default();
     let mut p = prepare(image, frame, scene, settings, false)?;
@@ -1490,6 +1724,7 @@ pub fn fit_fringes(
             p: &env,
             scene: Some(scene),
             settings,
+            sparsity: 0.0,
         };
         let out = stepper.run(
             x,
@@ -1524,6 +1759,7 @@ pub fn fit_fringes(
             p: stage.as_ref().unwrap_or(&p),
             scene: Some(scene),
             settings,
+            sparsity: if i + 1 == STAGES.len() { sparsity } else { 0.0 },
         };
         let optics = stage_optics(
             &p,
@@ -1557,7 +1793,82 @@ pub fn fit_fringes(
         started,
         timing,
     );
-    Ok(FringeFit { forces, report })
+    Ok((FringeFit { forces, report }, x))
+}
+
+/// How much each contact's load explains of its disks' fringes: for each
+/// contact of `scene` (with `forces`, e.g. a fit's), its disks' squared
+/// intensity residual when it is removed and their other loads refitted
+/// freely (each disk alone, 10 steps), less the residual with it, over the
+/// residual with it. Near 0: the fringes do not need the contact; a
+/// statistic relative to the disks' own residual level.
+pub fn contact_support(
+    image: &FloatImage,
+    frame: &PixelFrame,
+    scene: &Scene,
+    forces: &[[f64; 2]],
+    settings: &FringeFitSettings,
+) -> Result<Vec<f64>> {
+    let p = prepare(image, frame, scene, settings, false)?;
+    let x = to_unknowns(scene, forces, p.scale)?;
+    let optics = stage_optics(&p, frame, settings, 0.0);
+    // Disk d's residual with its loads but `skip` refitted freely from x.
+    let refitted = |d: &DiskData, skip: Option<usize>| -> Result<f64> {
+        let mut local = DiskData {
+            grain: d.grain,
+            centre: d.centre,
+            radius: d.radius,
+            loads: (d.loads.iter())
+                .filter(|l| Some(l.unknown) != skip)
+                .copied()
+                .collect(),
+            points: d.points.clone(),
+            intensity: d.intensity.clone(),
+            pixels: d.pixels.clone(),
+        };
+        let u0: Vec<f64> = (local.loads.iter())
+            .flat_map(|l| [x[2 * l.unknown], x[2 * l.unknown + 1]])
+            .collect();
+        for (i, l) in local.loads.iter_mut().enumerate() {
+            l.unknown = i;
+        }
+        if u0.is_empty() {
+            return Ok(local.evaluate(&[], &optics, false).ssr);
+        }
+        let sub = Prepared {
+            unknowns: local.loads.len(),
+            disks: vec![local],
+            scale: p.scale,
+            optics: p.optics,
+            pixel: p.pixel,
+            balanced: vec![false],
+        };
+        let stepper = Stepper {
+            p: &sub,
+            scene: None,
+            settings,
+            sparsity: 0.0,
+        };
+        let out = stepper.run(u0, &optics, 10, FINAL_TOLERANCE, &mut FitTiming::default())?;
+        Ok(sub.disks[0].evaluate(&out.x, &optics, false).ssr)
+    };
+    // Each disk refitted with all its loads: the baseline of the same freedom.
+    let full: Vec<f64> = (p.disks.par_iter())
+        .map(|d| refitted(d, None))
+        .collect::<Result<_>>()?;
+    (0..scene.contacts.len())
+        .into_par_iter()
+        .map(|k| {
+            let (mut with, mut without) = (0.0, 0.0);
+            for (d, f) in p.disks.iter().zip(&full) {
+                if d.loads.iter().any(|l| l.unknown == k) {
+                    with += f;
+                    without += refitted(d, Some(k))?;
+                }
+            }
+            Ok((without - with) / with.max(1e-300))
+        })
+        .collect()
 }
 
 /// The per-disk fit the field uses (PeGS-like), as a baseline: each disk's
@@ -1616,6 +1927,7 @@ pub fn fit_fringes_per_disk(
                 p: &sub,
                 scene: None,
                 settings,
+                sparsity: 0.0,
             };
             let out = stepper.run(
                 u0,
@@ -1821,6 +2133,8 @@ fn report(
         seconds: started.elapsed().as_secs_f64(),
         timing,
         disks,
+        dropped: Vec::new(),
+        candidates: Vec::new(),
     }
 }
 

@@ -50,6 +50,11 @@ pub struct PhotoelasticConfig {
     /// The per-disk fit instead (each disk alone, sides averaged).
     pub per_disk: bool,
     pub contacts: ContactChoice,
+    /// Near-miss disk pairs (gap below this share of the smaller radius)
+    /// fitted as candidate contacts, listed in the report.
+    pub candidate_gap: Option<f64>,
+    /// Weight of the term that fits unsupported contacts to zero (0: off).
+    pub sparsity: f64,
 }
 
 impl Default for PhotoelasticConfig {
@@ -66,6 +71,8 @@ impl Default for PhotoelasticConfig {
             iterations: 60,
             per_disk: false,
             contacts: ContactChoice::default(),
+            candidate_gap: None,
+            sparsity: 0.0,
         }
     }
 }
@@ -273,6 +280,8 @@ pub fn run(image: &Path, scene_dir: &Path, config: &PhotoelasticConfig) -> Resul
     settings.blur_px = config.blur;
     settings.edge_px = config.edge;
     settings.max_iterations = config.iterations;
+    settings.candidate_gap = config.candidate_gap;
+    settings.sparsity = config.sparsity;
     if let Some(w) = config.balance_weight {
         settings.balance = Balance::Penalty(w);
     }
@@ -317,7 +326,8 @@ pub fn run(image: &Path, scene_dir: &Path, config: &PhotoelasticConfig) -> Resul
                     .into(),
             )
         })?;
-        for f in &mut fit.forces {
+        let candidates = fit.report.candidates.iter_mut().map(|c| &mut c.force);
+        for f in fit.forces.iter_mut().chain(candidates) {
             f[0] *= k;
             f[1] *= k;
         }
