@@ -1140,8 +1140,8 @@ type Sphere = ([f64; 3], f64, f64);
 /// Then, with a radius prior, the geometric refits. Fills `fits.solved`.
 fn refit(fits: &mut Fits, settings: &FitSettings, zones: &[Zone], grains: &[GrainGeometry]) {
     let faces = std::mem::take(&mut fits.faces);
-    let mut solved = Vec::with_capacity(fits.sides.len());
-    for (k, fit) in fits.sides.iter_mut().enumerate() {
+    // Zones are independent: on threads, the answer the serial one.
+    let solved = fits.sides.par_iter_mut().enumerate().map(|(k, fit)| {
         let mut out = [None; 2];
         for side in 0..2 {
             let kept: &[[u16; 3]] = faces.get(k).map_or(&[], |f| &f[side]);
@@ -1179,9 +1179,9 @@ fn refit(fits: &mut Fits, settings: &FitSettings, zones: &[Zone], grains: &[Grai
                 }
             }
         }
-        solved.push(out);
-    }
-    fits.solved = solved;
+        out
+    });
+    fits.solved = solved.collect();
 }
 
 /// Gauss–Newton on Σ (|f − c| − r)² over the faces within `gate` of the
@@ -1224,6 +1224,10 @@ fn geometric_fit(
         r += step[3];
         if !(r > 0.0 && r.is_finite()) {
             return None;
+        }
+        // Converged: the same faces would be gated again.
+        if step.norm() < 1e-6 {
+            break;
         }
     }
     Some((c, r, rms))
