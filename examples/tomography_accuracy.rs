@@ -62,6 +62,10 @@ fn main() -> grainforce::Result<()> {
                     if method.contains("grey") && g.is_none() {
                         continue;
                     }
+                    // TOMO_ONLY=fit: that method alone (for quick comparisons).
+                    if std::env::var("TOMO_ONLY").is_ok_and(|m| m != method) {
+                        continue;
+                    }
                     let options = Options {
                         voxel_size: voxel,
                         origin: grid.origin,
@@ -72,6 +76,7 @@ fn main() -> grainforce::Result<()> {
                         },
                         max_gap: method.contains("gap").then_some(0.5),
                         min_grey: 0.9,
+                        fit: fit_settings(),
                         ..Options::default()
                     };
                     let grey = if method.contains("grey") {
@@ -125,6 +130,38 @@ fn main() -> grainforce::Result<()> {
         }
     }
     Ok(())
+}
+
+/// The fit settings, with TOMO_PRIOR / TOMO_GEO / TOMO_GATE overriding the
+/// defaults (to compare settings without a rebuild).
+fn fit_settings() -> labels::FitSettings {
+    let mut fit = labels::FitSettings::default();
+    let var = |name: &str| std::env::var(name).ok().and_then(|v| v.parse::<f64>().ok());
+    if let Some(v) = var("TOMO_PRIOR") {
+        fit.radius_prior = v;
+    }
+    if let Some(v) = var("TOMO_GEO") {
+        fit.geometric_refits = v as usize;
+    }
+    if let Some(v) = var("TOMO_GATE") {
+        fit.gate = v;
+    }
+    if let Some(v) = var("TOMO_WINDOW") {
+        fit.window = v;
+    }
+    if let Some(v) = var("TOMO_NECK") {
+        fit.max_neck = v;
+    }
+    if let Some(v) = var("TOMO_APART") {
+        fit.max_apart = v;
+    }
+    if let Some(v) = var("TOMO_SHELL") {
+        fit.min_shell = v;
+    }
+    if let Some(v) = var("TOMO_EXCL") {
+        fit.exclusion = v;
+    }
+    fit
 }
 
 /// The worst-placed normals of a run, with what the fit saw (TOMO_WORST=1).

@@ -366,8 +366,9 @@ fn segmented_spheres_at_15_voxels_beat_the_standard_normals() {
     assert!(pca_median > 2.0 * median, "{pca_median} vs {median}");
 }
 
-#[test]
-fn segmented_clumps_at_15_voxels() {
+/// Segmented clumps (flat cuts and satellites) at `res` voxels per
+/// diameter: the import, the truth, and the fit's and PCA's median / p90.
+fn segmented_clumps(res: f64) -> (labels::LabelScene, Vec<synth::TrueContact>, [f64; 4]) {
     let (scene, _, spheres, truth, d) = packing();
     let points: Vec<(usize, Vec3)> = scene
         .contacts
@@ -380,25 +381,37 @@ fn segmented_clumps_at_15_voxels() {
             v
         })
         .collect();
-    let clumps = synth::clumps_of(&spheres, &points, 0.75, 2.0 * d / 15.0);
+    let clumps = synth::clumps_of(&spheres, &points, 0.75, 2.0 * d / res);
     let clumped = clumps.iter().filter(|g| g.spheres.len() > 1).count();
     assert!(clumped >= 30, "{clumped} clumps");
-    let (fit, _) = import(&clumps, 15.0, d, true, labels::NormalMethod::SurfaceFit);
+    let (fit, _) = import(&clumps, res, d, true, labels::NormalMethod::SurfaceFit);
     let s = synth::score(&fit, &truth, false);
-    let (median, p90) = (
+    let figures = [
         synth::quantile(&s.angles, 0.5),
         synth::quantile(&s.angles, 0.9),
-    );
-    let pca_median = synth::quantile(&s.pca_angles, 0.5);
+        synth::quantile(&s.pca_angles, 0.5),
+        synth::quantile(&s.pca_angles, 0.9),
+    ];
     eprintln!(
-        "clumps 15 vox/d: recall {:.3} fit {median:.2}°/{p90:.2}°, pca median {pca_median:.2}°",
-        s.recall()
+        "clumps {res} vox/d: recall {:.3} fit {:.2}°/{:.2}°, pca {:.2}°/{:.2}°",
+        s.recall(),
+        figures[0],
+        figures[1],
+        figures[2],
+        figures[3]
     );
-    assert!(s.recall() >= 0.99);
-    // Measured 4.4° / 8.3° (the 3° / 8° is not met on these grains,
-    // whose flat cuts come within 0.3 R of a contact; docs/tomography.md).
-    assert!(median <= 5.0 && p90 <= 10.0, "{median} {p90}");
-    assert!(pca_median > 1.5 * median, "{pca_median} vs {median}");
+    assert!(s.recall() >= 0.99, "recall {}", s.recall());
+    (fit, truth, figures)
+}
+
+#[test]
+fn segmented_clumps_at_15_voxels() {
+    let (fit, truth, [median, p90, pca_median, pca_p90]) = segmented_clumps(15.0);
+    // Measured 2.29° / 5.80° (PCA 7.3° / 15.6°; the free sphere fits before
+    // the radius prior and the neck check: 4.4° / 8.3°): the 3° / 8°.
+    assert!(median <= 3.0 && p90 <= 8.0, "{median} {p90}");
+    assert!(pca_median > 2.0 * median, "{pca_median} vs {median}");
+    assert!(pca_p90 > 2.0 * p90, "{pca_p90} vs {p90}");
     // The centroids of the clumps are off their contact geometry: the
     // direction between centroids is a poor normal.
     let mut centroid_angles = Vec::new();
@@ -415,6 +428,17 @@ fn segmented_clumps_at_15_voxels() {
     let centroid_median = synth::quantile(&centroid_angles, 0.5);
     eprintln!("centroid direction: median {centroid_median:.2}°");
     assert!(centroid_median > median, "{centroid_median} vs {median}");
+}
+
+/// 30 voxels per diameter (2.3 M voxels: about 4 s in the test profile).
+#[test]
+fn segmented_clumps_at_30_voxels() {
+    let (_, _, [median, p90, pca_median, pca_p90]) = segmented_clumps(30.0);
+    // Measured 2.23° / 4.97° (PCA 3.4° / 7.4°; free fits 3.6° / 10°). The
+    // issue's 1.5° / 4° is not met on these grains (docs/tomography.md).
+    assert!(median <= 2.5 && p90 <= 5.5, "{median} {p90}");
+    assert!(pca_median > 1.3 * median, "{pca_median} vs {median}");
+    assert!(pca_p90 > 1.3 * p90, "{pca_p90} vs {p90}");
 }
 
 /// Labels at 30 voxels per diameter (segmented) + the DEM's stresses →

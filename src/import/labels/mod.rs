@@ -106,6 +106,25 @@ pub struct FitSettings {
     /// pass over the volume each).
     pub refits: usize,
     pub gate: f64,
+    /// After the algebraic refits, geometric refits (Gauss–Newton on the
+    /// distances of the gated faces from the sphere) with the radius pulled
+    /// towards the grain's equivalent radius with this weight per face
+    /// (0: off, the algebraic fit stands). A flat cut or another lobe in
+    /// the patch flattens a free fit and tilts its centre; the pull holds
+    /// the curvature near the grain's.
+    pub radius_prior: f64,
+    /// Geometric refits (each gates the faces at `gate` and takes one
+    /// Gauss–Newton step).
+    pub geometric_refits: usize,
+    /// Two fitted spheres that overlap by δ cut each other on a circle of
+    /// radius √(2δ·rₐr_b/(rₐ+r_b)); when that is more than `max_neck` zone
+    /// radii, the spheres do not describe this neck (a fit that slid onto
+    /// another lobe or a flat cut) and the zone's own normal (PCA) is
+    /// written instead (0: no check).
+    pub max_neck: f64,
+    /// Likewise two fitted spheres more than `max_apart` voxels apart
+    /// (labels that touch have surfaces that touch; 0: no check).
+    pub max_apart: f64,
 }
 
 impl Default for FitSettings {
@@ -118,6 +137,10 @@ impl Default for FitSettings {
             min_faces: 12,
             refits: 2,
             gate: 1.0,
+            radius_prior: 0.1,
+            geometric_refits: 6,
+            max_neck: 1.5,
+            max_apart: 1.0,
         }
     }
 }
@@ -550,7 +573,7 @@ pub fn import_source(
     // Pass 2: the surface fits and the wall contact patches; then the
     // refits, on the faces pass 2 kept.
     let mut fits = surface_pass(labels, &scan, &grains, &zones, &plane_hits, options)?;
-    refit(&mut fits, &options.fit);
+    refit(&mut fits, &options.fit, &zones, &grains);
     let detected = contacts_of(&scan, &grains, &zones, &fits, &plane_hits, options);
     Ok(build(scan, grains, detected, options))
 }
@@ -897,6 +920,8 @@ struct Fits {
     /// Per plane hit: Σ position and count of the grain's voxels in its
     /// extreme layer towards the wall.
     patches: Vec<([f64; 3], f64)>,
+    /// Per zone and side: the final sphere (filled by [`refit`]).
+    solved: Vec<[Option<Sphere>; 2]>,
 }
 
 /// Pass 2: accumulate, for each contact side, the grain's void faces in the
@@ -947,6 +972,7 @@ fn surface_pass(
             sides,
             faces: Vec::new(),
             patches: Vec::new(),
+            solved: Vec::new(),
         });
     }
     // Slices z0 … z1−1 (with one on either side as neighbours): the faces
@@ -1101,24 +1127,33 @@ fn surface_pass(
         sides,
         faces,
         patches,
+        solved: Vec::new(),
     })
 }
 
+/// Each side's sphere: centre, radius and rms distance of its faces
+/// (voxels), from the final fit.
+type Sphere = ([f64; 3], f64, f64);
+
 /// The refits: each side refitted to the faces within `gate` voxels of its
 /// previous sphere; a refit that loses too many faces keeps the fit before.
-fn refit(fits: &mut Fits, settings: &FitSettings) {
+/// Then, with a radius prior, the geometric refits. Fills `fits.solved`.
+fn refit(fits: &mut Fits, settings: &FitSettings, zones: &[Zone], grains: &[GrainGeometry]) {
     let faces = std::mem::take(&mut fits.faces);
-    for (fit, faces) in fits.sides.iter_mut().zip(&faces) {
-        for k in 0..2 {
+    // Zones are independent: on threads, the answer the serial one.
+    let solved = fits.sides.par_iter_mut().enumerate().map(|(k, fit)| {
+        let mut out = [None; 2];
+        for side in 0..2 {
+            let kept: &[[u16; 3]] = faces.get(k).map_or(&[], |f| &f[side]);
             for _ in 0..settings.refits {
-                let Some((centre, radius)) = fit[k].solve(settings.min_faces) else {
+                let Some((centre, radius)) = fit[side].solve(settings.min_faces) else {
                     break;
                 };
                 let mut next = SphereFit {
-                    origin: fit[k].origin,
+                    origin: fit[side].origin,
                     ..SphereFit::default()
                 };
-                for f in &faces[k] {
+                for f in kept {
                     let f = f.map(|v| 0.5 * f64::from(v));
                     if (scene::norm(scene::sub(f, centre)) - radius).abs() <= settings.gate {
                         next.add(f);
@@ -1127,10 +1162,75 @@ fn refit(fits: &mut Fits, settings: &FitSettings) {
                 if next.solve(settings.min_faces).is_none() {
                     break;
                 }
-                fit[k] = next;
+                fit[side] = next;
+            }
+            out[side] = fit[side].solve_with_rms(settings.min_faces);
+            let grain = match (side, zones[k].b) {
+                (0, _) => Some(zones[k].a as usize),
+                (_, Side::Grain(b)) => Some(b as usize),
+                _ => None,
+            };
+            if let (Some(start), Some(g)) = (out[side], grain) {
+                if settings.radius_prior > 0.0 && !kept.is_empty() {
+                    let prior = (grains[g].radius_voxels, settings.radius_prior);
+                    if let Some(better) = geometric_fit(kept, start, prior, settings) {
+                        out[side] = Some(better);
+                    }
+                }
             }
         }
+        out
+    });
+    fits.solved = solved.collect();
+}
+
+/// Gauss–Newton on Σ (|f − c| − r)² over the faces within `gate` of the
+/// current sphere, plus weight·n·(r − r₀)²; `None` when too few faces stay.
+fn geometric_fit(
+    faces: &[[u16; 3]],
+    start: Sphere,
+    (r0, weight): (f64, f64),
+    settings: &FitSettings,
+) -> Option<Sphere> {
+    let (mut c, mut r, _) = start;
+    let mut rms = 0.0;
+    for _ in 0..settings.geometric_refits.max(1) {
+        let mut a = nalgebra::Matrix4::<f64>::zeros();
+        let mut b = nalgebra::Vector4::<f64>::zeros();
+        let (mut n, mut sse) = (0usize, 0.0);
+        for f in faces {
+            let f = f.map(|v| 0.5 * f64::from(v));
+            let d = scene::sub(f, c);
+            let dist = scene::norm(d);
+            let e = dist - r;
+            if e.abs() > settings.gate || dist == 0.0 {
+                continue;
+            }
+            let v = nalgebra::Vector4::new(d[0] / dist, d[1] / dist, d[2] / dist, 1.0);
+            a += v * v.transpose();
+            b += v * e;
+            n += 1;
+            sse += e * e;
+        }
+        if n < settings.min_faces.max(4) {
+            return None;
+        }
+        rms = (sse / n as f64).sqrt();
+        let w = weight * n as f64;
+        a[(3, 3)] += w;
+        b[3] -= w * (r - r0);
+        let step = a.cholesky()?.solve(&b);
+        c = [c[0] + step[0], c[1] + step[1], c[2] + step[2]];
+        r += step[3];
+        if !(r > 0.0 && r.is_finite()) {
+            return None;
+        }
+        // Converged: the same faces would be gated again.
+        if step.norm() < 1e-6 {
+            break;
+        }
     }
+    Some((c, r, rms))
 }
 
 /// Slices per slab of the parallel surface passes.
@@ -1156,8 +1256,7 @@ fn contacts_of(
     let s = options.voxel_size;
     let mut out = Vec::new();
     for (k, z) in zones.iter().enumerate() {
-        let fa = fits.sides[k][0].solve_with_rms(options.fit.min_faces);
-        let fb = fits.sides[k][1].solve_with_rms(options.fit.min_faces);
+        let [fa, fb] = fits.solved[k];
         let fit_rms = [fa.map(|f| f.2 * s), fb.map(|f| f.2 * s)];
         // A fit far from the grain's size is of something else (a flat face,
         // a neck): not trusted.
@@ -1180,13 +1279,21 @@ fn contacts_of(
                 (Some((ca, ra)), Some((cb, rb))) => {
                     let d = scene::sub(cb, ca);
                     let dist = scene::norm(d);
-                    if let Some(n) = unit(d).filter(|n| close(*n)) {
-                        let overlap = ra + rb - dist;
+                    let overlap = ra + rb - dist;
+                    let neck = (2.0 * overlap.max(0.0) * ra * rb / (ra + rb)).sqrt();
+                    let fits_neck = (options.fit.max_neck <= 0.0
+                        || neck <= options.fit.max_neck * z.radius)
+                        && (options.fit.max_apart <= 0.0 || -overlap <= options.fit.max_apart);
+                    let n = unit(d).filter(|n| close(*n));
+                    if n.is_some() {
+                        // Kept when the normal falls back: `--max-gap` needs it.
+                        gap = Some(-overlap * s);
+                    }
+                    if let Some(n) = n.filter(|_| fits_neck) {
                         let arm = ra - 0.5 * overlap;
                         point = [ca[0] + arm * n[0], ca[1] + arm * n[1], ca[2] + arm * n[2]];
                         normal = n;
                         method = "fit";
-                        gap = Some(-overlap * s);
                     }
                 }
                 (Some((ca, _)), None) => {
@@ -1454,7 +1561,54 @@ impl LabelScene {
 
 #[cfg(test)]
 mod tests {
-    use super::SphereFit;
+    use super::{geometric_fit, FitSettings, SphereFit};
+
+    /// A 40° cap of a radius-10 sphere about (40, 40, 40), as doubled
+    /// coordinates (the faces' half-voxel grid: ±0.25 voxel of rounding).
+    fn cap() -> Vec<[u16; 3]> {
+        let mut faces = Vec::new();
+        for i in 0..4000 {
+            let z = 1.0 - 2.0 * (i as f64 + 0.5) / 4000.0;
+            if z < 40f64.to_radians().cos() {
+                continue;
+            }
+            let phi = i as f64 * std::f64::consts::PI * (3.0 - 5f64.sqrt());
+            let s = (1.0 - z * z).sqrt();
+            let p = [
+                40.0 + 10.0 * s * phi.cos(),
+                40.0 + 10.0 * s * phi.sin(),
+                40.0 + 10.0 * z,
+            ];
+            faces.push(p.map(|v| (2.0 * v).round() as u16));
+        }
+        faces
+    }
+
+    /// From a sphere 0.3 voxel off sideways and half a voxel too large, the
+    /// geometric refits find the cap's sphere; a prior on the wrong radius
+    /// changes the radius but not the normal at the cap's centre (+z).
+    #[test]
+    fn geometric_refits_find_the_cap_and_a_wrong_prior_keeps_the_normal() {
+        let faces = cap();
+        let settings = FitSettings::default();
+        let start = ([40.3, 40.0, 40.0], 10.5, 0.0);
+        let (c, r, rms) = geometric_fit(&faces, start, (10.0, 1e-9), &settings).expect("a fit");
+        // A 40° cap fixes the top and the axis well, the radius less so
+        // (it trades against the centre's height).
+        assert!((r - 10.0).abs() < 0.3, "r {r}");
+        assert!((c[2] + r - 50.0).abs() < 0.1, "{c:?} {r}");
+        assert!(
+            (c[0] - 40.0).abs() < 0.1 && (c[1] - 40.0).abs() < 0.1,
+            "{c:?}"
+        );
+        assert!(rms < 0.2, "rms {rms}");
+        let free = r;
+        let (c, r, _) = geometric_fit(&faces, start, (11.0, 1.0), &settings).expect("a fit");
+        assert!(r > free + 0.05 && r < 11.0, "r {r} (free {free})");
+        let tilt = (c[0] - 40.0).hypot(c[1] - 40.0) / (50.0 - c[2]);
+        assert!(tilt.atan().to_degrees() < 0.5, "{c:?}");
+        assert!(geometric_fit(&faces[..8], start, (10.0, 0.1), &settings).is_none());
+    }
 
     /// Points at radius 10 ± e (alternating) about (3, −2, 5): the fit finds
     /// the sphere and its rms distance is e, to first order in e/r.
