@@ -13,8 +13,9 @@ use crate::image::FloatImage;
 /// refined at full resolution. On the 21-megapixel hopper (radii 110–135 px)
 /// shrinking by 3 instead of 2 gives the same disks (centres within 3e-4 R)
 /// and contacts, and the mask search's CPU time falls from 1.5 to 0.7 s;
-/// shrinking by 4 (radius 25) lost a disk and 4 contacts.
-const MASK_RADIUS: f64 = 35.0;
+/// shrinking by 4 (radius 27) lost a disk and 4 contacts. `tests/image_photo.rs`
+/// (`big_disks_searched_in_a_shrunk_image`, radii from 100 px) shrinks by 3.
+const MASK_RADIUS: f64 = 33.0;
 
 /// By how much the rim mask is shrunk: as much as [`MASK_RADIUS`] allows,
 /// and never less than the intensity search's `factor`.
