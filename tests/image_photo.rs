@@ -726,6 +726,7 @@ fn big_disks_searched_in_a_shrunk_image() {
     let path = dir.path().join("big-disks.jpg");
     save_jpeg(&path, &image, 90).unwrap();
     let photo = Photo { scene, path, frame };
+    // The intensity search shrunk by 2, the rim mask by 3.
     let shrunk = detect(&photo, &defaults(100.0, 130.0));
     let full = detect(&photo, &defaults(99.0, 130.0));
     let s = score(&photo, &shrunk);

@@ -405,6 +405,7 @@ pub fn detect_images(
     let mut pixel_frame = None;
     let mut walls = Vec::new();
     for (k, path) in paths.iter().enumerate() {
+        let mut laps = detect::profile::Laps::start();
         let polarity = settings.detect.polarity.name();
         let DetectionImage {
             search,
@@ -412,6 +413,7 @@ pub fn detect_images(
             choice,
             background_level,
         } = read_for_detection(path, settings.channel, polarity)?;
+        laps.lap("read: decode and channel choice");
         let mut choice = choice;
         let mut by_colour = choice.background.is_some();
         let image = signal;
@@ -474,6 +476,9 @@ pub fn detect_images(
                 .max(COLOUR_FILL[0] * background_level)
                 .max(COLOUR_FILL[1]);
             let by_distance = detect::detect_disks_shrunk(&search, &o, colour_search_factor(&o))?;
+            // Not needed again: freed before a second search fills its own buffers.
+            drop(search);
+            laps.lap("colour-distance search");
             let dark_field = choice
                 .background
                 .as_ref()
@@ -483,6 +488,7 @@ pub fn detect_images(
             } else {
                 None
             };
+            laps.lap("signal-channel search");
             match instead {
                 Some((single, picked)) => {
                     by_colour = false;
@@ -492,9 +498,10 @@ pub fn detect_images(
                 None => by_distance,
             }
         } else {
-            detect_disks(&search, &settings.detect)?
+            let disks = detect_disks(&search, &settings.detect)?;
+            drop(search);
+            disks
         };
-        drop(search);
         if disks.is_empty() {
             return Err(Error::data(
                 path,
@@ -553,6 +560,7 @@ pub fn detect_images(
                 (outer, rims, candidates, contacts)
             }
         };
+        laps.lap("contacts");
         let ids: Vec<String> = tracker.assign(&disks).iter().map(u64::to_string).collect();
         let mut scene = scene_from_detection(&disks, &ids, &contacts, &walls, &frame)?;
         scene.settings.thickness = settings.thickness;
@@ -575,6 +583,7 @@ pub fn detect_images(
             choice,
         };
         on_frame(k, path, &image, &detected)?;
+        laps.lap("scene and on_frame (overlay)");
         frames.push(detected);
     }
     Ok(Detection {

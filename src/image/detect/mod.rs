@@ -29,6 +29,7 @@ mod circle_fit;
 mod filters;
 mod options;
 mod polish;
+pub(crate) mod profile;
 mod pyramid;
 mod refine;
 mod rims;
@@ -84,6 +85,7 @@ pub fn detect_disks(image: &FloatImage, options: &DetectOptions) -> Result<Vec<D
         Polarity::Dark => &[-1.0],
         Polarity::Either => &[1.0, -1.0],
     };
+    let mut laps = profile::Laps::start();
     let factor = pyramid_factor(o);
     let pyramid = factor > 1 && w as usize >= 8 * factor && h as usize >= 8 * factor;
     // The noise is measured once (on big images it costs a pass and a buffer).
@@ -104,7 +106,9 @@ pub fn detect_disks(image: &FloatImage, options: &DetectOptions) -> Result<Vec<D
         }
         (candidates, edge_sigma)
     };
+    laps.lap("search: candidates");
     let edge_image = gaussian_blur(image, edge_sigma);
+    laps.lap("search: edge smoothing (full resolution)");
     let plane = Plane::whole(&edge_image);
     let refine_candidate = |&(cx, cy, hint): &Candidate| {
         let plane = &plane;
@@ -122,6 +126,7 @@ pub fn detect_disks(image: &FloatImage, options: &DetectOptions) -> Result<Vec<D
             .collect()
     };
     drop(edge_image);
+    laps.lap(&format!("search: refine {} candidates", candidates.len()));
     // Merge duplicates: the best-supported copy of each disk wins.
     found.sort_by(|a, b| score(b).total_cmp(&score(a)));
     let mut kept: Vec<Disk> = Vec::new();
@@ -163,17 +168,15 @@ pub fn detect_disks(image: &FloatImage, options: &DetectOptions) -> Result<Vec<D
         })
         .collect();
     let kept = without_overlaps(kept, o.overlap);
+    laps.lap("search: model fit (polish)");
     if o.find_by_rims && o.polarity == Polarity::Bright {
-        if pyramid {
-            return Ok(add_rim_enclosed_coarse(
-                image,
-                o,
-                kept,
-                factor,
-                noise_of(image),
-            ));
-        }
-        return Ok(add_rim_enclosed(image, o, kept));
+        let with_rims = if pyramid {
+            add_rim_enclosed_coarse(image, o, kept, factor, noise_of(image))
+        } else {
+            add_rim_enclosed(image, o, kept)
+        };
+        laps.lap("search: rim-enclosed disks");
+        return Ok(with_rims);
     }
     Ok(kept)
 }
@@ -234,11 +237,13 @@ pub(crate) fn refine_strongest_first(
 ) -> Vec<Disk> {
     let mut found: Vec<Disk> = Vec::new();
     let mut confident: Vec<Disk> = Vec::new();
+    let mut refined_count = 0;
     for batch in candidates.chunks(REFINE_BATCH) {
         let open: Vec<&Candidate> = batch
             .iter()
             .filter(|c| !confident.iter().any(|d| (d.x - c.0).hypot(d.y - c.1) < d.r))
             .collect();
+        refined_count += open.len();
         let refined: Vec<Disk> = open
             .par_iter()
             .flat_map_iter(|c| refine_candidate(c))
@@ -246,6 +251,7 @@ pub(crate) fn refine_strongest_first(
         confident.extend(refined.iter().filter(|d| d.support >= o.min_support));
         found.extend(refined);
     }
+    profile::Laps::start().lap(&format!("(refined {refined_count} of them)"));
     found
 }
 

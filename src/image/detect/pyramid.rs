@@ -32,6 +32,7 @@ pub(crate) fn coarse_candidates(
     factor: usize,
     noise: f64,
 ) -> Result<(Vec<Candidate>, f64)> {
+    let mut laps = super::profile::Laps::start();
     let f = factor as f64;
     let (w, h) = (image.width() as usize, image.height() as usize);
     let pixels = image.as_raw();
@@ -40,17 +41,21 @@ pub(crate) fn coarse_candidates(
     // The same smoothing as at full resolution, in the shrunk image's pixels.
     let smooth = gaussian_blur(&coarse, sigma / f);
     drop(coarse);
+    laps.lap("coarse: shrink and smooth");
     let edge_sigma = o
         .edge_smoothing_px
         .unwrap_or_else(|| edge_smoothing_for_noise(noise, &smooth, sigma));
     check_smoothing(sigma, edge_sigma)?;
     let coarse_options = shrunk_options(o, f);
+    laps.lap("coarse: edge smoothing from noise");
     let accumulator = vote(&smooth, &coarse_options, signs);
+    laps.lap("coarse: vote");
     let mut candidates = peaks(&accumulator, &coarse_options);
     drop(accumulator);
     for &s in signs {
         candidates.extend(distance_peaks(&smooth, s, &coarse_options));
     }
+    laps.lap("coarse: peaks and distance peaks");
     let full = |v: f64| f * v + 0.5 * (f - 1.0);
     let candidates = candidates
         .into_iter()
