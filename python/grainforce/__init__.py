@@ -750,7 +750,8 @@ def photoelastic(
     is fitted to the walls' load cells (walls.csv). thickness [m] and scale
     [px/m] default to the scene's. Every keyword left None keeps the CLI's
     default: channel green, mu 0.5, exact balance (balance_weight makes it a
-    penalty), blur 1 px, edge 6 px, 60 iterations, contacts "evidence".
+    penalty), blur 1 px, edge 6 px, 60 iterations, contacts "all" (or "evidence": only those
+    ``detect`` judged force-bearing).
     """
     opt = lambda v: None if v is None else float(v)
     return Photoelastic(

@@ -47,9 +47,10 @@ pub struct Args {
     /// The per-disk fit (each disk alone, sides averaged) instead, for comparison.
     #[arg(long)]
     per_disk: bool,
-    /// Which contacts are fitted: `evidence` leaves out those `detect` did not
-    /// judge force-bearing (contacts-evidence.csv; all without the file).
-    #[arg(long, value_enum, default_value_t = ContactChoice::Evidence)]
+    /// Which contacts are fitted: `all` (the fringes decide which carry
+    /// force), or `evidence`: only those `detect` judged force-bearing
+    /// (contacts-evidence.csv; all without the file).
+    #[arg(long, value_enum, default_value_t = ContactChoice::default())]
     contacts: ContactChoice,
     /// Also fit every disk pair closer than this share of the smaller radius
     /// as a candidate contact (a contact detection may have missed); the

@@ -20,12 +20,15 @@ use std::path::Path;
 #[serde(rename_all = "snake_case")]
 #[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 pub enum ContactChoice {
-    /// Every contact of the scene.
+    /// Every contact of the scene; the fringes decide which carry force.
+    /// The default: on the detected 58-disk render it gives relerr 0.187
+    /// where `Evidence` gives 1.275 (a contact wrongly judged unloaded
+    /// pushes its load onto its neighbours).
+    #[default]
     All,
     /// Those `detect` judged force-bearing (`force_bearing` in the scene's
     /// contacts-evidence.csv: G² over the packing's floor on both disks);
     /// the others carry zero. Every contact when the file is absent.
-    #[default]
     Evidence,
 }
 
