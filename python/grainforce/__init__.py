@@ -739,6 +739,8 @@ def photoelastic(
     iterations: Optional[int] = None,
     per_disk: bool = False,
     contacts: Optional[str] = None,
+    candidates: Optional[float] = None,
+    sparsity: Optional[float] = None,
 ) -> Photoelastic:
     """Contact forces fitted to a photoelastic photograph's fringes, all
     disks at once under balance and friction (``grainforce photoelastic``,
@@ -751,7 +753,10 @@ def photoelastic(
     [px/m] default to the scene's. Every keyword left None keeps the CLI's
     default: channel green, mu 0.5, exact balance (balance_weight makes it a
     penalty), blur 1 px, edge 6 px, 60 iterations, contacts "all" (or "evidence": only those
-    ``detect`` judged force-bearing).
+    ``detect`` judged force-bearing); off: candidates (near-miss pairs with
+    a gap below this share of the smaller radius fitted too, listed in the
+    report) and sparsity (weight of the term that fits unsupported contacts
+    to zero) — both measured in docs/photoelastic.md, neither yet better.
     """
     opt = lambda v: None if v is None else float(v)
     return Photoelastic(
@@ -769,6 +774,8 @@ def photoelastic(
             None if iterations is None else int(iterations),
             bool(per_disk),
             contacts,
+            opt(candidates),
+            opt(sparsity),
         )
     )
 

@@ -239,5 +239,7 @@ def photoelastic(
     iterations: Optional[int] = None,
     per_disk: bool = False,
     contacts: Optional[Literal["all", "evidence"]] = None,
+    candidates: Optional[float] = None,
+    sparsity: Optional[float] = None,
 ) -> Photoelastic:
     """Contact forces fitted to a photoelastic photograph's fringes (`grainforce photoelastic`)."""

@@ -122,4 +122,6 @@ def photoelastic(
     iterations: Optional[int] = None,
     per_disk: bool = False,
     contacts: Optional[str] = None,
+    candidates: Optional[float] = None,
+    sparsity: Optional[float] = None,
 ) -> Photoelastic: ...

@@ -781,7 +781,7 @@ impl Photoelastic {
 /// at once under balance and friction (`grainforce photoelastic`). `None`
 /// keeps the CLI's default.
 #[pyfunction]
-#[pyo3(signature = (image, scene, fsigma=None, thickness=None, scale=None, channel=None, mu=None, balance_weight=None, blur=None, edge=None, iterations=None, per_disk=false, contacts=None))]
+#[pyo3(signature = (image, scene, fsigma=None, thickness=None, scale=None, channel=None, mu=None, balance_weight=None, blur=None, edge=None, iterations=None, per_disk=false, contacts=None, candidates=None, sparsity=None))]
 #[allow(clippy::too_many_arguments)]
 fn photoelastic(
     py: Python<'_>,
@@ -798,6 +798,8 @@ fn photoelastic(
     iterations: Option<usize>,
     per_disk: bool,
     contacts: Option<&str>,
+    candidates: Option<f64>,
+    sparsity: Option<f64>,
 ) -> PyResult<Photoelastic> {
     use grainforce::image::fringe_run::{self, ContactChoice, PhotoelasticConfig};
     // Fields a caller leaves out keep the library's defaults (the CLI's).
@@ -807,6 +809,7 @@ fn photoelastic(
         scale,
         balance_weight,
         per_disk,
+        candidate_gap: candidates,
         ..PhotoelasticConfig::default()
     };
     if let Some(name) = channel {
@@ -826,6 +829,7 @@ fn photoelastic(
     config.blur = blur.unwrap_or(config.blur);
     config.edge = edge.unwrap_or(config.edge);
     config.iterations = iterations.unwrap_or(config.iterations);
+    config.sparsity = sparsity.unwrap_or(config.sparsity);
     let run = py
         .detach(|| fringe_run::run(&image, &scene, &config))
         .map_err(to_py)?;

@@ -84,3 +84,16 @@ def test_bad_input_raises(tmp_path):
         gf.photoelastic(PHOTO, SCENE, fsigma=FSIGMA, contacts="some")
     with pytest.raises(ValueError, match="fsigma"):
         gf.photoelastic(PHOTO, SCENE, fsigma=-1.0)
+
+
+def test_the_experimental_switches_match_the_cli(tmp_path):
+    fit = gf.photoelastic(PHOTO, SCENE, fsigma=FSIGMA, blur=BLUR, candidates=0.2, sparsity=300)
+    fit.save(tmp_path / "py.csv")
+    subprocess.run(
+        [cli(), "photoelastic", str(PHOTO), "--scene", str(SCENE), "-o", str(tmp_path / "cli.csv"),
+         "--fsigma", str(FSIGMA), "--blur", str(BLUR), "--candidates", "0.2", "--sparsity", "300"],
+        check=True, capture_output=True,
+    )
+    assert (tmp_path / "py.csv").read_bytes() == (tmp_path / "cli.csv").read_bytes()
+    assert len(fit.forces) == 93  # candidates are reported, not written
+    assert isinstance(fit.report["candidates"], list)
