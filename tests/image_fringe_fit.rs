@@ -89,6 +89,19 @@ fn green(image: &grainforce::image::photoelastic::RgbFloatImage) -> FloatImage {
     })
 }
 
+/// The sparsity weights the ignored measurements sweep (GRAINFORCE_SPARSITY,
+/// comma-separated; 30 without it).
+fn sparsity_sweep() -> Vec<f64> {
+    std::env::var("GRAINFORCE_SPARSITY")
+        .unwrap_or_else(|_| "30".into())
+        .split(',')
+        .map(|v| {
+            v.parse()
+                .expect("GRAINFORCE_SPARSITY: numbers, comma-separated")
+        })
+        .collect()
+}
+
 fn relerr(fit: &[[f64; 2]], truth: &[[f64; 2]]) -> f64 {
     let (mut num, mut den) = (0.0, 0.0);
     for (f, t) in fit.iter().zip(truth) {
@@ -543,14 +556,7 @@ fn oedometer_58_disks() {
     let from_truth = fit_fringes(&r.image, &r.frame, &r.scene, &s).unwrap();
     summary("58 disks, joint from the truth", &r, &from_truth);
     s.start = None;
-    let sweep: Vec<f64> = std::env::var("GRAINFORCE_SPARSITY")
-        .unwrap_or_else(|_| "30".into())
-        .split(',')
-        .map(|v| {
-            v.parse()
-                .expect("GRAINFORCE_SPARSITY: numbers, comma-separated")
-        })
-        .collect();
+    let sweep = sparsity_sweep();
     let mut pruned = s.clone();
     pruned.support_prune = Some(0.1);
     let fit = fit_fringes(&r.image, &r.frame, &r.scene, &pruned).unwrap();
@@ -721,14 +727,7 @@ fn detection_split(
         let den: f64 = truth.iter().map(|t| t[0] * t[0] + t[1] * t[1]).sum::<f64>() + lost2;
         (num / den).sqrt()
     };
-    let sweep: Vec<f64> = std::env::var("GRAINFORCE_SPARSITY")
-        .unwrap_or_else(|_| "30".into())
-        .split(',')
-        .map(|v| {
-            v.parse()
-                .expect("GRAINFORCE_SPARSITY: numbers, comma-separated")
-        })
-        .collect();
+    let sweep = sparsity_sweep();
     let run_with = |name: &str,
                     scene: &Scene,
                     truth: &[[f64; 2]],

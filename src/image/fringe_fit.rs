@@ -594,6 +594,33 @@ struct Prepared {
     balanced: Vec<bool>,
 }
 
+impl Prepared {
+    /// Disk `d` as a problem of its own with these of its loads (numbered
+    /// 0, 1, … there): the per-disk fit and the contact support test refit
+    /// a disk alone.
+    fn alone(&self, d: &DiskData, mut loads: Vec<Load>) -> Prepared {
+        for (i, l) in loads.iter_mut().enumerate() {
+            l.unknown = i;
+        }
+        Prepared {
+            unknowns: loads.len(),
+            disks: vec![DiskData {
+                grain: d.grain,
+                centre: d.centre,
+                radius: d.radius,
+                loads,
+                points: d.points.clone(),
+                intensity: d.intensity.clone(),
+                pixels: d.pixels.clone(),
+            }],
+            scale: self.scale,
+            optics: self.optics,
+            pixel: self.pixel,
+            balanced: vec![false],
+        }
+    }
+}
+
 fn prepare(
     image: &FloatImage,
     frame: &PixelFrame,
@@ -1814,35 +1841,17 @@ pub fn contact_support(
     let optics = stage_optics(&p, frame, settings, 0.0);
     // Disk d's residual with its loads but `skip` refitted freely from x.
     let refitted = |d: &DiskData, skip: Option<usize>| -> Result<f64> {
-        let mut local = DiskData {
-            grain: d.grain,
-            centre: d.centre,
-            radius: d.radius,
-            loads: (d.loads.iter())
-                .filter(|l| Some(l.unknown) != skip)
-                .copied()
-                .collect(),
-            points: d.points.clone(),
-            intensity: d.intensity.clone(),
-            pixels: d.pixels.clone(),
-        };
-        let u0: Vec<f64> = (local.loads.iter())
+        let loads: Vec<Load> = (d.loads.iter())
+            .filter(|l| Some(l.unknown) != skip)
+            .copied()
+            .collect();
+        let u0: Vec<f64> = (loads.iter())
             .flat_map(|l| [x[2 * l.unknown], x[2 * l.unknown + 1]])
             .collect();
-        for (i, l) in local.loads.iter_mut().enumerate() {
-            l.unknown = i;
-        }
+        let sub = p.alone(d, loads);
         if u0.is_empty() {
-            return Ok(local.evaluate(&[], &optics, false).ssr);
+            return Ok(sub.disks[0].evaluate(&[], &optics, false).ssr);
         }
-        let sub = Prepared {
-            unknowns: local.loads.len(),
-            disks: vec![local],
-            scale: p.scale,
-            optics: p.optics,
-            pixel: p.pixel,
-            balanced: vec![false],
-        };
         let stepper = Stepper {
             p: &sub,
             scene: None,
@@ -1899,26 +1908,7 @@ pub fn fit_fringes_per_disk(
         .disks
         .par_iter()
         .map(|d| {
-            let mut local = DiskData {
-                grain: d.grain,
-                centre: d.centre,
-                radius: d.radius,
-                loads: d.loads.clone(),
-                points: d.points.clone(),
-                intensity: d.intensity.clone(),
-                pixels: d.pixels.clone(),
-            };
-            for (i, l) in local.loads.iter_mut().enumerate() {
-                l.unknown = i;
-            }
-            let sub = Prepared {
-                unknowns: local.loads.len(),
-                disks: vec![local],
-                scale: p.scale,
-                optics: p.optics,
-                pixel: p.pixel,
-                balanced: vec![false],
-            };
+            let sub = p.alone(d, d.loads.clone());
             let u0 = d.gather(&x);
             if u0.is_empty() {
                 return Ok((u0, 0));
