@@ -1333,6 +1333,38 @@ mod tests {
         coupling: Triplets,
     }
 
+    /// clarabel's answer at tolerance 1e-10: the tests' reference optimum.
+    fn tight_reference(p: &Random) -> crate::solver::Solution {
+        clarabel::solve(
+            &ConicProblem {
+                n: p.a.ncols,
+                terms: vec![Term {
+                    matrix: &p.a,
+                    rhs: &p.b,
+                    weight: 1.0,
+                }],
+                equalities: vec![(&p.c, &p.d)],
+                lambda: 0.0,
+                regularized: 0,
+                cones: p.cones.clone(),
+            },
+            &ConicSettings {
+                tolerance: 1e-10,
+                ..Default::default()
+            },
+        )
+        .unwrap()
+    }
+
+    /// The factorisation the interior point shares and the least squares
+    /// without cones it starts from.
+    fn least_squares_start(p: &Random) -> (EqualityLeastSquares, Vec<f64>) {
+        let mut factor =
+            EqualityLeastSquares::with_ordering(&p.a, &p.c, &p.coupling, Ordering::Amd).unwrap();
+        let start = factor.solve(&p.a, &p.c, &p.b, &p.d, 0.0).unwrap().x;
+        (factor, start)
+    }
+
     fn random_problem(seed: u64, contacts: usize, kind: &str, mu: f64, scale: f64) -> Random {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let width = if kind == "wedge" { 2 } else { 3 };
@@ -1436,33 +1468,12 @@ mod tests {
         for (seed, kind) in [(3, "circular"), (8, "circular"), (4, "wedge")] {
             for mu in [0.01, 0.5, 10.0] {
                 let unit = random_problem(seed, 40, kind, mu, 1.0);
-                let reference = clarabel::solve(
-                    &ConicProblem {
-                        n: unit.a.ncols,
-                        terms: vec![Term {
-                            matrix: &unit.a,
-                            rhs: &unit.b,
-                            weight: 1.0,
-                        }],
-                        equalities: vec![(&unit.c, &unit.d)],
-                        lambda: 0.0,
-                        regularized: 0,
-                        cones: unit.cones.clone(),
-                    },
-                    &ConicSettings {
-                        tolerance: 1e-10,
-                        ..Default::default()
-                    },
-                )
-                .unwrap();
+                let reference = tight_reference(&unit);
                 for scale in [1e-6, 1.0, 1e6] {
                     let case = format!("{kind} (seed {seed}) μ = {mu} scale {scale:e}");
                     let p = random_problem(seed, 40, kind, mu, scale);
                     let ls = p.view();
-                    let mut factor =
-                        EqualityLeastSquares::with_ordering(&p.a, &p.c, &p.coupling, Ordering::Amd)
-                            .unwrap();
-                    let start = factor.solve(&p.a, &p.c, &p.b, &p.d, 0.0).unwrap().x;
+                    let (factor, start) = least_squares_start(&p);
                     let binding = p.cones.iter().filter(|c| c.violation(&start) > 0.0).count();
                     assert!(binding > 0, "{case}: the cones must bind");
                     let ours = solve(&ls, &p.cones, &start, &factor, None, &settings).unwrap();
@@ -1500,29 +1511,8 @@ mod tests {
             for mu in [0.01, 0.5, 10.0] {
                 let case = format!("{kind} (seed {seed}) μ = {mu}");
                 let p = random_problem(seed, 40, kind, mu, 1.0);
-                let reference = clarabel::solve(
-                    &ConicProblem {
-                        n: p.a.ncols,
-                        terms: vec![Term {
-                            matrix: &p.a,
-                            rhs: &p.b,
-                            weight: 1.0,
-                        }],
-                        equalities: vec![(&p.c, &p.d)],
-                        lambda: 0.0,
-                        regularized: 0,
-                        cones: p.cones.clone(),
-                    },
-                    &ConicSettings {
-                        tolerance: 1e-10,
-                        ..Default::default()
-                    },
-                )
-                .unwrap();
-                let mut factor =
-                    EqualityLeastSquares::with_ordering(&p.a, &p.c, &p.coupling, Ordering::Amd)
-                        .unwrap();
-                let start = factor.solve(&p.a, &p.c, &p.b, &p.d, 0.0).unwrap().x;
+                let reference = tight_reference(&p);
+                let (factor, start) = least_squares_start(&p);
                 let mut iterations = [0; 2];
                 for (k, correctors) in [0, 3].into_iter().enumerate() {
                     let settings = InteriorPointSettings {
