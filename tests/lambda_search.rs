@@ -36,7 +36,11 @@ fn compare(fixture: &str, seeds: std::ops::RangeInclusive<u64>) {
     for seed in seeds {
         let noisy = perturb(&scene, Noise::Stress, seed);
         let run = |search| tikhonov(&noisy, &truth, search);
-        let (new, new_err) = run(LambdaSearch::default());
+        let fine = LambdaSearch {
+            precision: LambdaPrecision::Fine,
+            ..LambdaSearch::default()
+        };
+        let (new, new_err) = run(fine);
         let (old, old_err) = run(LambdaSearch::former());
         let (new_trace, old_trace) = (
             new.lambda_trace.as_ref().unwrap(),
@@ -192,6 +196,10 @@ fn sheared_3d_search_restarts_the_interior_point_and_keeps_the_optimum() {
     // To the tolerance, not the data's accuracy (tests/data_accuracy.rs).
     let mut exact = InferOptions {
         method: Method::Tikhonov,
+        lambda_search: LambdaSearch {
+            precision: LambdaPrecision::Fine,
+            ..LambdaSearch::default()
+        },
         ..InferOptions::default()
     };
     exact.conic.noise_share = None;

@@ -61,7 +61,7 @@ def assert_same_forces(got, expected, tolerance=1e-12):
     [
         ("qs", {}, []),
         ("tikhonov", {"lambda_": 2e-4, "mu": 0.4}, ["--lambda", "2e-4", "--mu", "0.4"]),
-        ("tikhonov", {"lambda_precision": "coarse"}, ["--lambda-precision", "coarse"]),
+        ("tikhonov", {"lambda_precision": "fine"}, ["--lambda-precision", "fine"]),
         ("ls", {}, []),
         ("scaled", {"solver": "interior_point"}, ["--solver", "interior-point"]),
         ("qs", {"ordering": "nested_dissection", "cone": "exact"}, ["--ordering", "nested-dissection"]),

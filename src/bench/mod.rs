@@ -35,8 +35,8 @@ pub struct MethodSpec {
 
 /// Names accepted by [`method_spec`]: `ls`, `qs`, `qs-ip`, `qs-relaxed`,
 /// `tikhonov`, `tikhonov-ip`, `tikhonov-relaxed`, `tikhonov-search` (λ
-/// matched to the walls), `tikhonov-coarse` (the same at
-/// [`LambdaPrecision::Coarse`]), `scaled`, and in 3D `qs-pyr4`, `qs-pyr8`,
+/// matched to the walls at [`LambdaPrecision::Fine`]), `tikhonov-coarse` (the
+/// same at [`LambdaPrecision::Coarse`], the default), `scaled`, and in 3D `qs-pyr4`, `qs-pyr8`,
 /// `qs-pyr16` (any `qs-pyrK`, `K` ≥ 3). `qs` and `tikhonov` use the
 /// active-set solver, `-ip` the interior point (clarabel, tolerance 1e-8),
 /// `-relaxed` the interior point at tolerance 1e-4; any name
@@ -97,7 +97,10 @@ pub fn preset(name: &str, lambda: f64) -> Result<InferConfig> {
             c.lambda = Some(lambda);
             Method::Tikhonov
         }
-        "tikhonov-search" if base == name_rest => Method::Tikhonov,
+        "tikhonov-search" if base == name_rest => {
+            c.lambda_precision = LambdaPrecision::Fine;
+            Method::Tikhonov
+        }
         "tikhonov-coarse" if base == name_rest => {
             c.lambda_precision = LambdaPrecision::Coarse;
             Method::Tikhonov

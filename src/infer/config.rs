@@ -119,11 +119,12 @@ pub struct InferConfig {
     /// Dimensionless range of the automatic λ search (λ / grain radius), MIN..MAX.
     #[cfg_attr(feature = "cli", arg(long, value_name = "MIN..MAX", value_parser = parse_range))]
     pub lambda_range: Option<[f64; 2]>,
-    /// Precision of the automatic λ: fine (the friction-constrained wall
-    /// mismatch minimised, up to 6 constrained solves) or coarse (one
-    /// constrained solve at the unconstrained least squares' optimum: 1.9–3.6×
-    /// faster measured in 3D, forces within 1 % of fine's; see the README).
-    #[cfg_attr(feature = "cli", arg(long, value_enum, default_value_t = LambdaPrecision::Fine))]
+    /// Precision of the automatic λ: coarse (one constrained solve at the
+    /// unconstrained least squares' optimum; the default) or fine (the
+    /// friction-constrained wall mismatch minimised, up to 6 constrained
+    /// solves: 1.9–3.6× slower measured in 3D, forces within 1 % of coarse's
+    /// and no closer to the truth; see docs/bench.md).
+    #[cfg_attr(feature = "cli", arg(long, value_enum, default_value_t = LambdaPrecision::Coarse))]
     pub lambda_precision: LambdaPrecision,
     /// Gravity vector gx,gy[,gz] in m/s² (overrides scene.json); grains then need `mass`.
     #[cfg_attr(
@@ -327,7 +328,7 @@ impl Default for InferConfig {
             wall_mu: None,
             lambda: None,
             lambda_range: None,
-            lambda_precision: LambdaPrecision::Fine,
+            lambda_precision: LambdaPrecision::Coarse,
             gravity: None,
             grains: None,
             region: None,
