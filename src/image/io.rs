@@ -342,8 +342,8 @@ pub fn gray_distance(gray: &FloatImage) -> (FloatImage, f32, f64, f64) {
     let values = gray.as_raw();
     let bin = |v: f32| ((v.clamp(0.0, 1.0) * LEVELS as f32) as usize).min(LEVELS - 1);
     let stride = if values.len() > 4_000_000 { 7 } else { 1 };
-    let mut count = vec![0usize; LEVELS];
-    let mut sum = vec![0.0f64; LEVELS];
+    let mut count = [0usize; LEVELS];
+    let mut sum = [0.0f64; LEVELS];
     for &v in values.iter().step_by(stride) {
         count[bin(v)] += 1;
         sum[bin(v)] += v as f64;
