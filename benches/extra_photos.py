@@ -15,6 +15,9 @@ as PeGS writes them): PeGS's own `particle` x, y, r from the repository's
 `*_preprocessing.mat` where there is one, otherwise circles checked by eye
 on an overlay (OpenCV's and grainforce's, corrected by hand). Needs numpy
 and opencv-python-headless. Prints one Markdown row per photo and method.
+
+To write a PeGS reference (needs scipy):
+    python3 benches/extra_photos.py --centres-from-mat IMAGE_preprocessing.mat centers.txt
 """
 import glob
 import os
@@ -78,7 +81,20 @@ def row(name, method, s, seconds):
         "%.2f s" % seconds if seconds is not None else "")
 
 
+def centres_from_mat(mat, out):
+    """PeGS 1.x `particle` struct array: x, y, r (MATLAB pixels) a line."""
+    import scipy.io
+
+    particles = scipy.io.loadmat(mat, squeeze_me=True, struct_as_record=False)["particle"]
+    with open(out, "w") as f:
+        for p in np.atleast_1d(particles):
+            f.write("%.7f,%.7f,%g,0\n" % (p.x, p.y, p.r))
+
+
 def main(argv):
+    if argv[:1] == ["--centres-from-mat"]:
+        centres_from_mat(argv[1], argv[2])
+        return 0
     photos_dir = os.environ.get("GRAINFORCE_EXTRA_PHOTOS")
     shared = os.environ.get("GRAINFORCE_TEST_DATA")
     if not photos_dir or not shared:
