@@ -53,12 +53,14 @@ pub struct Args {
     #[arg(long)]
     either_polarity: bool,
     /// What of a colour image the disks are searched in: auto (the default)
-    /// reads the background colour from the image (its most common colour)
-    /// and searches the colour distance from it, in which disks are bright
-    /// whatever their fringes, rims or the light's colour; or one channel:
-    /// red, green, blue or luma (then the polarity options apply). The
-    /// choice is printed and recorded in image-frame.json. Gray images are
-    /// read as they are.
+    /// reads the background colour from the image (the most common of its
+    /// darkest or brightest colours) and searches the colour distance from
+    /// it, in which disks are bright whatever their fringes, rims or the
+    /// light's colour; or one channel: red, green, blue or luma (then the
+    /// polarity options apply). The choice is printed and recorded in
+    /// image-frame.json. Gray images are searched as they are and, with
+    /// bright disks, in their distance from the background level too (the
+    /// one with the better supported outlines is kept).
     #[arg(long, default_value = "auto", value_parser = parse_channel)]
     channel: Channel,
     /// Gaussian smoothing before voting [px] (default: from the radius).

@@ -91,7 +91,8 @@ pub struct ChannelChoice {
     /// `colour-distance`, `gray`, or the channel asked for (`red`, …).
     pub channel: String,
     /// The background colour (RGB in [0, 1]; one value for gray images), when
-    /// it was estimated: the most common colour of the image.
+    /// it was estimated: the most common of the image's darkest or brightest
+    /// colours.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub background: Option<Vec<f64>>,
     /// Fraction of the image within that colour's bin.
@@ -138,10 +139,10 @@ impl ChannelChoice {
 
 /// Reads an image for `detect`. With [`Channel::Auto`] a colour image is
 /// searched in its colour distance from the background colour: the most
-/// common colour (a 16-level-per-channel histogram's fullest bin, its mean),
-/// which is the background whenever the disks do not cover most of the
-/// picture, whatever its colour or brightness (a white or painted backdrop, a
-/// dark field, coloured light). Every part of a disk that differs from the
+/// common of its darkest or brightest colours (a 16-level-per-channel
+/// histogram's fullest such bin, its mean; [`background_bin`]), whatever its
+/// colour (a white or painted backdrop, a dark field, coloured light), and
+/// however much of the picture the disks cover. Every part of a disk that differs from the
 /// background, a fringe of any order or colour, a dark rim, a dim interior,
 /// is then bright, so a disk is one bright region whose outline is the edge
 /// to the background, and fringes inside it barely show. The photoelastic
@@ -238,11 +239,17 @@ fn colour_distance<T: Copy + Into<f32> + Sync>(
         }
         seen += 1;
     }
-    let (fullest, &n) = count
-        .iter()
-        .enumerate()
-        .max_by_key(|&(_, &n)| n)
-        .expect("bins");
+    let luma = |p: [f64; 3]| 0.299 * p[0] + 0.587 * p[1] + 0.114 * p[2];
+    let bin_luma: Vec<f64> = (0..count.len())
+        .map(|b| luma(sum[b]) / count[b].max(1) as f64)
+        .collect();
+    let sample: Vec<f64> = raw
+        .chunks_exact(3)
+        .step_by(stride.max(3))
+        .map(|p| luma([0, 1, 2].map(|c| Into::<f32>::into(p[c]) as f64)))
+        .collect();
+    let fullest = background_bin(&count, &bin_luma, sample, full_scale as f64 / LEVELS as f64);
+    let n = count[fullest];
     let background = [0, 1, 2].map(|c| (sum[fullest][c] / n.max(1) as f64) as f32 / full_scale);
     let spreads = channel_spreads(raw, stride);
     let distance: Vec<f32> = raw
@@ -291,6 +298,101 @@ fn colour_distance<T: Copy + Into<f32> + Sync>(
         background,
         n as f64 / seen.max(1) as f64,
         background_level,
+    )
+}
+
+/// The background's histogram bin: the fullest bin whose colour is among the
+/// image's darkest or brightest (its mean luma within one bin of the 5th
+/// percentile's or of the 95th's), or the fullest of all when none is. Behind
+/// a polariscope the background is the light without a disk: extinguished in
+/// a dark field, the brightest part of a bright one; disks are in between. A
+/// dense packing of unloaded disks of one colour fills more of the picture
+/// than the background does (two photographs of docs/image.md: the disks'
+/// teal 5–8 % of the pixels, the backdrop's white 4 %). `bin_luma` is each
+/// bin's mean luma, `sample` the luma of a sample of pixels, `one_bin` a
+/// bin's width, all in one unit.
+fn background_bin(count: &[usize], bin_luma: &[f64], mut sample: Vec<f64>, one_bin: f64) -> usize {
+    let fullest = |keep: &dyn Fn(usize) -> bool| {
+        (0..count.len())
+            .filter(|&b| count[b] > 0 && keep(b))
+            .max_by_key(|&b| count[b])
+    };
+    let all = || fullest(&|_| true).unwrap_or(0);
+    if sample.len() < 2 {
+        return all();
+    }
+    let n = sample.len();
+    let dark = *sample
+        .select_nth_unstable_by(n / 20, |a, b| a.total_cmp(b))
+        .1;
+    let bright = *sample
+        .select_nth_unstable_by(n * 19 / 20, |a, b| a.total_cmp(b))
+        .1;
+    fullest(&|b| bin_luma[b] <= dark + one_bin || bin_luma[b] >= bright - one_bin)
+        .unwrap_or_else(all)
+}
+
+/// A gray picture's distance from its background level (the fullest of
+/// sixteen levels among its darkest or brightest, [`background_bin`]),
+/// scaled as [`colour_distance`] scales it; with the background level, the
+/// fraction of pixels in its bin and the background's own level in the
+/// distance (90th percentile over the bin).
+pub fn gray_distance(gray: &FloatImage) -> (FloatImage, f32, f64, f64) {
+    const LEVELS: usize = 16;
+    let values = gray.as_raw();
+    let bin = |v: f32| ((v.clamp(0.0, 1.0) * LEVELS as f32) as usize).min(LEVELS - 1);
+    let stride = if values.len() > 4_000_000 { 7 } else { 1 };
+    let mut count = [0usize; LEVELS];
+    let mut sum = [0.0f64; LEVELS];
+    for &v in values.iter().step_by(stride) {
+        count[bin(v)] += 1;
+        sum[bin(v)] += v as f64;
+    }
+    let bin_luma: Vec<f64> = (0..LEVELS)
+        .map(|b| sum[b] / count[b].max(1) as f64)
+        .collect();
+    let sample: Vec<f64> = values
+        .iter()
+        .step_by(stride.max(3))
+        .map(|&v| v as f64)
+        .collect();
+    let b = background_bin(&count, &bin_luma, sample, 1.0 / LEVELS as f64);
+    let level = bin_luma[b] as f32;
+    let seen: usize = count.iter().sum();
+    let mut sample: Vec<f32> = values
+        .iter()
+        .step_by(stride.max(3))
+        .map(|&v| (v - level).abs())
+        .collect();
+    let k = (sample.len() * 99 / 100).min(sample.len().saturating_sub(1));
+    let top = if sample.is_empty() {
+        1.0
+    } else {
+        *sample.select_nth_unstable_by(k, |a, b| a.total_cmp(b)).1
+    };
+    let scale = if top > 1e-6 { 1.0 / top } else { 1.0 };
+    let mut own: Vec<f32> = values
+        .iter()
+        .step_by(stride.max(3))
+        .filter(|&&v| bin(v) == b)
+        .map(|&v| (v - level).abs() * scale)
+        .collect();
+    let own_level = if own.is_empty() {
+        0.0
+    } else {
+        let k = (own.len() * 9 / 10).min(own.len() - 1);
+        *own.select_nth_unstable_by(k, |a, b| a.total_cmp(b)).1 as f64
+    };
+    let distance = values
+        .par_iter()
+        .map(|&v| ((v - level).abs() * scale).min(1.5))
+        .collect();
+    let (w, h) = gray.dimensions();
+    (
+        FloatImage::from_raw(w, h, distance).expect("same dimensions"),
+        level,
+        count[b] as f64 / seen.max(1) as f64,
+        own_level,
     )
 }
 

@@ -289,6 +289,81 @@ const TOUCHING_SEARCH: f64 = 0.4;
 /// size 0.022 / 0.064 R, 4.5 s).
 const COLOUR_SEARCH_RADIUS: f64 = 32.0;
 
+/// The disks of a picture of distances from the background (bright disks,
+/// their outlines the edge to the background): the colour distance, or a
+/// gray photograph's distance from its background level.
+fn colour_search(
+    search: &FloatImage,
+    detect: &DetectOptions,
+    background_level: f64,
+) -> Result<Vec<Disk>> {
+    // Disks are bright regions without dark rims in the colour distance.
+    let mut o = detect.clone();
+    o.polarity = Polarity::Bright;
+    o.find_by_rims = false;
+    o.overlap = o.overlap.max(COLOUR_OVERLAP);
+    // Outlines in the colour distance are a few pixels wide: more
+    // smoothing would blur away the outline of a disk whose inside
+    // is as pale as the background.
+    // Disks are searched in the image shrunk to radii of 32–64 px
+    // (below); the smoothing is the shrunk image's.
+    let f = colour_search_factor(&o) as f64;
+    o.smoothing_px = o
+        .smoothing_px
+        .or(Some(f * (o.radius_min / f / 15.0).clamp(1.5, 3.0)));
+    // Rays that end on a neighbour or a wall carry no outline: in a
+    // dense real packing fewer of them show it.
+    o.min_support = o.min_support.min(COLOUR_SUPPORT[0]);
+    o.min_support_confirmed = o.min_support_confirmed.min(COLOUR_SUPPORT[1]);
+    // A disk differs from the background inside, not only at its
+    // outline: a circle on a wall's or a piston's edges is empty.
+    o.min_fill = o
+        .min_fill
+        .max(COLOUR_FILL[0] * background_level)
+        .max(COLOUR_FILL[1]);
+    detect::detect_disks_shrunk(search, &o, colour_search_factor(&o))
+}
+
+/// The outline evidence of a search: the support (the fraction of rays that
+/// agree with the circle) summed over the disks.
+fn outline_evidence(disks: &[Disk]) -> f64 {
+    disks.iter().map(|d| d.support).sum()
+}
+
+/// A gray photograph is searched as it is (the rim rules of a single
+/// channel, made for rendered pictures) and also as a colour one is, in its
+/// distance from the background level; the distance is kept when its
+/// outline evidence is clearly the greater (by [`SINGLE_CHANNEL_MARGIN`]).
+/// A monochrome camera's dark field shows disks without dark rims, lit
+/// fringes and bright rims (`wc-slope-a` in docs/image.md), which the rim
+/// rules miss.
+fn gray_distance_instead(
+    gray: &FloatImage,
+    detect: &DetectOptions,
+    as_is: &[Disk],
+) -> Result<Option<(Vec<Disk>, ChannelChoice)>> {
+    let (distance, level, fraction, own_level) = io::gray_distance(gray);
+    let found = colour_search(&distance, detect, own_level)?;
+    let (ours, theirs) = (outline_evidence(&found), outline_evidence(as_is));
+    if ours <= (1.0 + SINGLE_CHANNEL_MARGIN) * theirs {
+        return Ok(None);
+    }
+    let picked = ChannelChoice {
+        channel: "gray-distance".to_owned(),
+        background: Some(vec![level as f64]),
+        background_fraction: Some(fraction),
+        polarity: "bright".to_owned(),
+        signal: None,
+        instead_of: Some(format!(
+            "the gray picture as it is (outline support summed over the disks: \
+             {theirs:.1} for {} disks; distance: {ours:.1} for {})",
+            as_is.len(),
+            found.len()
+        )),
+    };
+    Ok(Some((found, picked)))
+}
+
 /// The colour distance is unsigned: a disk darker than a dark background
 /// and its dark rim differ from the background by a few grey levels, and in
 /// a dark-field picture whose rims are as dark as the background, dark
@@ -310,8 +385,7 @@ fn single_channel_instead(
     choice: &ChannelChoice,
 ) -> Result<Option<(Vec<Disk>, ChannelChoice)>> {
     let single = detect_disks(channel, options)?;
-    let evidence = |disks: &[Disk]| disks.iter().map(|d| d.support).sum::<f64>();
-    let (ours, theirs) = (evidence(&single), evidence(by_distance));
+    let (ours, theirs) = (outline_evidence(&single), outline_evidence(by_distance));
     if ours <= (1.0 + SINGLE_CHANNEL_MARGIN) * theirs {
         return Ok(None);
     }
@@ -451,31 +525,7 @@ pub fn detect_images(
         }
         let frame = pixel_frame.expect("set with the first image");
         let disks = if by_colour {
-            // Disks are bright regions without dark rims in the colour distance.
-            let mut o = settings.detect.clone();
-            o.polarity = Polarity::Bright;
-            o.find_by_rims = false;
-            o.overlap = o.overlap.max(COLOUR_OVERLAP);
-            // Outlines in the colour distance are a few pixels wide: more
-            // smoothing would blur away the outline of a disk whose inside
-            // is as pale as the background.
-            // Disks are searched in the image shrunk to radii of 32–64 px
-            // (below); the smoothing is the shrunk image's.
-            let f = colour_search_factor(&o) as f64;
-            o.smoothing_px = o
-                .smoothing_px
-                .or(Some(f * (o.radius_min / f / 15.0).clamp(1.5, 3.0)));
-            // Rays that end on a neighbour or a wall carry no outline: in a
-            // dense real packing fewer of them show it.
-            o.min_support = o.min_support.min(COLOUR_SUPPORT[0]);
-            o.min_support_confirmed = o.min_support_confirmed.min(COLOUR_SUPPORT[1]);
-            // A disk differs from the background inside, not only at its
-            // outline: a circle on a wall's or a piston's edges is empty.
-            o.min_fill = o
-                .min_fill
-                .max(COLOUR_FILL[0] * background_level)
-                .max(COLOUR_FILL[1]);
-            let by_distance = detect::detect_disks_shrunk(&search, &o, colour_search_factor(&o))?;
+            let by_distance = colour_search(&search, &settings.detect, background_level)?;
             // Not needed again: freed before a second search fills its own buffers.
             drop(search);
             laps.lap("colour-distance search");
@@ -499,8 +549,24 @@ pub fn detect_images(
             }
         } else {
             let disks = detect_disks(&search, &settings.detect)?;
+            let gray_auto = settings.channel == Channel::Auto
+                && choice.channel == "gray"
+                && settings.detect.polarity == Polarity::Bright;
+            let instead = if gray_auto {
+                gray_distance_instead(&search, &settings.detect, &disks)?
+            } else {
+                None
+            };
             drop(search);
-            disks
+            laps.lap("gray search");
+            match instead {
+                Some((found, picked)) => {
+                    by_colour = true;
+                    choice = picked;
+                    found
+                }
+                None => disks,
+            }
         };
         if disks.is_empty() {
             return Err(Error::data(
