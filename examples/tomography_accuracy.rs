@@ -112,8 +112,15 @@ fn main() -> grainforce::Result<()> {
                         for c in &imported.detected {
                             if let labels::Other::Grain(b) = c.b {
                                 let t = true_pairs.contains(&(c.a as usize, b as usize));
+                                // The bodies' true separation (main spheres), voxels.
+                                let (ga, gb) = (&grains[c.a as usize - 1], &grains[b as usize - 1]);
+                                let apart =
+                                    (scene::norm(scene::sub(ga.spheres[0].0, gb.spheres[0].0))
+                                        - ga.spheres[0].1
+                                        - gb.spheres[0].1)
+                                        / voxel;
                                 eprintln!(
-                                    "    {} {}-{} faces {} gap {:?} grey {:?} {}",
+                                    "    {} {}-{} apart {apart:.3} faces {} gap {:?} grey {:?} {}",
                                     if t { "TRUE " } else { "FALSE" },
                                     c.a,
                                     b,
