@@ -58,8 +58,16 @@ fn main() -> grainforce::Result<()> {
             t.elapsed().as_secs_f64()
         );
     }
+    // LABELS_ROBUST=k: robust restarts per side (the default's cost).
+    let mut options = Options::default();
+    if let Some(k) = std::env::var("LABELS_ROBUST")
+        .ok()
+        .and_then(|v| v.parse().ok())
+    {
+        options.fit.robust_samples = k;
+    }
     let t = std::time::Instant::now();
-    let out = labels::import_file(&path, &FileFormat::Auto, None, &Options::default())?;
+    let out = labels::import_file(&path, &FileFormat::Auto, None, &options)?;
     println!(
         "{n}³ u16: {} grains, {} contacts, import {:.1} s",
         out.scene.grains.len(),

@@ -102,7 +102,7 @@ fn main() -> grainforce::Result<()> {
                     );
                     eprintln!("  {} voxels, import {elapsed:.2} s", grid.len());
                     if std::env::var("TOMO_WORST").is_ok() && method == "fit" {
-                        worst(&imported, &truth, voxel);
+                        worst(&imported, &truth, voxel, &grains);
                     }
                     if std::env::var("TOMO_DEBUG").is_ok() && method.contains("grey") {
                         let true_pairs: std::collections::HashSet<(usize, usize)> = truth
@@ -112,8 +112,15 @@ fn main() -> grainforce::Result<()> {
                         for c in &imported.detected {
                             if let labels::Other::Grain(b) = c.b {
                                 let t = true_pairs.contains(&(c.a as usize, b as usize));
+                                // The bodies' true separation (main spheres), voxels.
+                                let (ga, gb) = (&grains[c.a as usize - 1], &grains[b as usize - 1]);
+                                let apart =
+                                    (scene::norm(scene::sub(ga.spheres[0].0, gb.spheres[0].0))
+                                        - ga.spheres[0].1
+                                        - gb.spheres[0].1)
+                                        / voxel;
                                 eprintln!(
-                                    "    {} {}-{} faces {} gap {:?} grey {:?} {}",
+                                    "    {} {}-{} apart {apart:.3} faces {} gap {:?} grey {:?} {}",
                                     if t { "TRUE " } else { "FALSE" },
                                     c.a,
                                     b,
@@ -158,6 +165,12 @@ fn fit_settings() -> labels::FitSettings {
     if let Some(v) = var("TOMO_SHELL") {
         fit.min_shell = v;
     }
+    if let Some(v) = var("TOMO_ROBUST") {
+        fit.robust_samples = v as usize;
+    }
+    if let Some(v) = var("TOMO_RGATE") {
+        fit.robust_gate = v;
+    }
     if let Some(v) = var("TOMO_EXCL") {
         fit.exclusion = v;
     }
@@ -165,7 +178,26 @@ fn fit_settings() -> labels::FitSettings {
 }
 
 /// The worst-placed normals of a run, with what the fit saw (TOMO_WORST=1).
-fn worst(imported: &labels::LabelScene, truth: &[synth::TrueContact], voxel: f64) {
+fn worst(
+    imported: &labels::LabelScene,
+    truth: &[synth::TrueContact],
+    voxel: f64,
+    grains: &[synth::SynthGrain],
+) {
+    // Voxels from the contact to the nearest crease of a grain: its
+    // satellite's surface and its cut plane (infinite: none).
+    let features = |g: usize, p: [f64; 3]| {
+        let sat = grains[g].spheres[1..]
+            .iter()
+            .map(|(c, r)| (scene::norm(scene::sub(p, *c)) - r) / voxel)
+            .fold(f64::INFINITY, f64::min);
+        let cut = grains[g]
+            .cuts
+            .iter()
+            .map(|(n, d)| (d - scene::dot(*n, p)) / voxel)
+            .fold(f64::INFINITY, f64::min);
+        (sat, cut)
+    };
     let mut rows = Vec::new();
     for t in truth {
         let key = (t.a.min(t.b) + 1, t.a.max(t.b) + 1);
@@ -195,13 +227,19 @@ fn worst(imported: &labels::LabelScene, truth: &[synth::TrueContact], voxel: f64
             zones.len(),
             c.fit_rms.map(|r| r.map(|r| r / voxel)),
             c.gap.map(|g| g / voxel),
+            features(t.a, t.point),
+            features(t.b, t.point),
         ));
     }
     rows.sort_by(|x, y| y.0.total_cmp(&x.0));
-    for r in rows.iter().take(15) {
+    let show = std::env::var("TOMO_WORST")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(15);
+    for r in rows.iter().take(show) {
         eprintln!(
-            "    fit {:5.2}° pca {:5.2}° {} faces {} zones {} rms {:.2?} gap {:.2?}",
-            r.0, r.1, r.2, r.3, r.4, r.5, r.6
+            "    fit {:5.2}° pca {:5.2}° {} faces {} zones {} rms {:.2?} gap {:.2?} sat/cut a {:.1}/{:.1} b {:.1}/{:.1}",
+            r.0, r.1, r.2, r.3, r.4, r.5, r.6, r.7 .0, r.7 .1, r.8 .0, r.8 .1
         );
     }
     let rms: Vec<f64> = rows

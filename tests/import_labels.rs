@@ -407,9 +407,9 @@ fn segmented_clumps(res: f64) -> (labels::LabelScene, Vec<synth::TrueContact>, [
 #[test]
 fn segmented_clumps_at_15_voxels() {
     let (fit, truth, [median, p90, pca_median, pca_p90]) = segmented_clumps(15.0);
-    // Measured 2.29° / 5.80° (PCA 7.3° / 15.6°; the free sphere fits before
-    // the radius prior and the neck check: 4.4° / 8.3°): the 3° / 8°.
-    assert!(median <= 3.0 && p90 <= 8.0, "{median} {p90}");
+    // Measured 1.40° / 3.50° with the robust restarts (2.29° / 5.80°
+    // without; PCA 7.3° / 15.6°): the 3° / 8°, with room.
+    assert!(median <= 2.0 && p90 <= 5.0, "{median} {p90}");
     assert!(pca_median > 2.0 * median, "{pca_median} vs {median}");
     assert!(pca_p90 > 2.0 * p90, "{pca_p90} vs {p90}");
     // The centroids of the clumps are off their contact geometry: the
@@ -434,11 +434,24 @@ fn segmented_clumps_at_15_voxels() {
 #[test]
 fn segmented_clumps_at_30_voxels() {
     let (_, _, [median, p90, pca_median, pca_p90]) = segmented_clumps(30.0);
-    // Measured 2.23° / 4.97° (PCA 3.4° / 7.4°; free fits 3.6° / 10°). The
-    // issue's 1.5° / 4° is not met on these grains (docs/tomography.md).
-    assert!(median <= 2.5 && p90 <= 5.5, "{median} {p90}");
-    assert!(pca_median > 1.3 * median, "{pca_median} vs {median}");
-    assert!(pca_p90 > 1.3 * p90, "{pca_p90} vs {p90}");
+    // Measured 0.60° / 1.17° (PCA 3.4° / 7.4°; without the robust restarts
+    // 2.23° / 4.97°, fits pulled by the flat cut): the 1.5° / 4°.
+    assert!(median <= 1.5 && p90 <= 4.0, "{median} {p90}");
+    assert!(pca_median > 3.0 * median, "{pca_median} vs {median}");
+    assert!(pca_p90 > 3.0 * p90, "{pca_p90} vs {p90}");
+}
+
+/// 60 voxels per diameter (17 M voxels, a minute or more in the test
+/// profile): `cargo test --release --test import_labels -- --ignored`.
+#[test]
+#[ignore]
+fn segmented_clumps_at_60_voxels() {
+    let (_, _, [median, p90, pca_median, pca_p90]) = segmented_clumps(60.0);
+    // Measured 0.28° / 0.59° (PCA 2.2° / 4.3°; without the robust restarts
+    // 1.08° / 4.57°): the 0.75° / 2°.
+    assert!(median <= 0.75 && p90 <= 2.0, "{median} {p90}");
+    assert!(pca_median > 3.0 * median, "{pca_median} vs {median}");
+    assert!(pca_p90 > 3.0 * p90, "{pca_p90} vs {p90}");
 }
 
 /// Labels at 30 voxels per diameter (segmented) + the DEM's stresses →
