@@ -81,6 +81,12 @@ const ADD_FACTOR: f64 = 1000.0;
 /// Below this many KKT unknowns faer runs sequentially by default.
 const PARALLEL_MIN_SIZE: usize = 200_000;
 
+/// Whether `GRAINFORCE_IP_PROFILE` asks for the factorisations' split on stderr.
+pub(crate) fn profiling() -> bool {
+    static ON: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *ON.get_or_init(|| std::env::var_os("GRAINFORCE_IP_PROFILE").is_some())
+}
+
 /// Fill-reducing ordering of the KKT matrix used by the symbolic analysis.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum Ordering {

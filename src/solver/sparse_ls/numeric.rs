@@ -70,6 +70,7 @@ impl EqualityLeastSquares {
         }
         // Only the active rows changed: start from the last factorisation's
         // base (and its L storage) instead of equilibrating and forming AᵀA again.
+        let clock = std::time::Instant::now();
         let (base, l_values) = match self.numeric.take() {
             Some(num) if num.same_values(a, c, lambda, delta) => (num.base, num.l_values),
             old => (
@@ -96,6 +97,7 @@ impl EqualityLeastSquares {
             )));
         }
 
+        let formed = clock.elapsed().as_secs_f64();
         let symbolic = self
             .symbolic
             .as_ref()
@@ -137,6 +139,7 @@ impl EqualityLeastSquares {
                     "sparse LDLᵀ of the {size}×{size} KKT matrix failed ({e:?}); λ = {lambda}, δ = {delta}"
                 ))
             })?;
+        let factored = clock.elapsed().as_secs_f64();
         let nodes = FactorNodes::new(symbolic, &l_values);
         let factor = Factor {
             symbolic,
@@ -144,6 +147,13 @@ impl EqualityLeastSquares {
             nodes: &nodes,
         };
         let factor_solves = factorisation_in_solves(&factor);
+        if super::profiling() {
+            eprintln!(
+                "ls-profile factorise δ {delta:e} form {formed:.4} ldlt {:.4} nodes {:.4} s",
+                factored - formed,
+                clock.elapsed().as_secs_f64() - factored
+            );
+        }
         self.numeric = Some(Numeric {
             base,
             in_factor: active.clone(),

@@ -90,6 +90,7 @@ impl EqualityLeastSquares {
         may_border: bool,
     ) -> Result<Attempt> {
         let n = self.n;
+        let clock = std::time::Instant::now();
         let (changes, built, other_lambda) =
             self.reusable(a, c, lambda, delta, g, springs, may_border);
         let changes = match changes {
@@ -204,6 +205,13 @@ impl EqualityLeastSquares {
         let first = (r, dual, primal);
         let stale_solves = stale.then_some(num.factor_solves);
         let (best, steps) = self.refine(z, first, stale_solves, &mut kkt_solve, &residual);
+        if super::profiling() {
+            eprintln!(
+                "ls-profile attempt δ {delta:e} {:.4} s, {steps} refinement steps to {:.1e}",
+                clock.elapsed().as_secs_f64(),
+                best.0
+            );
+        }
         let (x, equality_multipliers, multipliers) = unscale(&best.3, num, n, size)?;
         if let Some(num) = self.numeric.as_mut() {
             num.last_border = bordered.or(previous);
