@@ -301,6 +301,54 @@ fn a_missed_contact_does_not_zero_the_packing() {
     );
 }
 
+/// The walls' friction where the scene gives none (a detected scene): the
+/// DEM's walls are smooth. A cluster in the oedometer's corner (8 disks
+/// against the left and bottom walls, r = 20 px) with its wall contacts'
+/// own μ removed, started near the truth: with `wall_mu` 0 the walls carry
+/// no tangential force and the fit is closer to the DEM forces than with
+/// the grains' μ = 0.5 at the walls.
+#[test]
+fn smooth_walls_carry_no_friction() {
+    let mut r = render(0, 8, 20.0, 4e4, 0.0, 0.02, 0.8);
+    let real_wall = |sc: &Scene, c: &Contact| match c.b {
+        Body::Wall(w) => sc.walls[w].name != "outside",
+        Body::Grain(_) => false,
+    };
+    let walls: Vec<usize> = (0..r.scene.contacts.len())
+        .filter(|&k| real_wall(&r.scene, &r.scene.contacts[k]))
+        .collect();
+    assert!(walls.len() >= 3, "{} wall contacts", walls.len());
+    for &k in &walls {
+        r.scene.contacts[k].mu = None;
+    }
+    let mut s = FringeFitSettings::new(4e4);
+    s.blur_px = 0.8;
+    s.start = Some(nudged(&r.truth, 0.1));
+    let rough = fit_fringes(&r.image, &r.frame, &r.scene, &s).unwrap();
+    s.wall_mu = Some(0.0);
+    let smooth = fit_fringes(&r.image, &r.frame, &r.scene, &s).unwrap();
+    let tangential = |fit: &FringeFit| {
+        (walls.iter())
+            .map(|&k| {
+                let (f, n) = (fit.forces[k], r.scene.contacts[k].normal);
+                (f[1] * n[0] - f[0] * n[1]).abs() / f[0].hypot(f[1]).max(1e-12)
+            })
+            .fold(0.0f64, f64::max)
+    };
+    let (e_rough, e_smooth) = (
+        relerr(&rough.forces, &r.truth),
+        relerr(&smooth.forces, &r.truth),
+    );
+    eprintln!(
+        "walls at μ 0.5: relerr {e_rough:.4}, largest tangential share {:.3}; smooth: {e_smooth:.4}, {:.1e}",
+        tangential(&rough),
+        tangential(&smooth)
+    );
+    assert!(tangential(&smooth) < 1e-6, "{}", tangential(&smooth));
+    assert!(e_smooth <= e_rough, "{e_smooth} against {e_rough}");
+    assert!(smooth.report.max_imbalance < 1e-6);
+}
+
 /// Two disks in a kinked row and a third apart: A between a wall on its left
 /// and B (at 20° up), B between A, a slope below right (its contact at 340°)
 /// and a wall on top; C pressed between two walls of its own. B's top

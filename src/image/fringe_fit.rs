@@ -51,6 +51,10 @@ pub struct FringeFitSettings {
     pub fringe_stress: f64,
     /// Friction coefficient where a contact has none of its own.
     pub mu: f64,
+    /// Friction coefficient of the contacts with walls that have none of
+    /// their own (None: as the others). A detected scene knows nothing of
+    /// its walls' friction; smooth walls carry no tangential force.
+    pub wall_mu: Option<f64>,
     pub balance: Balance,
     /// Gaussian blur of the optics [px] (the pixel's own area is added).
     pub blur_px: f64,
@@ -86,6 +90,7 @@ impl FringeFitSettings {
         FringeFitSettings {
             fringe_stress,
             mu: 0.5,
+            wall_mu: None,
             balance: Balance::Hard,
             blur_px: 1.0,
             edge_px: 6.0,
@@ -107,6 +112,7 @@ impl FringeFitSettings {
             )));
         }
         if !(ok(self.mu)
+            && self.wall_mu.is_none_or(ok)
             && ok(self.blur_px)
             && ok(self.edge_px)
             && ok(self.sparsity)
@@ -1190,7 +1196,7 @@ fn can_load(p: &Prepared, scene: &Scene, settings: &FringeFitSettings, k: usize)
         rhs: &rhs,
         weight: 1.0,
     }];
-    let cones = friction_cones(scene, settings.mu);
+    let cones = friction_cones(scene, settings);
     let problem = constrained_problem(n, terms, &balance, &zeros, settings, cones);
     let x = cascade::solve(&problem, None, &CascadeSettings::default())?
         .solution
@@ -1202,15 +1208,20 @@ fn can_load(p: &Prepared, scene: &Scene, settings: &FringeFitSettings, k: usize)
 /// is taken as forced to zero.
 const FORCED_ZERO: f64 = 1e-3;
 
-fn friction_cones(scene: &Scene, mu: f64) -> Vec<Cone> {
+/// Each contact's wedge: its own μ, else the walls' (for a wall contact),
+/// else the scene's, else the settings'.
+fn friction_cones(scene: &Scene, settings: &FringeFitSettings) -> Vec<Cone> {
     scene
         .contacts
         .iter()
         .enumerate()
-        .map(|(k, c)| Cone::Wedge {
-            normal: 2 * k,
-            tangent: 2 * k + 1,
-            mu: c.mu.or(scene.settings.mu).unwrap_or(mu),
+        .map(|(k, c)| {
+            let wall = settings.wall_mu.filter(|_| matches!(c.b, Body::Wall(_)));
+            Cone::Wedge {
+                normal: 2 * k,
+                tangent: 2 * k + 1,
+                mu: c.mu.or(wall).or(scene.settings.mu).unwrap_or(settings.mu),
+            }
         })
         .collect()
 }
@@ -1282,7 +1293,7 @@ fn balanced_start(
         &balance,
         &zeros,
         settings,
-        friction_cones(scene, settings.mu),
+        friction_cones(scene, settings),
     );
     Ok(cascade::solve(&problem, None, &CascadeSettings::default())?
         .solution
@@ -1300,7 +1311,7 @@ fn feasible_start(
     settings: &FringeFitSettings,
     x0: Vec<f64>,
 ) -> Result<Vec<f64>> {
-    let cones = friction_cones(scene, settings.mu);
+    let cones = friction_cones(scene, settings);
     if let Balance::Penalty(_) = settings.balance {
         // The balance is a term of the fit: only the wedges are hard.
         let mut x = x0;
@@ -1566,7 +1577,7 @@ impl Stepper<'_> {
                     balance,
                     zeros,
                     self.settings,
-                    friction_cones(scene, self.settings.mu),
+                    friction_cones(scene, self.settings),
                 );
                 solver.solve(&problem)
             }
@@ -1873,7 +1884,7 @@ fn fit_scene(
     let mut p = prepare(image, frame, scene, settings, false)?;
     timing.prepare = started.elapsed().as_secs_f64();
     let clock = std::time::Instant::now();
-    let cones = friction_cones(scene, settings.mu);
+    let cones = friction_cones(scene, settings);
     p.balanced = p
         .disks
         .par_iter()
