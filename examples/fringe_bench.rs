@@ -2,6 +2,7 @@
 //! the 58-disk DEM oedometer at r ≈ 40 px, blur 0.8 px, noise 2 %, JPEG q90.
 //!
 //!     cargo run --release --example fringe_bench [-- --detect] [--per-disk] [--repeat N]
+//!         [--candidates GAP] [--prune FLOOR] [--wall-mu MU] [--detail]
 //!
 //! Without flags the disks and contacts are the DEM's; `--detect` finds them
 //! in the photograph (`detect`, walls at the DEM's lines) and scores the fit
@@ -60,6 +61,13 @@ fn main() -> grainforce::Result<()> {
     let image = load_channel(&path, Channel::Green)?;
     let mut s = FringeFitSettings::new(4e4);
     s.blur_px = 0.8;
+    let value = |flag: &str| -> Option<f64> {
+        let k = args.iter().position(|a| a == flag)?;
+        args.get(k + 1)?.parse().ok()
+    };
+    s.candidate_gap = value("--candidates");
+    s.support_prune = value("--prune");
+    let detail = args.iter().any(|a| a == "--detail");
     let found = if detect {
         let px = frame.px_per_m;
         let mut settings = DetectSettings::new(2.2e-3 * px, 4.2e-3 * px, px);
@@ -91,6 +99,15 @@ fn main() -> grainforce::Result<()> {
             std::fs::copy(&path, out.join("photo.jpg"))
                 .map_err(|e| grainforce::Error::io(out, e))?;
         }
+        let mut found = found;
+        // The walls' friction, where known (the DEM's walls are frictionless).
+        if let Some(mu) = value("--wall-mu") {
+            for c in &mut found.scene.contacts {
+                if matches!(c.b, Body::Wall(_)) {
+                    c.mu = Some(mu);
+                }
+            }
+        }
         Some(found)
     } else {
         None
@@ -106,13 +123,21 @@ fn main() -> grainforce::Result<()> {
         let (wall, cpu) = (wall.elapsed().as_secs_f64(), cpu_seconds() - cpu);
         let e = if let Some(found) = &found {
             let matched = match_disks(&scene, &frame, &found.disks, |r| 0.5 * r);
-            score(
-                &scene,
-                &truth,
-                fit_scene,
-                &fit.forces,
-                &matched.disk_of_grain,
-            )
+            // Candidate contacts count as contacts of the fitted scene.
+            let mut fitted = fit_scene.clone();
+            let mut forces = fit.forces.clone();
+            for c in &fit.report.candidates {
+                fitted.contacts.push(grainforce::scene::Contact {
+                    id: c.id.clone(),
+                    a: c.a,
+                    b: Body::Grain(c.b),
+                    point: [c.point[0], c.point[1], 0.0],
+                    normal: [c.normal[0], c.normal[1], 0.0],
+                    mu: None,
+                });
+                forces.push(c.force);
+            }
+            score(&scene, &truth, &fitted, &forces, &matched.disk_of_grain)
         } else {
             relerr(&fit.forces, &truth)
         };
@@ -128,6 +153,20 @@ fn main() -> grainforce::Result<()> {
             rayon::current_num_threads()
         );
         println!("  phases: {}", fit.report.timing);
+        if detail {
+            if let Some(found) = &found {
+                walls_detail(&scene, &truth, &frame, found, &fit);
+            }
+            for d in fit.report.disks.iter().filter(|d| d.imbalance > 1e-6) {
+                let left_out = fit.report.balance_left_out.contains(&d.grain);
+                println!(
+                    "  disk {}: imbalance {:.3e}{}",
+                    d.grain,
+                    d.imbalance,
+                    if left_out { " (balance left out)" } else { "" }
+                );
+            }
+        }
     }
     Ok(())
 }
@@ -169,6 +208,7 @@ fn score(
     }
     let (mut num, mut den, mut missed) = (0.0, 0.0, 0);
     let mut used = HashSet::new();
+    let mut errors = Vec::new();
     for (c, t) in truth_scene.contacts.iter().zip(truth) {
         den += t[0] * t[0] + t[1] * t[1];
         let f = match key(truth_scene, c.a, &c.b, &|g| disk_of_grain[g]) {
@@ -176,11 +216,12 @@ fn score(
                 let t = if flip { [-t[0], -t[1]] } else { *t };
                 let f = fitted.get(&k).copied().unwrap_or([0.0; 2]);
                 if fitted.contains_key(&k) {
-                    used.insert(k);
+                    used.insert(k.clone());
                 } else {
                     missed += 1;
                 }
                 num += (f[0] - t[0]).powi(2) + (f[1] - t[1]).powi(2);
+                errors.push(((f[0] - t[0]).hypot(f[1] - t[1]), format!("{k:?}"), t, f));
                 continue;
             }
             None => [0.0; 2],
@@ -188,11 +229,27 @@ fn score(
         missed += 1;
         num += (f[0] - t[0]).powi(2) + (f[1] - t[1]).powi(2);
     }
+    if std::env::args().any(|a| a == "--detail") {
+        errors.sort_by(|a, b| b.0.total_cmp(&a.0));
+        for (e, k, t, f) in &errors {
+            println!(
+                "  error {e:.1} at {k}: truth ({:.1}, {:.1}) fitted ({:.1}, {:.1})",
+                t[0], t[1], f[0], f[1]
+            );
+        }
+    }
     let extra: Vec<f64> = fitted
         .iter()
         .filter(|(k, _)| !used.contains(*k))
         .map(|(_, f)| f[0].hypot(f[1]))
         .collect();
+    if std::env::args().any(|a| a == "--detail") {
+        for (k, f) in fitted.iter().filter(|(k, _)| !used.contains(*k)) {
+            if f[0].hypot(f[1]) > 10.0 {
+                println!("  extra {k:?}: ({:.1}, {:.1})", f[0], f[1]);
+            }
+        }
+    }
     println!(
         "  {missed} true contacts missed; {} extra contacts carry {:.1} N/m in all (largest {:.1})",
         extra.len(),
@@ -200,4 +257,78 @@ fn score(
         extra.iter().fold(0.0f64, |m, v| m.max(*v))
     );
     (num / den).sqrt()
+}
+
+/// Each DEM wall contact beside the detected one: the disk's distance to the
+/// wall line and radius (DEM and detected, px), the detected gap, and the
+/// forces; then the detected wall contacts the DEM lacks.
+fn walls_detail(
+    scene: &Scene,
+    truth: &[[f64; 2]],
+    frame: &grainforce::image::PixelFrame,
+    found: &grainforce::image::DetectedFrame,
+    fit: &grainforce::image::fringe_fit::FringeFit,
+) {
+    let matched = match_disks(scene, frame, &found.disks, |r| 0.5 * r);
+    let fs = &found.scene;
+    let px = frame.px_per_m;
+    let wall_of = |sc: &Scene, b: &Body| match b {
+        Body::Wall(w) => Some(sc.walls[*w].name.clone()),
+        Body::Grain(_) => None,
+    };
+    let mut seen = HashSet::new();
+    for (c, t) in scene.contacts.iter().zip(truth) {
+        let Some(name) = wall_of(scene, &c.b) else {
+            continue;
+        };
+        let g = &scene.grains[c.a];
+        let n = [c.normal[0], c.normal[1]];
+        // DEM: centre to the wall along the normal, radius.
+        let reach = (c.point[0] - g.position[0]) * n[0] + (c.point[1] - g.position[1]) * n[1];
+        let dem = format!(
+            "DEM r {:.2} reach {:.2}",
+            g.radius.unwrap_or(0.0) * px,
+            reach * px
+        );
+        let Some(k) = matched.disk_of_grain[c.a] else {
+            println!("  wall {name}, grain {}: {dem}; disk not found", c.a);
+            continue;
+        };
+        let d = &found.disks[k];
+        let centre = frame.to_pixel([g.position[0], g.position[1]]);
+        let hit = (fs.contacts.iter().enumerate())
+            .find(|(_, f)| f.a == k && wall_of(fs, &f.b).as_deref() == Some(name.as_str()));
+        let dreach = (c.point[0] - fs.grains[k].position[0]) * n[0]
+            + (c.point[1] - fs.grains[k].position[1]) * n[1];
+        let fitted = hit.map(|(j, _)| fit.forces[j]);
+        if let Some((j, _)) = hit {
+            seen.insert(j);
+        }
+        println!(
+            "  wall {name}, grain {} = disk {k}: {dem}; detected r {:.2} reach {:.2} (centre off {:+.2},{:+.2} px); truth ({:.1}, {:.1}) fitted {}",
+            c.a,
+            d.r,
+            dreach * px,
+            d.x - centre[0],
+            d.y - centre[1],
+            t[0],
+            t[1],
+            fitted.map_or("— (no contact)".to_string(), |f| format!("({:.1}, {:.1})", f[0], f[1]))
+        );
+    }
+    for (j, (c, f)) in fs.contacts.iter().zip(&fit.forces).enumerate() {
+        if let (Some(name), false) = (wall_of(fs, &c.b), seen.contains(&j)) {
+            let g = &fs.grains[c.a];
+            let reach = (c.point[0] - g.position[0]) * c.normal[0]
+                + (c.point[1] - g.position[1]) * c.normal[1];
+            println!(
+                "  extra wall contact {name}, disk {}: r {:.2} reach {:.2} px, fitted ({:.1}, {:.1})",
+                c.a,
+                g.radius.unwrap_or(0.0) * px,
+                reach * px,
+                f[0],
+                f[1]
+            );
+        }
+    }
 }

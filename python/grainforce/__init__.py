@@ -741,6 +741,7 @@ def photoelastic(
     contacts: Optional[str] = None,
     candidates: Optional[float] = None,
     sparsity: Optional[float] = None,
+    wall_mu: Optional[float] = None,
 ) -> Photoelastic:
     """Contact forces fitted to a photoelastic photograph's fringes, all
     disks at once under balance and friction (``grainforce photoelastic``,
@@ -757,6 +758,8 @@ def photoelastic(
     a gap below this share of the smaller radius fitted too, listed in the
     report) and sparsity (weight of the term that fits unsupported contacts
     to zero) — both measured in docs/photoelastic.md, neither yet better.
+    wall_mu: the friction coefficient of contacts with walls (default mu;
+    0 for smooth walls).
     """
     opt = lambda v: None if v is None else float(v)
     return Photoelastic(
@@ -776,6 +779,7 @@ def photoelastic(
             contacts,
             opt(candidates),
             opt(sparsity),
+            opt(wall_mu),
         )
     )
 

@@ -241,5 +241,6 @@ def photoelastic(
     contacts: Optional[Literal["all", "evidence"]] = None,
     candidates: Optional[float] = None,
     sparsity: Optional[float] = None,
+    wall_mu: Optional[float] = None,
 ) -> Photoelastic:
     """Contact forces fitted to a photoelastic photograph's fringes (`grainforce photoelastic`)."""

@@ -124,4 +124,5 @@ def photoelastic(
     contacts: Optional[str] = None,
     candidates: Optional[float] = None,
     sparsity: Optional[float] = None,
+    wall_mu: Optional[float] = None,
 ) -> Photoelastic: ...

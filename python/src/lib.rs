@@ -781,7 +781,7 @@ impl Photoelastic {
 /// at once under balance and friction (`grainforce photoelastic`). `None`
 /// keeps the CLI's default.
 #[pyfunction]
-#[pyo3(signature = (image, scene, fsigma=None, thickness=None, scale=None, channel=None, mu=None, balance_weight=None, blur=None, edge=None, iterations=None, per_disk=false, contacts=None, candidates=None, sparsity=None))]
+#[pyo3(signature = (image, scene, fsigma=None, thickness=None, scale=None, channel=None, mu=None, balance_weight=None, blur=None, edge=None, iterations=None, per_disk=false, contacts=None, candidates=None, sparsity=None, wall_mu=None))]
 #[allow(clippy::too_many_arguments)]
 fn photoelastic(
     py: Python<'_>,
@@ -800,6 +800,7 @@ fn photoelastic(
     contacts: Option<&str>,
     candidates: Option<f64>,
     sparsity: Option<f64>,
+    wall_mu: Option<f64>,
 ) -> PyResult<Photoelastic> {
     use grainforce::image::fringe_run::{self, ContactChoice, PhotoelasticConfig};
     // Fields a caller leaves out keep the library's defaults (the CLI's).
@@ -810,6 +811,7 @@ fn photoelastic(
         balance_weight,
         per_disk,
         candidate_gap: candidates,
+        wall_mu,
         ..PhotoelasticConfig::default()
     };
     if let Some(name) = channel {

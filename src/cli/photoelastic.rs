@@ -32,6 +32,10 @@ pub struct Args {
     /// Friction coefficient where a contact and the scene give none.
     #[arg(long, default_value_t = 0.5)]
     mu: f64,
+    /// Friction coefficient of the contacts with walls (default: --mu);
+    /// 0 for smooth walls.
+    #[arg(long)]
+    wall_mu: Option<f64>,
     /// Balance as a weighted penalty of this weight instead of exactly.
     #[arg(long)]
     balance_weight: Option<f64>,
@@ -78,6 +82,7 @@ pub fn run(args: Args) -> Result<()> {
         scale: args.scale,
         channel: args.channel,
         mu: args.mu,
+        wall_mu: args.wall_mu,
         balance_weight: args.balance_weight,
         blur: args.blur,
         edge: args.edge,

@@ -51,6 +51,10 @@ pub struct FringeFitSettings {
     pub fringe_stress: f64,
     /// Friction coefficient where a contact has none of its own.
     pub mu: f64,
+    /// Friction coefficient of the contacts with walls that have none of
+    /// their own (None: as the others). A detected scene knows nothing of
+    /// its walls' friction; smooth walls carry no tangential force.
+    pub wall_mu: Option<f64>,
     pub balance: Balance,
     /// Gaussian blur of the optics [px] (the pixel's own area is added).
     pub blur_px: f64,
@@ -86,6 +90,7 @@ impl FringeFitSettings {
         FringeFitSettings {
             fringe_stress,
             mu: 0.5,
+            wall_mu: None,
             balance: Balance::Hard,
             blur_px: 1.0,
             edge_px: 6.0,
@@ -107,6 +112,7 @@ impl FringeFitSettings {
             )));
         }
         if !(ok(self.mu)
+            && self.wall_mu.is_none_or(ok)
             && ok(self.blur_px)
             && ok(self.edge_px)
             && ok(self.sparsity)
@@ -173,6 +179,8 @@ pub struct FitTiming {
     pub trials: f64,
     /// Constrained solves (trial steps included).
     pub solves: usize,
+    /// Solves whose answer missed the imposed balance (rejected).
+    pub unbalanced_steps: usize,
     /// Steps per stage (envelope, smoothed …, final).
     pub steps: Vec<usize>,
 }
@@ -181,13 +189,14 @@ impl std::fmt::Display for FitTiming {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
-            "prepare {:.3} s, start {:.3} s, smoothing {:.3} s, evaluate {:.3} s, solve {:.3} s ({} solves), trials {:.3} s, steps per stage {:?}",
+            "prepare {:.3} s, start {:.3} s, smoothing {:.3} s, evaluate {:.3} s, solve {:.3} s ({} solves, {} off balance), trials {:.3} s, steps per stage {:?}",
             self.prepare,
             self.start,
             self.smoothing,
             self.evaluate,
             self.solve,
             self.solves,
+            self.unbalanced_steps,
             self.trials,
             self.steps
         )
@@ -1063,6 +1072,14 @@ fn can_balance(d: &DiskData, cones: &[Cone]) -> Result<bool> {
     if k < 2 {
         return Ok(false);
     }
+    let carried: f64 = local_unit_loads(d, cones)?.iter().sum();
+    Ok(carried > 1e-3 * k as f64)
+}
+
+/// The normal loads (over F₀) nearest unit ones that disk `d` alone can
+/// carry under its own balance and wedges: one per load of `d`.
+fn local_unit_loads(d: &DiskData, cones: &[Cone]) -> Result<Vec<f64>> {
+    let k = d.loads.len();
     let mut balance = Triplets::new(3, 2 * k);
     let mut target = Triplets::new(2 * k, 2 * k);
     let mut rhs = vec![0.0; 2 * k];
@@ -1106,19 +1123,105 @@ fn can_balance(d: &DiskData, cones: &[Cone]) -> Result<bool> {
     let x = cascade::solve(&problem, None, &CascadeSettings::default())?
         .solution
         .x;
-    let carried: f64 = (0..k).map(|i| x[2 * i]).sum();
-    Ok(carried > 1e-3 * k as f64)
+    Ok((0..k).map(|i| x[2 * i]).collect())
 }
 
-fn friction_cones(scene: &Scene, mu: f64) -> Vec<Cone> {
+/// Leaves out the balance of disks until no contact that `start` loads is
+/// forced to zero by the balance and wedges. Each disk may balance alone
+/// and the whole still admit no load at some contacts: a disk with two
+/// contacts fixes its force's line (its chord), and three-force disks then
+/// need their lines to meet inside the wedges. Such a set (a contact lost
+/// by detection, or dropped by a prune) pins those contacts at zero, the
+/// start cannot be kept, and the fit would either leave it unbalanced (no
+/// step is accepted) or zero contacts the evidence loads. At each pass the
+/// field nearest unit normal loads is found; among the balanced disks at a
+/// loaded contact it leaves unloaded (and that cannot be loaded alone),
+/// those with the fewest contacts (whose balance restricts the most, the
+/// likeliest to have lost one) are left out and listed.
+fn release_forced_zeros(
+    p: &mut Prepared,
+    scene: &Scene,
+    settings: &FringeFitSettings,
+    start: &[f64],
+) -> Result<()> {
+    let ones: Vec<Vec<f64>> = p.disks.iter().map(|d| vec![1.0; d.loads.len()]).collect();
+    let mut touching: Vec<Vec<usize>> = vec![Vec::new(); p.unknowns];
+    for (g, d) in p.disks.iter().enumerate() {
+        for l in &d.loads {
+            touching[l.unknown].push(g);
+        }
+    }
+    for _ in 0..p.disks.len() {
+        let unit = balanced_start(p, scene, settings, &ones)?;
+        let mut forced = Vec::new();
+        let pinned = |k: &usize| unit[2 * k] < FORCED_ZERO && start[2 * k] > SPARSE_EPS;
+        for k in (0..p.unknowns).filter(pinned) {
+            // The field nearest unit loads may leave a contact unloaded to
+            // load others: asked to load it alone, can the rest carry it?
+            if !can_load(p, scene, settings, k)? {
+                forced.push(k);
+            }
+        }
+        let suspects: Vec<usize> = (forced.iter())
+            .flat_map(|&k| touching[k].iter().copied())
+            .filter(|&g| p.balanced[g])
+            .collect();
+        let Some(fewest) = suspects.iter().map(|&g| p.disks[g].loads.len()).min() else {
+            return Ok(());
+        };
+        for g in suspects {
+            if p.disks[g].loads.len() == fewest {
+                p.balanced[g] = false;
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Whether contact `k` can carry a load under the balance of `p`'s balanced
+/// disks and every wedge: the admissible field nearest a unit normal load
+/// there (the others held small but free).
+fn can_load(p: &Prepared, scene: &Scene, settings: &FringeFitSettings, k: usize) -> Result<bool> {
+    let n = 2 * p.unknowns;
+    let mut target = Triplets::new(n, n);
+    let mut rhs = vec![0.0; n];
+    for i in 0..n {
+        target.push(i, i, if i == 2 * k { 1.0 } else { 1e-2 });
+    }
+    rhs[2 * k] = 1.0;
+    let balance = balance_rows(p);
+    let zeros = vec![0.0; balance.nrows];
+    let terms = vec![Term {
+        matrix: &target,
+        rhs: &rhs,
+        weight: 1.0,
+    }];
+    let cones = friction_cones(scene, settings);
+    let problem = constrained_problem(n, terms, &balance, &zeros, settings, cones);
+    let x = cascade::solve(&problem, None, &CascadeSettings::default())?
+        .solution
+        .x;
+    Ok(x[2 * k] >= FORCED_ZERO)
+}
+
+/// A contact whose largest admissible share of a unit load is below this
+/// is taken as forced to zero.
+const FORCED_ZERO: f64 = 1e-3;
+
+/// Each contact's wedge: its own μ, else the walls' (for a wall contact),
+/// else the scene's, else the settings'.
+fn friction_cones(scene: &Scene, settings: &FringeFitSettings) -> Vec<Cone> {
     scene
         .contacts
         .iter()
         .enumerate()
-        .map(|(k, c)| Cone::Wedge {
-            normal: 2 * k,
-            tangent: 2 * k + 1,
-            mu: c.mu.or(scene.settings.mu).unwrap_or(mu),
+        .map(|(k, c)| {
+            let wall = settings.wall_mu.filter(|_| matches!(c.b, Body::Wall(_)));
+            Cone::Wedge {
+                normal: 2 * k,
+                tangent: 2 * k + 1,
+                mu: c.mu.or(wall).or(scene.settings.mu).unwrap_or(settings.mu),
+            }
         })
         .collect()
 }
@@ -1190,8 +1293,46 @@ fn balanced_start(
         &balance,
         &zeros,
         settings,
-        friction_cones(scene, settings.mu),
+        friction_cones(scene, settings),
     );
+    Ok(cascade::solve(&problem, None, &CascadeSettings::default())?
+        .solution
+        .x)
+}
+
+/// The balanced, friction-admissible field nearest a given start `x0` (a
+/// previous frame's forces, or a fit's with contacts dropped): Levenberg–
+/// Marquardt keeps only steps that lower the residual, and every step meets
+/// the balance, so from an unbalanced start whose residual no balanced
+/// field beats it would stay where it started, out of balance.
+fn feasible_start(
+    p: &Prepared,
+    scene: &Scene,
+    settings: &FringeFitSettings,
+    x0: Vec<f64>,
+) -> Result<Vec<f64>> {
+    let cones = friction_cones(scene, settings);
+    if let Balance::Penalty(_) = settings.balance {
+        // The balance is a term of the fit: only the wedges are hard.
+        let mut x = x0;
+        for c in &cones {
+            c.project(&mut x);
+        }
+        return Ok(x);
+    }
+    let n = 2 * p.unknowns;
+    let mut identity = Triplets::new(n, n);
+    for i in 0..n {
+        identity.push(i, i, 1.0);
+    }
+    let balance = balance_rows(p);
+    let zeros = vec![0.0; balance.nrows];
+    let terms = vec![Term {
+        matrix: &identity,
+        rhs: &x0,
+        weight: 1.0,
+    }];
+    let problem = constrained_problem(n, terms, &balance, &zeros, settings, cones);
     Ok(cascade::solve(&problem, None, &CascadeSettings::default())?
         .solution
         .x)
@@ -1352,6 +1493,13 @@ impl Stepper<'_> {
                 )?;
                 timing.solve += clock.elapsed().as_secs_f64();
                 timing.solves += 1;
+                let hard = self.scene.is_some() && self.settings.balance == Balance::Hard;
+                if hard && balance_violation(&balance, &candidate) > BALANCE_TOLERANCE {
+                    // Never take a step off the imposed balance; a smaller one may hold it.
+                    timing.unbalanced_steps += 1;
+                    damping *= 6.0;
+                    continue;
+                }
                 let clock = std::time::Instant::now();
                 // The residual only: most trials of a hard step are rejected,
                 // and the Jacobian is needed at the accepted one alone.
@@ -1429,7 +1577,7 @@ impl Stepper<'_> {
                     balance,
                     zeros,
                     self.settings,
-                    friction_cones(scene, self.settings.mu),
+                    friction_cones(scene, self.settings),
                 );
                 solver.solve(&problem)
             }
@@ -1503,6 +1651,22 @@ impl StepSolver {
         Ok(x)
     }
 }
+
+/// The largest |K x| over the balance rows, relative to the largest
+/// unknown (at least F₀): how far `x` is from balance.
+fn balance_violation(balance: &Triplets, x: &[f64]) -> f64 {
+    let mut row = vec![0.0; balance.nrows];
+    for ((&i, &j), &v) in balance.rows.iter().zip(&balance.cols).zip(&balance.vals) {
+        row[i] += v * x[j];
+    }
+    let size = x.iter().fold(1.0f64, |m, v| m.max(v.abs()));
+    row.iter().fold(0.0f64, |m, r| m.max(r.abs())) / size
+}
+
+/// A step whose balance rows miss by more than this (relative, see
+/// [`balance_violation`]) is rejected: the solver's interior points stop at
+/// ~10⁻⁸, a softened or failed answer far above.
+const BALANCE_TOLERANCE: f64 = 1e-6;
 
 /// Extra blur of the stages, in units of the median disk radius [px]: the
 /// photograph and the model are smoothed alike, so the first stages see only
@@ -1720,19 +1884,30 @@ fn fit_scene(
     let mut p = prepare(image, frame, scene, settings, false)?;
     timing.prepare = started.elapsed().as_secs_f64();
     let clock = std::time::Instant::now();
-    let cones = friction_cones(scene, settings.mu);
+    let cones = friction_cones(scene, settings);
     p.balanced = p
         .disks
         .par_iter()
         .map(|d| can_balance(d, &cones))
         .collect::<Result<_>>()?;
     let levels = load_levels(&p);
-    let mut x = match &settings.start {
-        Some(forces) => to_unknowns(scene, forces, p.scale)?,
-        None => balanced_start(&p, scene, settings, &levels)?,
+    // The objective is reported at the start as given (before it is balanced).
+    let (mut x, objective_start) = match &settings.start {
+        Some(forces) => {
+            let x0 = to_unknowns(scene, forces, p.scale)?;
+            let given = objective(&p, &x0, &p.optics);
+            if settings.balance == Balance::Hard {
+                release_forced_zeros(&mut p, scene, settings, &x0)?;
+            }
+            (feasible_start(&p, scene, settings, x0)?, given)
+        }
+        None => {
+            let x = balanced_start(&p, scene, settings, &levels)?;
+            let at = objective(&p, &x, &p.optics);
+            (x, at)
+        }
     };
     timing.start = clock.elapsed().as_secs_f64();
-    let objective_start = objective(&p, &x, &p.optics);
     let radius_px = p.scale / settings.fringe_stress * frame.px_per_m;
     let mut iterations = 0;
     let mut damping = 0.0;

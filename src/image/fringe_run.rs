@@ -45,6 +45,9 @@ pub struct PhotoelasticConfig {
     /// The channel of a colour photograph that is fitted.
     pub channel: Channel,
     pub mu: f64,
+    /// Friction coefficient of the wall contacts without their own
+    /// (`None`: `mu`).
+    pub wall_mu: Option<f64>,
     /// Balance as a weighted penalty of this weight instead of exactly.
     pub balance_weight: Option<f64>,
     pub blur: f64,
@@ -68,6 +71,7 @@ impl Default for PhotoelasticConfig {
             scale: None,
             channel: Channel::Green,
             mu: 0.5,
+            wall_mu: None,
             balance_weight: None,
             blur: 1.0,
             edge: 6.0,
@@ -280,6 +284,7 @@ pub fn run(image: &Path, scene_dir: &Path, config: &PhotoelasticConfig) -> Resul
     };
     let mut settings = FringeFitSettings::new(fringe_stress);
     settings.mu = config.mu;
+    settings.wall_mu = config.wall_mu;
     settings.blur_px = config.blur;
     settings.edge_px = config.edge;
     settings.max_iterations = config.iterations;
