@@ -45,25 +45,9 @@ PHOTOS = {
 }
 
 
-def opencv(path, rmin, rmax):
-    import cv2
-
-    img = cv2.imread(path, cv2.IMREAD_COLOR)
-    red = cv2.GaussianBlur(img[:, :, 2], (0, 0), 1.0)
-    c = cv2.HoughCircles(red, cv2.HOUGH_GRADIENT, dp=1, minDist=1.5 * rmin,
-                         param1=20, param2=30, minRadius=rmin, maxRadius=rmax)
-    return img.shape[0], [] if c is None else [tuple(map(float, v)) for v in c[0]]
-
-
-def write_scene(folder, circles, height):
-    """A scene folder as `detect` writes it (pixels, y up), for match.py."""
-    os.makedirs(folder, exist_ok=True)
-    with open(os.path.join(folder, "grains.csv"), "w") as f:
-        f.write("id,x,y,volume,radius\n")
-        for i, (x, y, r) in enumerate(circles):
-            f.write("%d,%.4f,%.4f,%.4f,%.4f\n" % (i, x + 0.5, height - 0.5 - y, np.pi * r * r, r))
-    with open(os.path.join(folder, "image-frame.json"), "w") as f:
-        f.write('{"px_per_m": 1.0, "origin": [0.0, 0.0], "width": 0, "height": %d}' % height)
+# The same OpenCV parameter set and scene writer as the shared photographs' bench.
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from real_photos import opencv, write_scene  # noqa: E402
 
 
 def score(match, scene, centres):

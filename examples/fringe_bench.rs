@@ -124,19 +124,7 @@ fn main() -> grainforce::Result<()> {
         let e = if let Some(found) = &found {
             let matched = match_disks(&scene, &frame, &found.disks, |r| 0.5 * r);
             // Candidate contacts count as contacts of the fitted scene.
-            let mut fitted = fit_scene.clone();
-            let mut forces = fit.forces.clone();
-            for c in &fit.report.candidates {
-                fitted.contacts.push(grainforce::scene::Contact {
-                    id: c.id.clone(),
-                    a: c.a,
-                    b: Body::Grain(c.b),
-                    point: [c.point[0], c.point[1], 0.0],
-                    normal: [c.normal[0], c.normal[1], 0.0],
-                    mu: None,
-                });
-                forces.push(c.force);
-            }
+            let (fitted, forces) = fit.with_candidates(fit_scene);
             score(&scene, &truth, &fitted, &forces, &matched.disk_of_grain)
         } else {
             relerr(&fit.forces, &truth)

@@ -1142,19 +1142,7 @@ fn detection_split(
         let sparsity = sparse.sparsity;
         let started = std::time::Instant::now();
         let fit = fit_fringes(&r.image, frame, input, &sparse).unwrap();
-        let mut scene = input.clone();
-        let mut forces = fit.forces.clone();
-        for c in &fit.report.candidates {
-            scene.contacts.push(Contact {
-                id: c.id.clone(),
-                a: c.a,
-                b: Body::Grain(c.b),
-                point: [c.point[0], c.point[1], 0.0],
-                normal: [c.normal[0], c.normal[1], 0.0],
-                mu: None,
-            });
-            forces.push(c.force);
-        }
+        let (scene, forces) = fit.with_candidates(input);
         let (mut truth, mut lost) = (Vec::new(), Vec::new());
         for c in &scene.contacts {
             let hit = (r.scene.contacts.iter().zip(&r.truth)).find(|(t, _)| pairs_match(t, c));

@@ -26,7 +26,7 @@
 
 use super::{FloatImage, PixelFrame};
 use crate::error::{Error, Result};
-use crate::scene::{Body, Scene};
+use crate::scene::{Body, Contact, Scene};
 use crate::solver::cascade::{self, CascadeSettings, FactorSlot, Pattern};
 use crate::solver::Triplets;
 use crate::solver::{Cone, ConicProblem, Term};
@@ -256,6 +256,27 @@ pub struct CandidateContact {
 pub struct FringeFit {
     pub forces: Vec<[f64; 2]>,
     pub report: FringeFitReport,
+}
+
+impl FringeFit {
+    /// `scene` with the fit's candidate contacts appended as contacts, and
+    /// the forces of both in that order (to score candidates with the rest).
+    pub fn with_candidates(&self, scene: &Scene) -> (Scene, Vec<[f64; 2]>) {
+        let mut scene = scene.clone();
+        let mut forces = self.forces.clone();
+        for c in &self.report.candidates {
+            scene.contacts.push(Contact {
+                id: c.id.clone(),
+                a: c.a,
+                b: Body::Grain(c.b),
+                point: [c.point[0], c.point[1], 0.0],
+                normal: [c.normal[0], c.normal[1], 0.0],
+                mu: None,
+            });
+            forces.push(c.force);
+        }
+        (scene, forces)
+    }
 }
 
 /// One load on a disk: contact `contact`'s force, on this disk with `sign`.
