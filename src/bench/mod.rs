@@ -41,10 +41,13 @@ pub struct MethodSpec {
 /// active-set solver, `-ip` the interior point (clarabel, tolerance 1e-8),
 /// `-relaxed` the interior point at tolerance 1e-4; any name
 /// may end in `-nocheck` to skip the identifiability (uniqueness) check, and
+/// (before that) in `-tolX` to solve to tolerance X rather than the data's
+/// accuracy (e.g. `qs-tol1e-4`: the active set, then the sparse interior
+/// point to 10⁻⁴), and
 /// (before that) in `-relative` to weight the stress rows by the relative
 /// noise model (`--stress-noise relative`); `soft` is momentum as a penalty.
 pub const METHOD_NAMES: &str =
-    "ls, qs, qs-ip, qs-relaxed, tikhonov, tikhonov-ip, tikhonov-relaxed, tikhonov-search, tikhonov-coarse, scaled, qs-pyrK (3D: K facets, e.g. qs-pyr8), soft, each optionally with -relative and then -nocheck";
+    "ls, qs, qs-ip, qs-relaxed, tikhonov, tikhonov-ip, tikhonov-relaxed, tikhonov-search, tikhonov-coarse, scaled, qs-pyrK (3D: K facets, e.g. qs-pyr8), soft, each optionally with -tolX (a tolerance, e.g. qs-tol1e-4), then -relative, then -nocheck";
 
 /// The default matrix: the floor, the constrained formulations by active set
 /// and by interior point at both tolerances and, in 3D, pyramids of 4, 8 and 16 facets.
@@ -78,6 +81,13 @@ pub fn preset(name: &str, lambda: f64) -> Result<InferConfig> {
     }
     if let Some(b) = base.strip_suffix("-relative") {
         c.stress_noise = crate::infer::StressNoise::Relative;
+        base = b;
+        name_rest = b;
+    }
+    if let Some((b, tolerance)) = split_tolerance(base) {
+        // Our cascade (active set, then the sparse interior point) solved to
+        // this tolerance instead of the data's accuracy.
+        c.tolerance = Some(tolerance);
         base = b;
         name_rest = b;
     }
@@ -125,6 +135,14 @@ pub fn preset(name: &str, lambda: f64) -> Result<InferConfig> {
     Ok(c)
 }
 
+/// A method name ending in `-tolX` (X a tolerance in (0, 1), e.g.
+/// `qs-tol1e-4`): the rest of the name and X.
+pub fn split_tolerance(name: &str) -> Option<(&str, f64)> {
+    let (base, tolerance) = name.rsplit_once("-tol")?;
+    let tolerance: f64 = tolerance.parse().ok()?;
+    (tolerance > 0.0 && tolerance < 1.0).then_some((base, tolerance))
+}
+
 /// The solver's options of a named method ([`preset`]).
 pub fn method_spec(name: &str, lambda: f64) -> Result<MethodSpec> {
     let (options, _) = preset(name, lambda)?.options()?;
@@ -159,6 +177,11 @@ pub struct CaseResult {
     pub status: Option<SolveStatus>,
     /// The error, when the inference failed or timed out.
     pub error: Option<String>,
+    /// ‖f − f_tight‖ / ‖f_tight‖ to the same method's solve at its tightest
+    /// tolerance on the same scene (its `-tolX` variants, when run): how far
+    /// each stop lies from the optimum ([`distances_to_tightest`]).
+    #[serde(default)]
+    pub distance: Option<f64>,
 }
 
 impl CaseResult {
@@ -185,6 +208,7 @@ impl CaseResult {
             iterations: 0,
             status: None,
             error: Some(error),
+            distance: None,
         }
     }
 
@@ -196,6 +220,16 @@ impl CaseResult {
 /// Runs one method on one scene against its exact forces. An inference error
 /// is recorded in the result, not returned.
 pub fn run_case(scene: &Scene, truth: &[Vec3], noise: Noise, spec: &MethodSpec) -> CaseResult {
+    run_case_with_forces(scene, truth, noise, spec).0
+}
+
+/// [`run_case`], also returning the forces inferred (none when it failed).
+pub fn run_case_with_forces(
+    scene: &Scene,
+    truth: &[Vec3],
+    noise: Noise,
+    spec: &MethodSpec,
+) -> (CaseResult, Option<Vec<Vec3>>) {
     let start = Instant::now();
     let result = infer(scene, &spec.options);
     let time = start.elapsed().as_secs_f64();
@@ -203,7 +237,7 @@ pub fn run_case(scene: &Scene, truth: &[Vec3], noise: Noise, spec: &MethodSpec) 
         Ok(inference) => {
             let forces = inference.forces_or_zero();
             let r = &inference.report;
-            CaseResult {
+            let case = CaseResult {
                 dim: scene.dim,
                 grains: scene.grains.len(),
                 contacts: scene.contacts.len(),
@@ -218,7 +252,9 @@ pub fn run_case(scene: &Scene, truth: &[Vec3], noise: Noise, spec: &MethodSpec) 
                 iterations: r.iterations,
                 status: Some(r.solver_status),
                 error: None,
-            }
+                distance: None,
+            };
+            (case, Some(forces))
         }
         Err(e) => {
             let mut c = CaseResult::failed(
@@ -231,9 +267,33 @@ pub fn run_case(scene: &Scene, truth: &[Vec3], noise: Noise, spec: &MethodSpec) 
             );
             c.contacts = scene.contacts.len();
             c.peak_memory = peak_memory();
-            c
+            (c, None)
         }
     }
+}
+
+/// For each (method name, its forces) run on one scene: the relative
+/// distance ‖f − f_tight‖ / ‖f_tight‖ to the forces of the same method at its
+/// tightest `-tolX` variant among them (`qs`, `qs-tol1e-2`, … `qs-tol1e-8`
+/// are measured against `qs-tol1e-8`). `None` for a method run at no
+/// tolerance variant, or failed.
+pub fn distances_to_tightest(cases: &[(&str, Option<&[Vec3]>)]) -> Vec<Option<f64>> {
+    let family = |name: &str| split_tolerance(name).map_or(name.to_owned(), |t| t.0.to_owned());
+    cases
+        .iter()
+        .map(|(name, forces)| {
+            let forces = (*forces)?;
+            let own = family(name);
+            let tightest = cases
+                .iter()
+                .filter_map(|(other, f)| {
+                    let (base, tolerance) = split_tolerance(other)?;
+                    (base == own).then_some((tolerance, (*f)?))
+                })
+                .min_by(|a, b| a.0.total_cmp(&b.0))?;
+            Some(relative_error(tightest.1, forces))
+        })
+        .collect()
 }
 
 /// Peak resident set size of this process (VmHWM) in bytes; Linux only.
@@ -303,8 +363,8 @@ fn fmt_time(t: f64) -> String {
 /// the `ls` floor of the same scene when present.
 pub fn markdown_table(results: &[CaseResult]) -> String {
     let mut s = String::from(
-        "| dim | grains | unknowns | noise | method | time | × ls | peak memory | relerr | worst Coulomb violation | iterations | status |\n\
-         |---|---:|---:|---|---|---:|---:|---:|---:|---:|---:|---|\n",
+        "| dim | grains | unknowns | noise | method | time | × ls | peak memory | relerr | from the tightest solve | worst Coulomb violation | iterations | status |\n\
+         |---|---:|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---|\n",
     );
     for r in results {
         let floor = results
@@ -326,7 +386,7 @@ pub fn markdown_table(results: &[CaseResult]) -> String {
             None => status_or_failed::text(r.status),
         };
         s.push_str(&format!(
-            "| {}D | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
+            "| {}D | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
             r.dim,
             r.grains,
             r.unknowns,
@@ -336,10 +396,11 @@ pub fn markdown_table(results: &[CaseResult]) -> String {
             ratio,
             fmt_bytes(r.peak_memory),
             if r.ok() {
-                format!("{:.2e}", r.relerr)
+                format!("{:.3e}", r.relerr)
             } else {
                 "–".into()
             },
+            r.distance.map_or("–".into(), |d| format!("{d:.1e}")),
             if r.ok() {
                 format!("{:.1e}", r.coulomb_violation)
             } else {
@@ -434,15 +495,71 @@ pub fn scaling_exponent(
     (sxx > 0.0).then(|| sxy / sxx)
 }
 
+/// Distance to the tightest solve ([`CaseResult::distance`]) against time at
+/// one noise level, one curve per method and scene through its tolerances;
+/// `None` when no case has a distance.
+pub fn plot_distances(results: &[CaseResult], noise: &str, title: &str) -> Option<RgbImage> {
+    let mut curves: Vec<(String, Vec<(f64, f64)>)> = Vec::new();
+    for r in results
+        .iter()
+        .filter(|r| r.ok() && r.noise == noise && r.time > 0.0)
+    {
+        // The tightest solve itself lies at distance 0, off a log axis.
+        let Some(d) = r.distance.filter(|d| *d > 0.0) else {
+            continue;
+        };
+        let family = split_tolerance(&r.method).map_or(r.method.as_str(), |t| t.0);
+        let name = format!("{}D {} ({} grains)", r.dim, family, r.grains);
+        match curves.iter_mut().find(|c| c.0 == name) {
+            Some(c) => c.1.push((r.time, d)),
+            None => curves.push((name, vec![(r.time, d)])),
+        }
+    }
+    if curves.is_empty() {
+        return None;
+    }
+    let mut chart = Chart::new(1000, 640)
+        .title(title)
+        .x_axis("time [s]", Scale::Log)
+        .y_axis("distance to the tightest solve (relative)", Scale::Log);
+    for (i, (name, mut pts)) in curves.into_iter().enumerate() {
+        // In the order of the stops (loosest first): on a shared machine
+        // time alone does not order them.
+        pts.sort_by(|a, b| b.1.total_cmp(&a.1));
+        chart = chart.line(
+            &name,
+            &pts,
+            crate::report::chart::PALETTE[i % crate::report::chart::PALETTE.len()],
+        );
+    }
+    Some(chart.render())
+}
+
 /// relerr against time at one noise level, one curve per (dim, method)
 /// through the sizes.
 pub fn plot(results: &[CaseResult], noise: &str, title: &str) -> Option<RgbImage> {
+    // A method run at several tolerances is one curve per scene through its
+    // tolerances (time against accuracy); any other one curve through the sizes.
+    let family = |method: &str| split_tolerance(method).map_or(method.to_owned(), |t| t.0.into());
+    let tolerance_families: Vec<String> = results
+        .iter()
+        .filter_map(|r| split_tolerance(&r.method).map(|t| t.0.to_owned()))
+        .collect();
     let mut curves: Vec<(String, Vec<(f64, f64)>)> = Vec::new();
     for r in results
         .iter()
         .filter(|r| r.ok() && r.noise == noise && r.time > 0.0 && r.relerr > 0.0)
     {
-        let name = format!("{}D {}", r.dim, r.method);
+        let name = if tolerance_families.contains(&family(&r.method)) {
+            format!(
+                "{}D {} ({} grains), tolerances",
+                r.dim,
+                family(&r.method),
+                r.grains
+            )
+        } else {
+            format!("{}D {}", r.dim, r.method)
+        };
         match curves.iter_mut().find(|c| c.0 == name) {
             Some(c) => c.1.push((r.time, r.relerr)),
             None => curves.push((name, vec![(r.time, r.relerr)])),

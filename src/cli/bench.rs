@@ -65,7 +65,9 @@ pub struct Args {
     /// Write the Markdown table and the ratios to this file as well.
     #[arg(long, value_name = "TABLE.md")]
     pub markdown: Option<PathBuf>,
-    /// Write a PNG of relerr vs time (one curve per method) at the noisiest level run.
+    /// Write a PNG of relerr vs time (one curve per method) at the noisiest level run;
+    /// with `-tolX` methods also BENCH-distance.png, each stop's distance to the
+    /// tightest solve against time.
     #[arg(long, value_name = "BENCH.png")]
     pub plot: Option<PathBuf>,
     /// Also time the researcher's alternative on each scene: a Python script with
@@ -87,6 +89,13 @@ pub struct Args {
     /// Keep the generated scenes in this folder (default: a temporary folder).
     #[arg(long, value_name = "DIR")]
     pub keep: Option<PathBuf>,
+    /// Run on these scene folders instead of generated packings, each with its
+    /// exact forces in its forces.csv (as `grainforce dem` writes them, e.g. a
+    /// sheared `dem box --deviator` packing); the noise levels are applied as
+    /// to generated ones, and the fixed-λ variants use the scene's median
+    /// grain radius.
+    #[arg(long, value_delimiter = ',', value_name = "DIR,DIR", conflicts_with_all = ["sizes", "dim", "sliding"])]
+    pub scenes: Option<Vec<PathBuf>>,
 
     // Internal: one case in this process (used by the child processes).
     #[arg(long, hide = true)]
@@ -99,6 +108,8 @@ pub struct Args {
     pub method: Option<String>,
     #[arg(long, hide = true)]
     pub lambda: Option<f64>,
+    #[arg(long, hide = true)]
+    pub forces_out: Option<PathBuf>,
 }
 
 /// `--sliding` in 3D unless given: the share of contacts at the Coulomb
@@ -173,8 +184,23 @@ pub fn run(args: Args) -> Result<()> {
         return Err(Error::Invalid("--timeout must be positive".into()));
     }
     let cvxpy_max = parse_size(&args.cvxpy_max)?;
-    // Validate every method name before any long work.
-    for &dim in &args.dim {
+    // Read the given scenes and validate every method name before any long work.
+    let given: Vec<GivenScene> = match &args.scenes {
+        Some(dirs) => dirs
+            .iter()
+            .map(|d| GivenScene::read(d))
+            .collect::<Result<_>>()?,
+        None => Vec::new(),
+    };
+    let dims: Vec<usize> = if args.scenes.is_some() {
+        let mut d: Vec<usize> = given.iter().map(|g| g.scene.dim).collect();
+        d.sort_unstable();
+        d.dedup();
+        d
+    } else {
+        args.dim.clone()
+    };
+    for &dim in &dims {
         for m in methods_for(&args, dim) {
             bench::method_spec(&m, 1.0)?;
         }
@@ -196,32 +222,46 @@ pub fn run(args: Args) -> Result<()> {
     if args.cvxpy {
         cvxpy_setup(&script_path(&args))?;
     }
-    for &dim in &args.dim {
-        for &size in &sizes {
-            let mut spec = PackingSpec::new(dim, size);
-            spec.seed = args.seed;
-            spec.sliding = args
-                .sliding
-                .unwrap_or(if dim == 3 { DEFAULT_SLIDING_3D } else { 0.0 });
-            let t = Instant::now();
-            let packing = bench::generate(&spec)?;
-            status!(
-                "{dim}D {size}: generated {} grains, {} contacts in {:.1} s ({} contacts at the Coulomb limit, {} with raised μ, equilibrium residual {:.1e})",
-                packing.scene.grains.len(),
-                packing.scene.contacts.len(),
-                t.elapsed().as_secs_f64(),
-                packing.sliding,
-                packing.raised_mu,
-                packing.equilibrium_residual
-            );
-            let lambda = args.lambda_rel * spec.radius;
+    let mut packings: Vec<GivenScene> = given;
+    if args.scenes.is_none() {
+        for &dim in &args.dim {
+            for &size in &sizes {
+                let mut spec = PackingSpec::new(dim, size);
+                spec.seed = args.seed;
+                spec.sliding =
+                    args.sliding
+                        .unwrap_or(if dim == 3 { DEFAULT_SLIDING_3D } else { 0.0 });
+                let t = Instant::now();
+                let packing = bench::generate(&spec)?;
+                status!(
+                    "{dim}D {size}: generated {} grains, {} contacts in {:.1} s ({} contacts at the Coulomb limit, {} with raised μ, equilibrium residual {:.1e})",
+                    packing.scene.grains.len(),
+                    packing.scene.contacts.len(),
+                    t.elapsed().as_secs_f64(),
+                    packing.sliding,
+                    packing.raised_mu,
+                    packing.equilibrium_residual
+                );
+                packings.push(GivenScene {
+                    label: format!("{dim}d-{size}"),
+                    scene: packing.scene,
+                    truth: packing.truth,
+                    radius: spec.radius,
+                });
+            }
+        }
+    }
+    for packing in &packings {
+        let (dim, size) = (packing.scene.dim, packing.scene.grains.len());
+        {
+            let lambda = args.lambda_rel * packing.radius;
             for &noise in &noises {
-                let dir = root.join(format!("{dim}d-{size}-{}", noise.name()));
+                let dir = root.join(format!("{}-{}", packing.label, noise.name()));
                 let scene = bench::perturb(&packing.scene, noise, args.seed + 17);
                 scene::write_scene(&dir, &scene)?;
                 let truth_path = dir.join("truth.csv");
                 scene::write_forces(&truth_path, &Forces::from_scene(&scene, &packing.truth))?;
-                drop(scene);
+                let first_case = results.len();
                 for method in methods_for(&args, dim) {
                     for _ in 0..args.repeats {
                         let r = run_child(
@@ -243,6 +283,8 @@ pub fn run(args: Args) -> Result<()> {
                         }
                     }
                 }
+                fill_distances(&mut results[first_case..], &scene, &dir)?;
+                drop(scene);
                 if args.cvxpy && size <= cvxpy_max {
                     let c =
                         compare_cvxpy(&exe, &script_path(&args), &dir, &truth_path, args.timeout)?;
@@ -252,7 +294,55 @@ pub fn run(args: Args) -> Result<()> {
             }
         }
     }
-    finish(&args, &results, &args.dim, &noises, &comparisons)
+    finish(&args, &results, &dims, &noises, &comparisons)
+}
+
+/// A packing to run the matrix on, with its exact forces (per contact).
+struct GivenScene {
+    /// Names the case folders.
+    label: String,
+    scene: grainforce::scene::Scene,
+    truth: Vec<grainforce::scene::Vec3>,
+    /// Grain radius the fixed-λ variants scale with [m].
+    radius: f64,
+}
+
+impl GivenScene {
+    /// A scene folder and the exact forces in its forces.csv.
+    fn read(dir: &Path) -> Result<Self> {
+        let scene = scene::read_scene(dir)?;
+        let truth_path = dir.join("forces.csv");
+        if !truth_path.is_file() {
+            return Err(Error::Invalid(format!(
+                "--scenes: {} has no forces.csv with the exact forces to score against",
+                dir.display()
+            )));
+        }
+        let truth = scene::read_forces(&truth_path)?.for_scene(&scene, &truth_path)?;
+        let mut radii: Vec<f64> = scene
+            .grains
+            .iter()
+            .map(|g| g.radius.unwrap_or_else(|| g.equivalent_radius(scene.dim)))
+            .filter(|r| r.is_finite() && *r > 0.0)
+            .collect();
+        if radii.is_empty() {
+            return Err(Error::Invalid(format!(
+                "--scenes: {} has no grain with a positive radius",
+                dir.display()
+            )));
+        }
+        radii.sort_by(f64::total_cmp);
+        let name = dir
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "scene".into());
+        Ok(GivenScene {
+            label: format!("{}d-{}-{name}", scene.dim, scene.grains.len()),
+            radius: radii[radii.len() / 2],
+            scene,
+            truth,
+        })
+    }
 }
 
 type CvxpyLine<'a> = (usize, usize, &'a str, Comparison);
@@ -291,6 +381,16 @@ fn finish(
         match bench::plot(&agg, noise.name(), &title) {
             Some(img) => grainforce::report::chart::save_png(path, &img)?,
             None => eprintln!("no successful case to plot"),
+        }
+        let title = format!(
+            "distance to the tightest solve vs time, {} noise",
+            noise.name()
+        );
+        if let Some(img) = bench::plot_distances(&agg, noise.name(), &title) {
+            let stem = path.file_stem().unwrap_or_default().to_string_lossy();
+            let distance_path = path.with_file_name(format!("{stem}-distance.png"));
+            grainforce::report::chart::save_png(&distance_path, &img)?;
+            status!("wrote {}", distance_path.display());
         }
     }
     Ok(())
@@ -364,7 +464,10 @@ fn run_single(args: &Args) -> Result<()> {
     let scene = scene::read_scene(dir)?;
     let truth = scene::read_forces(truth_path)?.for_scene(&scene, truth_path)?;
     let load_time = t.elapsed().as_secs_f64();
-    let mut r = bench::run_case(&scene, &truth, noise, &spec);
+    let (mut r, forces) = bench::run_case_with_forces(&scene, &truth, noise, &spec);
+    if let (Some(path), Some(forces)) = (&args.forces_out, forces) {
+        scene::write_forces(path, &Forces::from_scene(&scene, &forces))?;
+    }
     r.load_time = load_time;
     r.peak_memory = bench::peak_memory();
     println!(
@@ -443,7 +546,9 @@ fn run_child(
         .arg("--lambda")
         .arg(lambda.to_string())
         .arg("--noise")
-        .arg(noise.name());
+        .arg(noise.name())
+        .arg("--forces-out")
+        .arg(case_forces_path(dir, method));
     let fail =
         |msg: String, secs: f64| CaseResult::failed(dim, size, noise.name(), method, secs, msg);
     match run_limited(cmd, timeout) {
@@ -466,6 +571,35 @@ fn run_child(
         Ok(None) => fail(format!("timeout after {timeout:.0} s"), timeout),
         Err(e) => fail(e.to_string(), 0.0),
     }
+}
+
+/// Where the child running `method` on the case folder `dir` writes its forces.
+fn case_forces_path(dir: &Path, method: &str) -> PathBuf {
+    dir.join(format!("forces-{method}.csv"))
+}
+
+/// Each case's distance to its method's tightest-tolerance solve on the same
+/// scene (the `-tolX` variants), from the forces the children wrote.
+fn fill_distances(cases: &mut [CaseResult], scene: &scene::Scene, dir: &Path) -> Result<()> {
+    let mut forces = Vec::with_capacity(cases.len());
+    for case in cases.iter() {
+        let path = case_forces_path(dir, &case.method);
+        forces.push(if case.ok() && path.is_file() {
+            Some(scene::read_forces(&path)?.for_scene(scene, &path)?)
+        } else {
+            None
+        });
+    }
+    let named: Vec<(&str, Option<&[grainforce::scene::Vec3]>)> = cases
+        .iter()
+        .zip(&forces)
+        .map(|(c, f)| (c.method.as_str(), f.as_deref()))
+        .collect();
+    let distances = bench::distances_to_tightest(&named);
+    for (case, distance) in cases.iter_mut().zip(distances) {
+        case.distance = distance;
+    }
+    Ok(())
 }
 
 fn script_path(args: &Args) -> PathBuf {
