@@ -151,3 +151,18 @@ fn a_given_scene_without_exact_forces_is_refused_by_name() {
     assert!(!both.status.success(), "--scenes replaces --sizes");
     assert!(Path::new(&sheared_fixture()).join("forces.csv").is_file());
 }
+
+#[test]
+fn a_failed_case_keeps_its_error_through_json_and_csv() {
+    let failed = grainforce::bench::CaseResult::failed(3, 10, "stress", "qs", 1.5, "no".into());
+    let json = serde_json::to_string(&failed).unwrap();
+    let back: grainforce::bench::CaseResult = serde_json::from_str(&json).unwrap();
+    assert!(back.relerr.is_nan() && back.coulomb_violation.is_nan());
+    assert_eq!(back.error.as_deref(), Some("no"));
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("cases.csv");
+    std::fs::write(&path, grainforce::bench::csv(&[failed]).unwrap()).unwrap();
+    let rows = read_csv(&path).unwrap();
+    assert!(rows[0].relerr.is_nan());
+    assert_eq!(rows[0].error.as_deref(), Some("no"));
+}

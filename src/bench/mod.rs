@@ -168,8 +168,10 @@ pub struct CaseResult {
     /// Peak resident memory of the process [bytes], when known.
     pub peak_memory: Option<u64>,
     /// ‖f − f*‖ / ‖f*‖ (eq. 2.15); NaN when the case failed.
+    #[serde(deserialize_with = "f64_or_nan")]
     pub relerr: f64,
     /// Worst (|f_t| − μ f_n)₊ relative to the mean contact force.
+    #[serde(deserialize_with = "f64_or_nan")]
     pub coulomb_violation: f64,
     pub iterations: u32,
     /// The solve's status; `None` (written "failed") when the case failed.
@@ -182,6 +184,10 @@ pub struct CaseResult {
     /// each stop lies from the optimum ([`distances_to_tightest`]).
     #[serde(default)]
     pub distance: Option<f64>,
+    /// CPU seconds of `infer`, all threads (Linux): steadier than `time` on a
+    /// shared machine.
+    #[serde(default)]
+    pub cpu_time: Option<f64>,
 }
 
 impl CaseResult {
@@ -209,6 +215,7 @@ impl CaseResult {
             status: None,
             error: Some(error),
             distance: None,
+            cpu_time: None,
         }
     }
 
@@ -231,8 +238,10 @@ pub fn run_case_with_forces(
     spec: &MethodSpec,
 ) -> (CaseResult, Option<Vec<Vec3>>) {
     let start = Instant::now();
+    let cpu_start = cpu_seconds();
     let result = infer(scene, &spec.options);
     let time = start.elapsed().as_secs_f64();
+    let cpu_time = cpu_start.zip(cpu_seconds()).map(|(a, b)| b - a);
     match result {
         Ok(inference) => {
             let forces = inference.forces_or_zero();
@@ -253,6 +262,7 @@ pub fn run_case_with_forces(
                 status: Some(r.solver_status),
                 error: None,
                 distance: None,
+                cpu_time,
             };
             (case, Some(forces))
         }
@@ -267,6 +277,7 @@ pub fn run_case_with_forces(
             );
             c.contacts = scene.contacts.len();
             c.peak_memory = peak_memory();
+            c.cpu_time = cpu_time;
             (c, None)
         }
     }
@@ -337,6 +348,9 @@ pub fn aggregate(results: &[CaseResult]) -> Vec<CaseResult> {
         times.sort_by(f64::total_cmp);
         let mut c = g[0].clone();
         c.time = times[times.len() / 2];
+        let mut cpu: Vec<f64> = g.iter().filter_map(|c| c.cpu_time).collect();
+        cpu.sort_by(f64::total_cmp);
+        c.cpu_time = cpu.get(cpu.len() / 2).copied();
         c.peak_memory = g.iter().filter_map(|c| c.peak_memory).max();
         out.push(c);
     }
@@ -363,8 +377,8 @@ fn fmt_time(t: f64) -> String {
 /// the `ls` floor of the same scene when present.
 pub fn markdown_table(results: &[CaseResult]) -> String {
     let mut s = String::from(
-        "| dim | grains | unknowns | noise | method | time | × ls | peak memory | relerr | from the tightest solve | worst Coulomb violation | iterations | status |\n\
-         |---|---:|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---|\n",
+        "| dim | grains | unknowns | noise | method | time | cpu | × ls | peak memory | relerr | from the tightest solve | worst Coulomb violation | iterations | status |\n\
+         |---|---:|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---|\n",
     );
     for r in results {
         let floor = results
@@ -386,13 +400,14 @@ pub fn markdown_table(results: &[CaseResult]) -> String {
             None => status_or_failed::text(r.status),
         };
         s.push_str(&format!(
-            "| {}D | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
+            "| {}D | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
             r.dim,
             r.grains,
             r.unknowns,
             r.noise,
             r.method,
             fmt_time(r.time),
+            r.cpu_time.map_or("–".into(), fmt_time),
             ratio,
             fmt_bytes(r.peak_memory),
             if r.ok() {
@@ -411,6 +426,13 @@ pub fn markdown_table(results: &[CaseResult]) -> String {
         ));
     }
     s
+}
+
+/// A number that JSON wrote as `null` (JSON has no NaN): a failed case's
+/// relerr travels from the child process that way.
+fn f64_or_nan<'de, D: serde::Deserializer<'de>>(d: D) -> std::result::Result<f64, D::Error> {
+    use serde::Deserialize;
+    Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
 }
 
 /// A case's status as the table writes it: the status's name, or "failed".
@@ -495,9 +517,9 @@ pub fn scaling_exponent(
     (sxx > 0.0).then(|| sxy / sxx)
 }
 
-/// Distance to the tightest solve ([`CaseResult::distance`]) against time at
-/// one noise level, one curve per method and scene through its tolerances;
-/// `None` when no case has a distance.
+/// Distance to the tightest solve ([`CaseResult::distance`]) against CPU
+/// time (wall time where unknown) at one noise level, one curve per method
+/// and scene through its tolerances; `None` when no case has a distance.
 pub fn plot_distances(results: &[CaseResult], noise: &str, title: &str) -> Option<RgbImage> {
     let mut curves: Vec<(String, Vec<(f64, f64)>)> = Vec::new();
     for r in results
@@ -510,9 +532,10 @@ pub fn plot_distances(results: &[CaseResult], noise: &str, title: &str) -> Optio
         };
         let family = split_tolerance(&r.method).map_or(r.method.as_str(), |t| t.0);
         let name = format!("{}D {} ({} grains)", r.dim, family, r.grains);
+        let time = r.cpu_time.filter(|t| *t > 0.0).unwrap_or(r.time);
         match curves.iter_mut().find(|c| c.0 == name) {
-            Some(c) => c.1.push((r.time, d)),
-            None => curves.push((name, vec![(r.time, d)])),
+            Some(c) => c.1.push((time, d)),
+            None => curves.push((name, vec![(time, d)])),
         }
     }
     if curves.is_empty() {
@@ -520,7 +543,7 @@ pub fn plot_distances(results: &[CaseResult], noise: &str, title: &str) -> Optio
     }
     let mut chart = Chart::new(1000, 640)
         .title(title)
-        .x_axis("time [s]", Scale::Log)
+        .x_axis("time [s] (CPU where known)", Scale::Log)
         .y_axis("distance to the tightest solve (relative)", Scale::Log);
     for (i, (name, mut pts)) in curves.into_iter().enumerate() {
         // In the order of the stops (loosest first): on a shared machine

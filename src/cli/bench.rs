@@ -559,10 +559,17 @@ fn run_child(
                 .find_map(|l| serde_json::from_str::<CaseResult>(l).ok());
             match (parsed, ok) {
                 (Some(r), true) => r,
+                (None, true) => fail(
+                    format!(
+                        "the case's result could not be read: `{}`",
+                        out.trim().lines().last().unwrap_or("")
+                    ),
+                    secs,
+                ),
                 _ => fail(
                     format!(
                         "child process failed: {}",
-                        err.trim().lines().last().unwrap_or("")
+                        err.trim().lines().last().unwrap_or("no message")
                     ),
                     secs,
                 ),
