@@ -4,6 +4,8 @@
 //!
 //! cargo run --release --example labels_bench -- /tmp/labels.npy 1000 30
 //! (then delete the file; run under `/usr/bin/time -v` for the peak memory).
+//! RAYON_NUM_THREADS=1 runs the slabs one after another (the same answer);
+//! LABELS_NORMALS=pca skips the surface fits (the first pass's cost).
 
 use grainforce::import::labels::{self, FileFormat, Options};
 use std::io::Write;
@@ -65,6 +67,10 @@ fn main() -> grainforce::Result<()> {
         .and_then(|v| v.parse().ok())
     {
         options.fit.robust_samples = k;
+    }
+    // LABELS_NORMALS=pca: no surface fits, the first pass alone (nearly).
+    if std::env::var("LABELS_NORMALS").is_ok_and(|v| v == "pca") {
+        options.normals = labels::NormalMethod::Pca;
     }
     let t = std::time::Instant::now();
     let out = labels::import_file(&path, &FileFormat::Auto, None, &options)?;

@@ -56,9 +56,15 @@ fn main() -> grainforce::Result<()> {
             }
             let grid = synth::Grid::around(&grains, voxel, 3.0);
             let (clean, fraction) = synth::voxelise(&grains, &grid);
-            let (seg, grey) = synth::segment(&grains, &grid, &fraction, &Default::default());
+            let (seg, grey) = synth::segment(&grains, &grid, &fraction, &segmentation());
             for (volume, lab, g) in [("clean", &clean, None), ("segmented", &seg, Some(&grey))] {
-                for method in ["pca", "fit", "fit, gap ≤ 0.5", "fit, grey ≥ 0.9"] {
+                for method in [
+                    "pca",
+                    "fit",
+                    "fit, gap ≤ 0.5",
+                    "fit, grey ≥ 0.9",
+                    "fit, grey gap",
+                ] {
                     if method.contains("grey") && g.is_none() {
                         continue;
                     }
@@ -74,8 +80,16 @@ fn main() -> grainforce::Result<()> {
                         } else {
                             labels::NormalMethod::SurfaceFit
                         },
-                        max_gap: method.contains("gap").then_some(0.5),
+                        max_gap: method.contains("gap ≤").then_some(0.5),
                         min_grey: 0.9,
+                        // Round 7's grey rule (the neck's grey alone) beside
+                        // the grey gap's (with the neck's).
+                        grey_gap_spread: (method == "fit, grey gap").then(|| {
+                            std::env::var("TOMO_GREY_SPREAD")
+                                .ok()
+                                .and_then(|v| v.parse().ok())
+                                .unwrap_or(3.0)
+                        }),
                         fit: fit_settings(),
                         ..Options::default()
                     };
@@ -119,14 +133,18 @@ fn main() -> grainforce::Result<()> {
                                         - ga.spheres[0].1
                                         - gb.spheres[0].1)
                                         / voxel;
+                                let vox = |g: Option<f64>| g.map_or(f64::NAN, |g| g / voxel);
                                 eprintln!(
-                                    "    {} {}-{} apart {apart:.3} faces {} gap {:?} grey {:?} {}",
+                                    "    {} {}-{} apart {apart:.3} faces {} gap {:.3} grey {:.3} grey_gap {:.4} sd {:.4} kept {} {}",
                                     if t { "TRUE " } else { "FALSE" },
                                     c.a,
                                     b,
                                     c.faces,
-                                    c.gap.map(|g| g / voxel),
-                                    c.grey,
+                                    vox(c.gap),
+                                    c.grey.unwrap_or(f64::NAN),
+                                    vox(c.grey_gap),
+                                    vox(c.grey_gap_sd),
+                                    c.kept as u8,
                                     c.method
                                 );
                             }
@@ -137,6 +155,23 @@ fn main() -> grainforce::Result<()> {
         }
     }
     Ok(())
+}
+
+/// The simulated segmentation, with TOMO_BLUR / TOMO_NOISE / TOMO_SEED
+/// overriding the defaults (σ = 1 voxel, noise 0.1 of the contrast).
+fn segmentation() -> synth::Segmentation {
+    let mut seg = synth::Segmentation::default();
+    let var = |name: &str| std::env::var(name).ok().and_then(|v| v.parse::<f64>().ok());
+    if let Some(v) = var("TOMO_BLUR") {
+        seg.blur = v;
+    }
+    if let Some(v) = var("TOMO_NOISE") {
+        seg.noise = v;
+    }
+    if let Some(v) = var("TOMO_SEED") {
+        seg.seed = v as u64;
+    }
+    seg
 }
 
 /// The fit settings, with TOMO_PRIOR / TOMO_GEO / TOMO_GATE overriding the
@@ -173,6 +208,9 @@ fn fit_settings() -> labels::FitSettings {
     }
     if let Some(v) = var("TOMO_EXCL") {
         fit.exclusion = v;
+    }
+    if let Some(v) = var("TOMO_GREY_PRIOR") {
+        fit.grey_radius_prior = v;
     }
     fit
 }

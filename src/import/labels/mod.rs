@@ -15,6 +15,8 @@
 //!
 //! Voxel `[z][y][x]` has its centre at `origin + voxel_size · (x, y, z)`.
 
+mod first_pass;
+mod grey_gap;
 pub mod synth;
 pub mod volume;
 
@@ -136,6 +138,9 @@ pub struct FitSettings {
     pub robust_samples: usize,
     /// The gate of the robust restarts' score and refit, in voxels.
     pub robust_gate: f64,
+    /// With a grey image: the radius prior's weight per point of the
+    /// spheres fitted to the sub-voxel surface points (the grey gap).
+    pub grey_radius_prior: f64,
 }
 
 impl Default for FitSettings {
@@ -154,6 +159,7 @@ impl Default for FitSettings {
             max_apart: 1.0,
             robust_samples: 200,
             robust_gate: 0.7,
+            grey_radius_prior: 1.0,
         }
     }
 }
@@ -181,6 +187,14 @@ pub struct Options {
     /// With a grey image: drop contacts whose neck is darker than this
     /// fraction of the way from void to solid grey.
     pub min_grey: f64,
+    /// With a grey image: drop grain–grain contacts whose grey gap (the
+    /// surfaces fitted to sub-voxel points from the grey image) exceeds the
+    /// median grey gap of all zones by more than this many robust standard
+    /// deviations of the zones' grey gaps (1.4826 × their median absolute
+    /// deviation; at least the contact's own standard deviation). Relative
+    /// to the zones' own spread so that it follows the image's blur and
+    /// noise rather than a number of voxels tuned to one volume.
+    pub grey_gap_spread: Option<f64>,
     /// A grain touches a plane wall when its voxels come within this many
     /// voxels of it.
     pub wall_tolerance: f64,
@@ -198,6 +212,7 @@ impl Default for Options {
             fit: FitSettings::default(),
             max_gap: None,
             min_grey: 0.5,
+            grey_gap_spread: Some(3.0),
             wall_tolerance: 1.0,
         }
     }
@@ -236,6 +251,12 @@ pub struct DetectedContact {
     pub gap: Option<f64>,
     /// Grey-level evidence of solid at the neck, 0 = void grey, 1 = solid grey.
     pub grey: Option<f64>,
+    /// With a grey image, grain pairs: the gap between the two surfaces
+    /// fitted to sub-voxel points where the grey crosses half-way from void
+    /// to solid [m] (negative: overlap), and its standard deviation from
+    /// the two fits' residuals [m].
+    pub grey_gap: Option<f64>,
+    pub grey_gap_sd: Option<f64>,
     /// Rms distance of each side's surface faces from its fitted sphere [m]
     /// (a confidence in that side's fit: about a third of a voxel on a
     /// sphere, more where a flat face or another lobe came into the fit).
@@ -270,9 +291,10 @@ const MAX_LABEL: u32 = 1 << 27;
 struct Moments {
     reference: [i64; 3],
     n: u64,
-    sum: [f64; 3],
-    /// xx, yy, zz, xy, xz, yz of offsets from `reference`.
-    sq: [f64; 6],
+    /// Σ offsets from `reference`, and their xx, yy, zz, xy, xz, yz
+    /// products: integers, so that slabs add up exactly in any grouping.
+    sum: [i64; 3],
+    sq: [i64; 6],
     lo: [usize; 3],
     hi: [usize; 3],
     cut: bool,
@@ -298,48 +320,6 @@ struct Scan {
     container: HashMap<u32, Vec<Face>>,
     grey_solid: (f64, u64),
     grey_void: (f64, u64),
-}
-
-impl Scan {
-    fn grain(&mut self, label: u32, at: [usize; 3], shape: [usize; 3]) -> Result<u32> {
-        if label >= MAX_LABEL {
-            return Err(Error::Invalid(format!(
-                "label {label} at voxel z={} y={} x={}: labels above {} are not supported; \
-                 relabel the volume sequentially",
-                at[2],
-                at[1],
-                at[0],
-                MAX_LABEL - 1
-            )));
-        }
-        let l = label as usize;
-        if l >= self.index.len() {
-            self.index.resize((l + 1).max(self.index.len() * 2), 0);
-        }
-        if self.index[l] == 0 {
-            self.labels.push(label);
-            self.moments.push(Moments {
-                reference: [at[0] as i64, at[1] as i64, at[2] as i64],
-                n: 0,
-                sum: [0.0; 3],
-                sq: [0.0; 6],
-                lo: at,
-                hi: at,
-                cut: false,
-            });
-            self.index[l] = self.labels.len() as u32;
-        }
-        let g = self.index[l] - 1;
-        let m = &mut self.moments[g as usize];
-        for k in 0..3 {
-            m.lo[k] = m.lo[k].min(at[k]);
-            m.hi[k] = m.hi[k].max(at[k]);
-        }
-        if at[1] == 0 || at[2] == 0 || at[1] + 1 == shape[1] || at[2] + 1 == shape[0] {
-            m.cut = true;
-        }
-        Ok(g)
-    }
 }
 
 /// Imports a label volume held in memory, `data[(z·ny + y)·nx + x]` with
@@ -431,120 +411,9 @@ pub fn import_source(
     options: &Options,
 ) -> Result<LabelScene> {
     check_options(options)?;
-    let shape = labels.shape();
     let container = options.container.unwrap_or(0);
-    let (nz, ny, nx) = (shape[0], shape[1], shape[2]);
-    let n = ny * nx;
-    let mut scan = Scan {
-        index: Vec::new(),
-        labels: Vec::new(),
-        moments: Vec::new(),
-        pairs: HashMap::new(),
-        container: HashMap::new(),
-        grey_solid: (0.0, 0),
-        grey_void: (0.0, 0),
-    };
-    let mut prev = vec![0u32; n];
-    let mut cur = vec![0u32; n];
-    let mut gprev = vec![0f32; if grey.is_some() { n } else { 0 }];
-    let mut gcur = gprev.clone();
-    // Pass 1.
-    for z in 0..nz {
-        labels.labels(z, &mut cur)?;
-        if let Some(g) = grey.as_deref_mut() {
-            g.greys(z, &mut gcur)?;
-        }
-        for y in 0..ny {
-            let row = &cur[y * nx..(y + 1) * nx];
-            let mut x = 0;
-            while x < nx {
-                let l = row[x];
-                let mut end = x + 1;
-                while end < nx && row[end] == l {
-                    end += 1;
-                }
-                if l != 0 && l != container {
-                    let g = scan.grain(l, [x, y, z], [nz, ny, nx])? as usize;
-                    let g2 = scan.grain(l, [end - 1, y, z], [nz, ny, nx])? as usize;
-                    debug_assert_eq!(g, g2);
-                    let m = &mut scan.moments[g];
-                    if z == 0 || x == 0 || end == nx {
-                        m.cut = true;
-                    }
-                    add_run(m, x, end, y, z);
-                }
-                x = end;
-            }
-            if !gcur.is_empty() {
-                for (i, &l) in row.iter().enumerate() {
-                    let v = gcur[y * nx + i] as f64;
-                    if l == 0 {
-                        scan.grey_void.0 += v;
-                        scan.grey_void.1 += 1;
-                    } else if l != container {
-                        scan.grey_solid.0 += v;
-                        scan.grey_solid.1 += 1;
-                    }
-                }
-            }
-        }
-        // Faces towards −x, −y (this slice) and −z (previous slice).
-        for y in 0..ny {
-            for x in 0..nx {
-                let i = y * nx + x;
-                let l = cur[i];
-                if x > 0 && cur[i - 1] != l {
-                    interface(
-                        &mut scan,
-                        container,
-                        cur[i - 1],
-                        l,
-                        [x - 1, y, z],
-                        1,
-                        &gcur,
-                        i - 1,
-                        &gcur,
-                        i,
-                    );
-                }
-                if y > 0 && cur[i - nx] != l {
-                    interface(
-                        &mut scan,
-                        container,
-                        cur[i - nx],
-                        l,
-                        [x, y - 1, z],
-                        2,
-                        &gcur,
-                        i - nx,
-                        &gcur,
-                        i,
-                    );
-                }
-                if z > 0 && prev[i] != l {
-                    interface(
-                        &mut scan,
-                        container,
-                        prev[i],
-                        l,
-                        [x, y, z - 1],
-                        3,
-                        &gprev,
-                        i,
-                        &gcur,
-                        i,
-                    );
-                }
-            }
-        }
-        std::mem::swap(&mut prev, &mut cur);
-        std::mem::swap(&mut gprev, &mut gcur);
-        // Both slices were copied out: slice z is not read again in this pass.
-        labels.release(z, z + 1);
-        if let Some(g) = grey.as_deref_mut() {
-            g.release(z, z + 1);
-        }
-    }
+    // Pass 1: moments and interfaces.
+    let scan = first_pass::scan(labels, grey.as_deref_mut(), container)?;
     if scan.labels.is_empty() {
         return Err(Error::Invalid(
             "the volume has no grain: every voxel is 0 (void) or the container".into(),
@@ -587,87 +456,33 @@ pub fn import_source(
     // refits, on the faces pass 2 kept.
     let mut fits = surface_pass(labels, &scan, &grains, &zones, &plane_hits, options)?;
     refit(&mut fits, &options.fit, &zones, &grains);
-    let detected = contacts_of(&scan, &grains, &zones, &fits, &plane_hits, options);
+    // With the grey image: one more pass over it for the sub-voxel gaps.
+    let grey_gaps = match (grey, grey_scale) {
+        (Some(g), Some((void, solid))) if !fits.faces.is_empty() => {
+            let level = (0.5 * (void + solid)) as f32;
+            let offsets = grey_gap::crossings(g, &fits.faces, &zones, level)?;
+            grey_gap::gaps(
+                &fits.faces,
+                &offsets,
+                &fits.solved,
+                &zones,
+                &grains,
+                &options.fit,
+            )
+        }
+        _ => Vec::new(),
+    };
+    fits.faces = Vec::new();
+    let detected = contacts_of(
+        &scan,
+        &grains,
+        &zones,
+        &fits,
+        &grey_gaps,
+        &plane_hits,
+        options,
+    );
     Ok(build(scan, grains, detected, options))
-}
-
-#[inline]
-fn add_run(m: &mut Moments, x0: usize, x1: usize, y: usize, z: usize) {
-    let len = (x1 - x0) as f64;
-    let a = x0 as i64 - m.reference[0];
-    let b = x1 as i64 - 1 - m.reference[0];
-    // Σ dx and Σ dx² over dx = a … b.
-    let s1 = (a + b) as f64 * len / 2.0;
-    let sq = |k: i64| (k * (k + 1) * (2 * k + 1)) as f64 / 6.0;
-    let s2 = if a >= 0 {
-        sq(b) - sq(a - 1)
-    } else if b < 0 {
-        sq(-a) - sq(-b - 1)
-    } else {
-        sq(b) + sq(-a)
-    };
-    let dy = (y as i64 - m.reference[1]) as f64;
-    let dz = (z as i64 - m.reference[2]) as f64;
-    m.n += x1 as u64 - x0 as u64;
-    m.sum[0] += s1;
-    m.sum[1] += dy * len;
-    m.sum[2] += dz * len;
-    m.sq[0] += s2;
-    m.sq[1] += dy * dy * len;
-    m.sq[2] += dz * dz * len;
-    m.sq[3] += s1 * dy;
-    m.sq[4] += s1 * dz;
-    m.sq[5] += dy * dz * len;
-}
-
-/// Records the face between voxel `p` (label `lp`) and its +axis neighbour `q` (label `lq`).
-#[allow(clippy::too_many_arguments)]
-fn interface(
-    scan: &mut Scan,
-    container: u32,
-    lp: u32,
-    lq: u32,
-    p: [usize; 3],
-    axis: i8,
-    gp: &[f32],
-    ip: usize,
-    gq: &[f32],
-    iq: usize,
-) {
-    if lp == 0 || lq == 0 {
-        return;
-    }
-    let mut centre = [2 * p[0] as i32, 2 * p[1] as i32, 2 * p[2] as i32];
-    centre[axis as usize - 1] += 1;
-    let grey = if gp.is_empty() {
-        0.0
-    } else {
-        0.5 * (gp[ip] + gq[iq])
-    };
-    let idx = |l: u32| scan.index[l as usize] - 1;
-    if lp == container || lq == container {
-        let (g, dir) = if lp == container {
-            (idx(lq), -axis)
-        } else {
-            (idx(lp), axis)
-        };
-        scan.container.entry(g).or_default().push(Face {
-            p: centre,
-            axis: dir,
-            grey,
-        });
-        return;
-    }
-    let (a, b, dir) = if lp < lq {
-        (idx(lp), idx(lq), axis)
-    } else {
-        (idx(lq), idx(lp), -axis)
-    };
-    scan.pairs.entry((a, b)).or_default().push(Face {
-        p: centre,
-        axis: dir,
-        grey,
-    });
 }
 
 /// Per grain: centroid and second moments in voxel units.
@@ -684,10 +499,10 @@ fn grains_of(scan: &Scan, _options: &Options) -> Vec<GrainGeometry> {
         .iter()
         .map(|m| {
             let n = m.n as f64;
-            let mean = [m.sum[0] / n, m.sum[1] / n, m.sum[2] / n];
+            let mean = m.sum.map(|v| v as f64 / n);
             let mut second = [0.0; 6];
             for (k, &(i, j)) in scene::sym::PAIRS.iter().enumerate() {
-                second[k] = m.sq[k] - n * mean[i] * mean[j];
+                second[k] = m.sq[k] as f64 - n * mean[i] * mean[j];
                 if i == j {
                     second[k] += n / 12.0;
                 }
@@ -1152,7 +967,7 @@ type Sphere = ([f64; 3], f64, f64);
 /// previous sphere; a refit that loses too many faces keeps the fit before.
 /// Then, with a radius prior, the geometric refits. Fills `fits.solved`.
 fn refit(fits: &mut Fits, settings: &FitSettings, zones: &[Zone], grains: &[GrainGeometry]) {
-    let faces = std::mem::take(&mut fits.faces);
+    let faces = &fits.faces;
     // Zones are independent: on threads, the answer the serial one.
     let solved = fits.sides.par_iter_mut().enumerate().map(|(k, fit)| {
         let mut out = [None; 2];
@@ -1318,22 +1133,56 @@ const REFINED: usize = 3;
 /// 1000³ volume).
 const SETTLED_OUTSIDE: f64 = 0.1;
 
+/// A point a sphere is fitted to: a voxel face (doubled coordinates) or a
+/// sub-voxel surface point.
+trait SurfacePoint: Copy {
+    fn at(self) -> [f64; 3];
+}
+
+impl SurfacePoint for [u16; 3] {
+    #[inline]
+    fn at(self) -> [f64; 3] {
+        self.map(|v| 0.5 * f64::from(v))
+    }
+}
+
+impl SurfacePoint for [f64; 3] {
+    #[inline]
+    fn at(self) -> [f64; 3] {
+        self
+    }
+}
+
 /// Gauss–Newton on Σ (|f − c| − r)² over the faces within `gate` of the
 /// current sphere, plus weight·n·(r − r₀)²; `None` when too few faces stay.
 fn geometric_fit(
     faces: &[[u16; 3]],
     start: Sphere,
-    (r0, weight): (f64, f64),
+    prior: (f64, f64),
     settings: &FitSettings,
 ) -> Option<Sphere> {
+    gauss_newton(faces, start, prior, settings).map(|(s, _)| s)
+}
+
+/// [`geometric_fit`] on any points, with the covariance of (centre, radius)
+/// (the residuals' variance times the inverse normal matrix, prior
+/// included).
+fn gauss_newton<P: SurfacePoint>(
+    faces: &[P],
+    start: Sphere,
+    (r0, weight): (f64, f64),
+    settings: &FitSettings,
+) -> Option<(Sphere, nalgebra::Matrix4<f64>)> {
     let (mut c, mut r, _) = start;
     let mut rms = 0.0;
+    let mut normal = nalgebra::Matrix4::<f64>::zeros();
+    let mut used = 0;
     for _ in 0..settings.geometric_refits.max(1) {
         let mut a = nalgebra::Matrix4::<f64>::zeros();
         let mut b = nalgebra::Vector4::<f64>::zeros();
         let (mut n, mut sse) = (0usize, 0.0);
         for f in faces {
-            let f = f.map(|v| 0.5 * f64::from(v));
+            let f = f.at();
             let d = scene::sub(f, c);
             let dist = scene::norm(d);
             let e = dist - r;
@@ -1353,6 +1202,7 @@ fn geometric_fit(
         let w = weight * n as f64;
         a[(3, 3)] += w;
         b[3] -= w * (r - r0);
+        (normal, used) = (a, n);
         let step = a.cholesky()?.solve(&b);
         c = [c[0] + step[0], c[1] + step[1], c[2] + step[2]];
         r += step[3];
@@ -1364,7 +1214,9 @@ fn geometric_fit(
             break;
         }
     }
-    Some((c, r, rms))
+    let variance = rms * rms * used as f64 / (used as f64 - 4.0).max(1.0);
+    let cov = normal.try_inverse()? * variance;
+    Some(((c, r, rms), cov))
 }
 
 /// Slices per slab of the parallel surface passes.
@@ -1384,6 +1236,7 @@ fn contacts_of(
     grains: &[GrainGeometry],
     zones: &[Zone],
     fits: &Fits,
+    grey_gaps: &[Option<(f64, f64)>],
     plane_hits: &[(usize, usize, bool)],
     options: &Options,
 ) -> Vec<DetectedContact> {
@@ -1449,6 +1302,7 @@ fn contacts_of(
         if let Some(g) = z.grey {
             kept &= g >= options.min_grey;
         }
+        let grey_gap = grey_gaps.get(k).copied().flatten();
         out.push(DetectedContact {
             a: scan.labels[z.a as usize],
             b: match z.b {
@@ -1465,6 +1319,8 @@ fn contacts_of(
             pca_point: to_metres(z.centre, options),
             gap,
             grey: z.grey,
+            grey_gap: grey_gap.map(|g| g.0 * s),
+            grey_gap_sd: grey_gap.map(|g| g.1 * s),
             fit_rms,
             kept,
         });
@@ -1476,6 +1332,19 @@ fn contacts_of(
             for c in &mut out {
                 if let Some(g) = c.gap {
                     c.kept &= g <= median + max * s;
+                }
+            }
+        }
+    }
+    if let Some(k) = options.grey_gap_spread {
+        let gaps: Vec<f64> = out.iter().filter_map(|c| c.grey_gap).collect();
+        if !gaps.is_empty() {
+            let median = synth::quantile(&gaps, 0.5);
+            let deviations: Vec<f64> = gaps.iter().map(|g| (g - median).abs()).collect();
+            let spread = 1.4826 * synth::quantile(&deviations, 0.5);
+            for c in &mut out {
+                if let (Some(g), Some(sd)) = (c.grey_gap, c.grey_gap_sd) {
+                    c.kept &= g <= median + k * spread.max(sd);
                 }
             }
         }
@@ -1503,6 +1372,8 @@ fn contacts_of(
             pca_point: p,
             gap: None,
             grey: None,
+            grey_gap: None,
+            grey_gap_sd: None,
             fit_rms: [None, None],
             kept: true,
         });
@@ -1648,7 +1519,7 @@ impl LabelScene {
     /// The text of `contacts_quality.csv`.
     pub fn quality_csv(&self) -> String {
         let mut text = String::from(
-            "contact,a,b,zone,kept,method,faces,area,gap,grey,x,y,z,n_x,n_y,n_z,pca_x,pca_y,pca_z,pca_n_x,pca_n_y,pca_n_z,fit_rms_a,fit_rms_b\n",
+            "contact,a,b,zone,kept,method,faces,area,gap,grey,x,y,z,n_x,n_y,n_z,pca_x,pca_y,pca_z,pca_n_x,pca_n_y,pca_n_z,fit_rms_a,fit_rms_b,grey_gap,grey_gap_sd\n",
         );
         let wall_name = |w: usize| -> String {
             self.scene
@@ -1664,7 +1535,7 @@ impl LabelScene {
             };
             let id = if c.kept { i.to_string() } else { String::new() };
             text.push_str(&format!(
-                "{id},{},{b},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
+                "{id},{},{b},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
                 c.a,
                 c.zone,
                 c.kept as u8,
@@ -1687,6 +1558,8 @@ impl LabelScene {
                 c.pca_normal[2],
                 opt(c.fit_rms[0]),
                 opt(c.fit_rms[1]),
+                opt(c.grey_gap),
+                opt(c.grey_gap_sd),
             ));
         }
         text

@@ -142,6 +142,8 @@ pub trait SliceSource {
 pub trait SharedSource: Sync {
     /// As [`SliceSource::labels`].
     fn labels_at(&self, z: usize, out: &mut [u32]) -> Result<()>;
+    /// As [`SliceSource::greys`].
+    fn greys_at(&self, z: usize, out: &mut [f32]) -> Result<()>;
     /// As [`SliceSource::release`]; called when no thread is reading.
     fn release_at(&self, _z0: usize, _z1: usize) {}
 }
@@ -188,11 +190,7 @@ impl<T: LabelValue> SliceSource for ArraySource<'_, T> {
     }
 
     fn greys(&mut self, z: usize, out: &mut [f32]) -> Result<()> {
-        let n = self.shape[1] * self.shape[2];
-        for (o, v) in out.iter_mut().zip(&self.data[z * n..(z + 1) * n]) {
-            *o = v.grey();
-        }
-        Ok(())
+        self.greys_at(z, out)
     }
 
     fn shared(&self) -> Option<&dyn SharedSource> {
@@ -201,6 +199,14 @@ impl<T: LabelValue> SliceSource for ArraySource<'_, T> {
 }
 
 impl<T: LabelValue> SharedSource for ArraySource<'_, T> {
+    fn greys_at(&self, z: usize, out: &mut [f32]) -> Result<()> {
+        let n = self.shape[1] * self.shape[2];
+        for (o, v) in out.iter_mut().zip(&self.data[z * n..(z + 1) * n]) {
+            *o = v.grey();
+        }
+        Ok(())
+    }
+
     fn labels_at(&self, z: usize, out: &mut [u32]) -> Result<()> {
         let n = self.shape[1] * self.shape[2];
         let slice = &self.data[z * n..(z + 1) * n];
@@ -330,12 +336,7 @@ impl SliceSource for MappedSource {
     }
 
     fn greys(&mut self, z: usize, out: &mut [f32]) -> Result<()> {
-        let size = self.dtype.size();
-        let bytes = self.slice_bytes(z);
-        for (o, b) in out.iter_mut().zip(bytes.chunks_exact(size)) {
-            *o = element(b, self.dtype, self.little) as f32;
-        }
-        Ok(())
+        self.greys_at(z, out)
     }
 
     fn shared(&self) -> Option<&dyn SharedSource> {
@@ -348,6 +349,15 @@ impl SliceSource for MappedSource {
 }
 
 impl SharedSource for MappedSource {
+    fn greys_at(&self, z: usize, out: &mut [f32]) -> Result<()> {
+        let size = self.dtype.size();
+        let bytes = self.slice_bytes(z);
+        for (o, b) in out.iter_mut().zip(bytes.chunks_exact(size)) {
+            *o = element(b, self.dtype, self.little) as f32;
+        }
+        Ok(())
+    }
+
     fn release_at(&self, z0: usize, z1: usize) {
         self.drop_pages(z0, z1);
     }
