@@ -2,7 +2,7 @@
 //! the 58-disk DEM oedometer at r ≈ 40 px, blur 0.8 px, noise 2 %, JPEG q90.
 //!
 //!     cargo run --release --example fringe_bench [-- --detect] [--per-disk] [--repeat N]
-//!         [--candidates GAP] [--prune FLOOR] [--wall-mu MU] [--detail]
+//!         [--candidates GAP] [--prune FLOOR] [--wall-mu MU] [--detail] [--fsigma-scale F]
 //!
 //! Without flags the disks and contacts are the DEM's; `--detect` finds them
 //! in the photograph (`detect`, walls at the DEM's lines) and scores the fit
@@ -65,6 +65,12 @@ fn main() -> grainforce::Result<()> {
         let k = args.iter().position(|a| a == flag)?;
         args.get(k + 1)?.parse().ok()
     };
+    // f_σ scaled by a rounding-level factor (1.000000001): the fit is the
+    // same problem, its forces scaled by that factor; how far the answer
+    // moves shows how much the fit's path hangs on round-off.
+    if let Some(factor) = value("--fsigma-scale") {
+        s.fringe_stress *= factor;
+    }
     s.candidate_gap = value("--candidates");
     s.support_prune = value("--prune");
     let detail = args.iter().any(|a| a == "--detail");
