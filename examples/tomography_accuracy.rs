@@ -6,7 +6,7 @@
 //! cargo run --release --example tomography_accuracy -- fixtures/regression/box3d_gated [15,30,60] [spheres,clumps]
 
 use grainforce::import::labels::{self, synth, Options};
-use grainforce::scene::{self, Body};
+use grainforce::scene;
 use std::path::Path;
 
 fn main() -> grainforce::Result<()> {
@@ -22,17 +22,7 @@ fn main() -> grainforce::Result<()> {
         .collect();
     let scene = scene::read_scene(Path::new(dir))?;
     let (spheres, truth) = synth::spheres_of(&scene);
-    let points: Vec<(usize, [f64; 3])> = scene
-        .contacts
-        .iter()
-        .flat_map(|c| {
-            let mut v = vec![(c.a, c.point)];
-            if let Body::Grain(b) = c.b {
-                v.push((b, c.point));
-            }
-            v
-        })
-        .collect();
+    let points = synth::contact_points(&scene);
     let mean_d = 2.0 * spheres.iter().map(|g| g.spheres[0].1).sum::<f64>() / spheres.len() as f64;
     println!(
         "{dir}: {} grains, {} grain contacts, mean diameter {mean_d:.3e} m",

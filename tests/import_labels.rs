@@ -460,59 +460,30 @@ fn the_grey_gap_tells_near_misses_from_contacts_at_30_voxels() {
 #[test]
 fn the_grey_gap_keeps_every_contact_at_15_voxels() {
     let (scene, _, spheres, truth, d) = packing();
-    let s = synth::score(
-        &import_with_grey(&spheres, 15.0, d, Some(3.0)),
-        &truth,
-        false,
-    );
-    eprintln!(
-        "15 vox/d spheres with grey: recall {:.3} precision {:.3}",
-        s.recall(),
-        s.precision()
-    );
-    assert!(s.recall() >= 0.99, "recall {}", s.recall());
-    assert!(s.precision() >= 0.91, "precision {}", s.precision());
-    let points: Vec<(usize, Vec3)> = scene
-        .contacts
-        .iter()
-        .flat_map(|c| {
-            let mut v = vec![(c.a, c.point)];
-            if let Body::Grain(b) = c.b {
-                v.push((b, c.point));
-            }
-            v
-        })
-        .collect();
+    let points = synth::contact_points(&scene);
     let clumps = synth::clumps_of(&spheres, &points, 0.75, 2.0 * d / 15.0);
-    let s = synth::score(
-        &import_with_grey(&clumps, 15.0, d, Some(3.0)),
-        &truth,
-        false,
-    );
-    eprintln!(
-        "15 vox/d clumps with grey: recall {:.3} precision {:.3}",
-        s.recall(),
-        s.precision()
-    );
-    assert!(s.recall() >= 0.99, "recall {}", s.recall());
-    assert!(s.precision() >= 0.99, "precision {}", s.precision());
+    for (name, grains, least_precision) in [("spheres", &spheres, 0.91), ("clumps", &clumps, 0.99)]
+    {
+        let s = synth::score(&import_with_grey(grains, 15.0, d, Some(3.0)), &truth, false);
+        eprintln!(
+            "15 vox/d {name} with grey: recall {:.3} precision {:.3}",
+            s.recall(),
+            s.precision()
+        );
+        assert!(s.recall() >= 0.99, "{name}: recall {}", s.recall());
+        assert!(
+            s.precision() >= least_precision,
+            "{name}: precision {}",
+            s.precision()
+        );
+    }
 }
 
 /// Segmented clumps (flat cuts and satellites) at `res` voxels per
 /// diameter: the import, the truth, and the fit's and PCA's median / p90.
 fn segmented_clumps(res: f64) -> (labels::LabelScene, Vec<synth::TrueContact>, [f64; 4]) {
     let (scene, _, spheres, truth, d) = packing();
-    let points: Vec<(usize, Vec3)> = scene
-        .contacts
-        .iter()
-        .flat_map(|c| {
-            let mut v = vec![(c.a, c.point)];
-            if let Body::Grain(b) = c.b {
-                v.push((b, c.point));
-            }
-            v
-        })
-        .collect();
+    let points = synth::contact_points(&scene);
     let clumps = synth::clumps_of(&spheres, &points, 0.75, 2.0 * d / res);
     let clumped = clumps.iter().filter(|g| g.spheres.len() > 1).count();
     assert!(clumped >= 30, "{clumped} clumps");

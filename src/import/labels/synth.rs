@@ -119,6 +119,23 @@ pub fn spheres_of(scene: &Scene) -> (Vec<SynthGrain>, Vec<TrueContact>) {
     (grains, contacts)
 }
 
+/// Every contact point of a scene with the grain it belongs to (a
+/// grain–grain contact's point twice, once per grain): the `contact_points`
+/// of [`clumps_of`].
+pub fn contact_points(scene: &Scene) -> Vec<(usize, Vec3)> {
+    scene
+        .contacts
+        .iter()
+        .flat_map(|c| {
+            let mut v = vec![(c.a, c.point)];
+            if let Body::Grain(b) = c.b {
+                v.push((b, c.point));
+            }
+            v
+        })
+        .collect()
+}
+
 /// Non-spherical grains from a sphere packing, with the same contacts: each
 /// grain is cut flat on the side farthest from its contacts (the plane
 /// max(`clearance`, 0.3 R) beyond its farthest-reaching contact point, at
