@@ -137,13 +137,20 @@ pub(crate) fn median(v: &mut [f64]) -> f64 {
 /// passes almost none (0.036–0.05 on `jl-video181`'s clamp).
 pub(crate) const OPAQUE_FRACTION: f64 = 0.15;
 
-/// The disks without the circles on opaque objects: in a bright field (the
-/// background's level above the disks' median), a circle whose interior (its
-/// inner 0.8 R, the median of `signal`) is darker than [`OPAQUE_FRACTION`]
-/// of the disks' median interior blocks the backlight and is no
-/// photoelastic disk. In a dark field nothing is dropped: there unloaded
-/// disks are as dark as an opaque object. Returns the kept disks (in their
-/// order) and the number dropped.
+/// An opaque circle touching this many transparent disks is a grain of the
+/// packing (two: it can carry a force across), not an object beside it
+/// (`jl-video181`'s clamp circles touch 0, 0 and 1).
+pub(crate) const OPAQUE_NEIGHBOURS: usize = 2;
+
+/// The disks without the circles on opaque objects beside the packing: in a
+/// bright field (the background's level above the disks' median), a circle
+/// whose interior (its inner 0.8 R, the median of `signal`) is darker than
+/// [`OPAQUE_FRACTION`] of the disks' median interior blocks the backlight
+/// and is no photoelastic disk, unless it sits in the packing (touches
+/// [`OPAQUE_NEIGHBOURS`] transparent disks or more: an opaque grain, an
+/// intruder, carries force like the others). In a dark field nothing is
+/// dropped: there unloaded disks are as dark as an opaque object. Returns
+/// the kept disks (in their order) and the number dropped.
 pub(crate) fn without_opaque(
     signal: &FloatImage,
     disks: Vec<super::Disk>,
@@ -162,11 +169,29 @@ pub(crate) fn without_opaque(
     if !(background > typical && typical > 0.0) {
         return (disks, 0);
     }
+    let opaque: Vec<bool> = interiors
+        .iter()
+        .map(|m| m.is_some_and(|m| m < OPAQUE_FRACTION * typical))
+        .collect();
+    // Outlines within a fifth of the smaller radius: touching, as the
+    // contacts' widest search counts it.
+    let touches = |a: &super::Disk, b: &super::Disk| {
+        (a.x - b.x).hypot(a.y - b.y) - a.r - b.r <= 0.2 * a.r.min(b.r)
+    };
+    let in_packing = |k: usize| {
+        (disks.iter().zip(&opaque))
+            .filter(|&(d, &o)| !o && touches(d, &disks[k]))
+            .count()
+            >= OPAQUE_NEIGHBOURS
+    };
+    let keep: Vec<bool> = (0..disks.len())
+        .map(|k| !opaque[k] || in_packing(k))
+        .collect();
     let before = disks.len();
     let kept: Vec<super::Disk> = disks
         .into_iter()
-        .zip(interiors)
-        .filter(|(_, m)| m.is_none_or(|m| m >= OPAQUE_FRACTION * typical))
+        .zip(keep)
+        .filter(|&(_, k)| k)
         .map(|(d, _)| d)
         .collect();
     let dropped = before - kept.len();
