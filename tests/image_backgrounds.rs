@@ -135,6 +135,54 @@ fn a_monochrome_dark_field_with_bright_rims() {
     assert_every_disk_found(&centres, &found);
 }
 
+/// Teal disks on a white backlight, and beside the packing two black round
+/// objects of the disks' size (a clamp's or a bolt's ends, as beside
+/// `jl-video181`'s container, docs/image.md): their outlines are perfect
+/// circles, but they block the light every photoelastic disk passes. Both
+/// were taken for disks before; now every disk is found and neither of them.
+/// One disk of the packing is black too (an opaque intruder grain): it
+/// touches its neighbours and is kept.
+#[test]
+fn opaque_circles_beside_a_bright_field_packing_are_no_disks() {
+    let (centres, width, height) = hexagonal(5, 5, 6.0);
+    let margin = 6.0 * RADIUS;
+    let opaque = [
+        [width as f64 + 3.0 * RADIUS, 2.0 * RADIUS],
+        [width as f64 + 3.0 * RADIUS, height as f64 - 2.0 * RADIUS],
+    ];
+    let width = width + margin as u32;
+    let intruder = centres.len() / 2;
+    let picture = RgbImage::from_fn(width, height, |x, y| {
+        let (d, k) = nearest(&centres, x, y);
+        let (o, _) = nearest(&opaque, x, y);
+        let base = if o <= RADIUS || (k == intruder && d <= RADIUS - 2.5) {
+            [12, 12, 12]
+        } else if d > RADIUS {
+            [250, 250, 250]
+        } else if d > RADIUS - 2.5 {
+            [60, 90, 80]
+        } else {
+            [100, 140, 120]
+        };
+        let i = 3 * (y as u64 * width as u64 + x as u64);
+        Rgb([0, 1, 2].map(|c| (base[c] + noise(i + c as u64, 3)).clamp(0, 255) as u8))
+    });
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("clamp.png");
+    picture.save(&path).unwrap();
+    let found = detect(&path);
+    for o in opaque {
+        assert!(
+            found
+                .disks
+                .iter()
+                .all(|d| (d.x - o[0]).hypot(d.y - o[1]) > RADIUS),
+            "an opaque circle at {o:?} taken for a disk"
+        );
+    }
+    assert_every_disk_found(&centres, &found);
+}
+
 /// Every drawn disk found once, none false, centres within 0.05 R (median).
 fn assert_every_disk_found(centres: &[[f64; 2]], found: &DetectedFrame) {
     let (hits, false_ones, median) = score(centres, found);

@@ -418,6 +418,20 @@ const DARK_FIELD: f64 = 0.25;
 /// to be searched instead of the colour distance: a disk's in twenty.
 const SINGLE_CHANNEL_MARGIN: f64 = 0.05;
 
+/// The background's level in the picture the photoelastic signal is read
+/// in (the signal channel of a colour photograph, a gray one as it is);
+/// `None` when the background was not read from the image.
+fn background_signal(choice: &ChannelChoice) -> Option<f64> {
+    let background = choice.background.as_ref()?;
+    let channel = match choice.signal.as_deref() {
+        _ if background.len() == 1 => 0,
+        Some("red") => 0,
+        Some("blue") => 2,
+        _ => 1,
+    };
+    background.get(channel).copied()
+}
+
 /// By how much the colour distance is shrunk for the search.
 fn colour_search_factor(o: &DetectOptions) -> usize {
     (o.radius_min / COLOUR_SEARCH_RADIUS).floor().max(1.0) as usize
@@ -567,6 +581,18 @@ pub fn detect_images(
                 }
                 None => disks,
             }
+        };
+        // A circle on an opaque object (a clamp beside the packing) is no
+        // photoelastic disk: it blocks the backlight the disks pass.
+        let disks = match background_signal(&choice).filter(|_| by_colour) {
+            Some(level) => {
+                let (kept, dropped) = detect::without_opaque(&image, disks, level);
+                if dropped > 0 {
+                    laps.lap(&format!("dropped {dropped} opaque circles"));
+                }
+                kept
+            }
+            None => disks,
         };
         if disks.is_empty() {
             return Err(Error::data(

@@ -127,3 +127,73 @@ pub(crate) fn median(v: &mut [f64]) -> f64 {
     let k = v.len() / 2;
     *v.select_nth_unstable_by(k, |a, b| a.total_cmp(b)).1
 }
+
+/// How much of the light the median disk passes a circle must pass to be a
+/// disk where the backlight is brighter than the disks (a bright field). A
+/// photoelastic disk is transparent: loaded or not, tinted or not, its
+/// interior passes a good part of the light (the darkest real disks of
+/// docs/image.md pass 0.36 of their packing's median); a circle fitted to an
+/// opaque object beside the packing (a clamp, a bolt, a piston's shadow)
+/// passes almost none (0.036–0.05 on `jl-video181`'s clamp).
+pub(crate) const OPAQUE_FRACTION: f64 = 0.15;
+
+/// An opaque circle touching this many transparent disks is a grain of the
+/// packing (two: it can carry a force across), not an object beside it
+/// (`jl-video181`'s clamp circles touch 0, 0 and 1).
+pub(crate) const OPAQUE_NEIGHBOURS: usize = 2;
+
+/// The disks without the circles on opaque objects beside the packing: in a
+/// bright field (the background's level above the disks' median), a circle
+/// whose interior (its inner 0.8 R, the median of `signal`) is darker than
+/// [`OPAQUE_FRACTION`] of the disks' median interior blocks the backlight
+/// and is no photoelastic disk, unless it sits in the packing (touches
+/// [`OPAQUE_NEIGHBOURS`] transparent disks or more: an opaque grain, an
+/// intruder, carries force like the others). In a dark field nothing is
+/// dropped: there unloaded disks are as dark as an opaque object. Returns
+/// the kept disks (in their order) and the number dropped.
+pub(crate) fn without_opaque(
+    signal: &FloatImage,
+    disks: Vec<super::Disk>,
+    background: f64,
+) -> (Vec<super::Disk>, usize) {
+    let plane = super::Plane::whole(signal);
+    let interiors: Vec<Option<f64>> = disks
+        .par_iter()
+        .map(|d| super::refine::interior_median(&plane, [d.x, d.y], 0.8 * d.r))
+        .collect();
+    let mut known: Vec<f64> = interiors.iter().flatten().copied().collect();
+    if known.is_empty() {
+        return (disks, 0);
+    }
+    let typical = median(&mut known);
+    if !(background > typical && typical > 0.0) {
+        return (disks, 0);
+    }
+    let opaque: Vec<bool> = interiors
+        .iter()
+        .map(|m| m.is_some_and(|m| m < OPAQUE_FRACTION * typical))
+        .collect();
+    // Outlines within a fifth of the smaller radius: touching, as the
+    // contacts' widest search counts it.
+    let touches = |a: &super::Disk, b: &super::Disk| {
+        (a.x - b.x).hypot(a.y - b.y) - a.r - b.r <= 0.2 * a.r.min(b.r)
+    };
+    let in_packing = |k: usize| {
+        (disks.iter().zip(&opaque))
+            .filter(|&(d, &o)| !o && touches(d, &disks[k]))
+            .count()
+            >= OPAQUE_NEIGHBOURS
+    };
+    let keep: Vec<bool> = (0..disks.len())
+        .map(|k| !opaque[k] || in_packing(k))
+        .collect();
+    let before = disks.len();
+    let kept: Vec<super::Disk> = disks
+        .into_iter()
+        .zip(keep)
+        .filter(|&(_, k)| k)
+        .map(|(d, _)| d)
+        .collect();
+    let dropped = before - kept.len();
+    (kept, dropped)
+}

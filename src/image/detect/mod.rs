@@ -36,6 +36,7 @@ mod rims;
 mod voting;
 
 pub(crate) use circle_fit::solve3;
+pub(crate) use filters::without_opaque;
 pub use filters::{gaussian_blur, noise_level};
 pub use options::{DetectOptions, Disk, Polarity};
 pub(crate) use refine::Plane;
