@@ -53,8 +53,8 @@ pub(crate) struct Edge {
 }
 
 pub(crate) const STEP: f64 = 0.25;
-/// Most narrow-window passes of [`refine`], and the move [px] (centre plus
-/// radius) below which the circle counts as settled.
+/// Most narrow-window passes of [`refine`] with `settle_edges`, and the
+/// move [px] (centre plus radius) below which the circle counts as settled.
 const NARROW_PASSES: usize = 12;
 const SETTLED_PX: f64 = 0.05;
 /// Largest angle between the gradient and the ray at a boundary point: tan 25°.
@@ -75,10 +75,10 @@ pub(crate) fn refine(
     // narrower ones: the medium window judges support (wide enough that
     // texture and noise cannot look like a circle), the narrow ones place the
     // edge (close enough that texture inside the disk is not mistaken for it).
-    // A narrow window moves the circle by at most about its width a pass, so
-    // the narrow passes repeat until the circle settles: a circle the wide
-    // pass left on a fringe edge inside a dim stretch of rim creeps out to
-    // the outline pass by pass.
+    // A narrow window moves the circle by at most about its width a pass;
+    // with `settle_edges` the narrow passes repeat until the circle settles,
+    // so a circle the wide pass left on a fringe edge inside a dim stretch
+    // of outline creeps out to it pass by pass.
     let narrow = (1.5 * sigma).max(1.25);
     let windows = [0.25 * r0 + 2.0 * sigma, 2.0 * sigma + 2.0];
     let mut judged = None;
@@ -89,10 +89,10 @@ pub(crate) fn refine(
         let fit = seen.then(|| robust_circle_fit(&edges, c, r)).flatten();
         // The first two narrow passes are required; later ones only improve.
         let Some(fit) = fit else {
-            match pass < windows.len() + 2 {
-                true => return None,
-                false => break,
+            if pass < windows.len() + 2 {
+                return None;
             }
+            break;
         };
         if pass == 1 {
             judged = Some((edges, fit, rays, visible_rays));
@@ -100,7 +100,8 @@ pub(crate) fn refine(
         let moved = (fit[0] - c[0]).hypot(fit[1] - c[1]) + (fit[2] - r).abs();
         c = [fit[0], fit[1]];
         r = fit[2];
-        if pass >= windows.len() + 1 && moved < SETTLED_PX {
+        let required_done = pass + 1 >= windows.len() + 2;
+        if required_done && (!o.settle_edges || moved < SETTLED_PX) {
             break;
         }
     }
