@@ -2,7 +2,8 @@
 //! the 58-disk DEM oedometer at r ≈ 40 px, blur 0.8 px, noise 2 %, JPEG q90.
 //!
 //!     cargo run --release --example fringe_bench [-- --detect] [--per-disk] [--repeat N]
-//!         [--candidates GAP] [--prune FLOOR] [--wall-mu MU] [--detail] [--fsigma-scale F]
+//!         [--candidates GAP] [--prune FLOOR] [--wall-mu MU] [--settle-edges] [--detail]
+//!         [--fsigma-scale F]
 //!
 //! Without flags the disks and contacts are the DEM's; `--detect` finds them
 //! in the photograph (`detect`, walls at the DEM's lines) and scores the fit
@@ -78,6 +79,7 @@ fn main() -> grainforce::Result<()> {
         let px = frame.px_per_m;
         let mut settings = DetectSettings::new(2.2e-3 * px, 4.2e-3 * px, px);
         settings.frame = Some(frame);
+        settings.detect.settle_edges = args.iter().any(|a| a == "--settle-edges");
         settings.walls = WallSource::Lines(grainforce::image::contacts::walls_from_scene_contacts(
             &scene, &frame,
         ));

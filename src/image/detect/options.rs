@@ -64,6 +64,11 @@ pub struct DetectOptions {
     /// from the background, and a circle whose inside is background (fitted
     /// to a wall's or a piston's edges) is none. 0: not checked.
     pub min_fill: f64,
+    /// Off by default (measured worse on some real photographs; see
+    /// docs/photoelastic.md, round 8): the narrow edge passes repeat until
+    /// the circle settles instead of stopping after two, so a circle left on
+    /// a fringe edge beside a dim stretch of outline creeps out to it.
+    pub settle_edges: bool,
 }
 
 impl DetectOptions {
@@ -83,6 +88,7 @@ impl DetectOptions {
             find_by_rims: true,
             overlap: 0.15,
             min_fill: 0.0,
+            settle_edges: false,
         }
     }
 

@@ -53,6 +53,10 @@ pub(crate) struct Edge {
 }
 
 pub(crate) const STEP: f64 = 0.25;
+/// Most narrow-window passes of [`refine`] with `settle_edges`, and the
+/// move [px] (centre plus radius) below which the circle counts as settled.
+const NARROW_PASSES: usize = 12;
+const SETTLED_PX: f64 = 0.05;
 /// Largest angle between the gradient and the ray at a boundary point: tan 25°.
 pub(crate) const ALIGNMENT: f64 = 0.466;
 
@@ -71,20 +75,35 @@ pub(crate) fn refine(
     // narrower ones: the medium window judges support (wide enough that
     // texture and noise cannot look like a circle), the narrow ones place the
     // edge (close enough that texture inside the disk is not mistaken for it).
+    // A narrow window moves the circle by at most about its width a pass;
+    // with `settle_edges` the narrow passes repeat until the circle settles,
+    // so a circle the wide pass left on a fringe edge inside a dim stretch
+    // of outline creeps out to it pass by pass.
     let narrow = (1.5 * sigma).max(1.25);
-    let windows = [0.25 * r0 + 2.0 * sigma, 2.0 * sigma + 2.0, narrow, narrow];
+    let windows = [0.25 * r0 + 2.0 * sigma, 2.0 * sigma + 2.0];
     let mut judged = None;
-    for (pass, &half_window) in windows.iter().enumerate() {
+    for pass in 0..windows.len() + NARROW_PASSES {
+        let half_window = windows.get(pass).copied().unwrap_or(narrow);
         let (edges, rays, visible_rays) = ray_edges(img, c, r, sign, half_window, sigma);
-        if visible_rays == 0 || (visible_rays as f64) < o.min_visible * rays as f64 {
-            return None;
-        }
-        let fit = robust_circle_fit(&edges, c, r)?;
+        let seen = visible_rays > 0 && (visible_rays as f64) >= o.min_visible * rays as f64;
+        let fit = seen.then(|| robust_circle_fit(&edges, c, r)).flatten();
+        // The first two narrow passes are required; later ones only improve.
+        let Some(fit) = fit else {
+            if pass < windows.len() + 2 {
+                return None;
+            }
+            break;
+        };
         if pass == 1 {
             judged = Some((edges, fit, rays, visible_rays));
         }
+        let moved = (fit[0] - c[0]).hypot(fit[1] - c[1]) + (fit[2] - r).abs();
         c = [fit[0], fit[1]];
         r = fit[2];
+        let required_done = pass + 1 >= windows.len() + 2;
+        if required_done && (!o.settle_edges || moved < SETTLED_PX) {
+            break;
+        }
     }
     let (edges, fit, rays, visible_rays) = judged?;
     // Support is judged with a fixed tolerance so noise cannot widen it.
