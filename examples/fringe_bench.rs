@@ -3,7 +3,7 @@
 //!
 //!     cargo run --release --example fringe_bench [-- --detect] [--per-disk] [--repeat N]
 //!         [--candidates GAP] [--prune FLOOR] [--wall-mu MU] [--settle-edges] [--detail]
-//!         [--fsigma-scale F]
+//!         [--fsigma-scale F] [--iterations N] [--extrapolate]
 //!
 //! Without flags the disks and contacts are the DEM's; `--detect` finds them
 //! in the photograph (`detect`, walls at the DEM's lines) and scores the fit
@@ -72,6 +72,11 @@ fn main() -> grainforce::Result<()> {
     if let Some(factor) = value("--fsigma-scale") {
         s.fringe_stress *= factor;
     }
+    // A larger step budget: where the fit converges when not cut short.
+    if let Some(steps) = value("--iterations") {
+        s.max_iterations = steps as usize;
+    }
+    s.extrapolate = args.iter().any(|a| a == "--extrapolate");
     s.candidate_gap = value("--candidates");
     s.support_prune = value("--prune");
     let detail = args.iter().any(|a| a == "--detail");
