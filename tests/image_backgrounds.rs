@@ -80,20 +80,9 @@ fn a_dense_packing_of_one_colour_on_a_white_backdrop() {
     let (centres, width, height) = hexagonal(7, 7, 6.0);
     let picture = RgbImage::from_fn(width, height, |x, y| {
         let (d, _) = nearest(&centres, x, y);
-        let base = if d > RADIUS {
-            [250, 250, 250]
-        } else if d > RADIUS - 2.5 {
-            [60, 90, 80]
-        } else {
-            [100, 140, 120]
-        };
-        let i = 3 * (y as u64 * width as u64 + x as u64);
-        Rgb([0, 1, 2].map(|c| (base[c] + noise(i + c as u64, 1)).clamp(0, 255) as u8))
+        noisy_rgb(teal_on_white(d), width, x, y, 1)
     });
-    let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("teal.png");
-    picture.save(&path).unwrap();
-    let found = detect(&path);
+    let found = detect_picture(&picture, "teal.png");
     let background = found.choice.background.clone().expect("a background");
     assert!(
         background.iter().all(|&v| v > 0.9),
@@ -157,20 +146,12 @@ fn opaque_circles_beside_a_bright_field_packing_are_no_disks() {
         let (o, _) = nearest(&opaque, x, y);
         let base = if o <= RADIUS || (k == intruder && d <= RADIUS - 2.5) {
             [12, 12, 12]
-        } else if d > RADIUS {
-            [250, 250, 250]
-        } else if d > RADIUS - 2.5 {
-            [60, 90, 80]
         } else {
-            [100, 140, 120]
+            teal_on_white(d)
         };
-        let i = 3 * (y as u64 * width as u64 + x as u64);
-        Rgb([0, 1, 2].map(|c| (base[c] + noise(i + c as u64, 3)).clamp(0, 255) as u8))
+        noisy_rgb(base, width, x, y, 3)
     });
-    let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("clamp.png");
-    picture.save(&path).unwrap();
-    let found = detect(&path);
+    let found = detect_picture(&picture, "clamp.png");
     for o in opaque {
         assert!(
             found
@@ -181,6 +162,31 @@ fn opaque_circles_beside_a_bright_field_packing_are_no_disks() {
         );
     }
     assert_every_disk_found(&centres, &found);
+}
+
+/// A teal disk with a darker rim on a white backlight, `d` from its centre.
+fn teal_on_white(d: f64) -> [i32; 3] {
+    if d > RADIUS {
+        [250, 250, 250]
+    } else if d > RADIUS - 2.5 {
+        [60, 90, 80]
+    } else {
+        [100, 140, 120]
+    }
+}
+
+/// `base` with the pixel's own noise (stream `seed`).
+fn noisy_rgb(base: [i32; 3], width: u32, x: u32, y: u32, seed: u64) -> Rgb<u8> {
+    let i = 3 * (y as u64 * width as u64 + x as u64);
+    Rgb([0, 1, 2].map(|c| (base[c] + noise(i + c as u64, seed)).clamp(0, 255) as u8))
+}
+
+/// `detect` on a picture saved under `name` in a temporary folder.
+fn detect_picture(picture: &RgbImage, name: &str) -> DetectedFrame {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join(name);
+    picture.save(&path).unwrap();
+    detect(&path)
 }
 
 /// Every drawn disk found once, none false, centres within 0.05 R (median).
