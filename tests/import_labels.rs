@@ -650,11 +650,11 @@ fn end_to_end_labels_and_dem_stresses_give_the_dem_forces() {
     assert!(relerr <= 0.05, "relerr {relerr}\n{}", r.report);
 }
 
-/// The array as a source read in z order only (as a TIFF is): the surface
-/// passes run serially on it.
-struct InOrder<'a>(labels::ArraySource<'a, u32>);
+/// The array (labels or greys) as a source read in z order only (as a TIFF
+/// is): the surface passes run serially on it.
+struct InOrder<'a, T: labels::LabelValue>(labels::ArraySource<'a, T>);
 
-impl labels::SliceSource for InOrder<'_> {
+impl<T: labels::LabelValue> labels::SliceSource for InOrder<'_, T> {
     fn shape(&self) -> [usize; 3] {
         self.0.shape()
     }
@@ -700,7 +700,7 @@ fn slabs_on_threads_give_the_serial_answer() {
     assert_eq!(one.detected, three.detected);
     assert_eq!(one.second_moments, two.second_moments);
     let mut source = InOrder(labels::ArraySource::new(&volume, grid.shape).unwrap());
-    let mut grey_source = InOrderGrey(labels::ArraySource::new(&grey, grid.shape).unwrap());
+    let mut grey_source = InOrder(labels::ArraySource::new(&grey, grid.shape).unwrap());
     let serial = labels::import_source(&mut source, Some(&mut grey_source), &options).unwrap();
     // The first pass: the same to the bit.
     assert_eq!(serial.scene.grains, one.scene.grains);
@@ -721,20 +721,5 @@ fn slabs_on_threads_give_the_serial_answer() {
         assert!(gap < 1e-9, "normals differ by {gap}");
         let shift = scene::norm(scene::sub(a.point, b.point));
         assert!(shift < 1e-9 * voxel, "points differ by {shift}");
-    }
-}
-
-/// A grey image read in z order only.
-struct InOrderGrey<'a>(labels::ArraySource<'a, f32>);
-
-impl labels::SliceSource for InOrderGrey<'_> {
-    fn shape(&self) -> [usize; 3] {
-        self.0.shape()
-    }
-    fn labels(&mut self, z: usize, out: &mut [u32]) -> grainforce::Result<()> {
-        self.0.labels(z, out)
-    }
-    fn greys(&mut self, z: usize, out: &mut [f32]) -> grainforce::Result<()> {
-        self.0.greys(z, out)
     }
 }
