@@ -3,19 +3,13 @@
 //! distance to the tightest solve.
 
 use grainforce::bench::{distances_to_tightest, preset, read_csv, split_tolerance};
+mod common;
+use common::run as grainforce;
 use grainforce::scene::Vec3;
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 fn sheared_fixture() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("fixtures/regression/box3d_sheared")
-}
-
-fn grainforce(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_grainforce"))
-        .args(args)
-        .output()
-        .expect("grainforce runs")
 }
 
 #[test]
@@ -84,11 +78,7 @@ fn bench_on_a_given_sheared_packing_orders_its_stops() {
         "--plot",
         png.to_str().unwrap(),
     ]);
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
-    );
+    assert!(run.0, "{}", run.1);
     let cases = read_csv(&csv).unwrap();
     assert_eq!(cases.len(), 3);
     let case = |m: &str| cases.iter().find(|c| c.method == m).unwrap();
@@ -135,8 +125,8 @@ fn a_given_scene_without_exact_forces_is_refused_by_name() {
         "--methods",
         "ls",
     ]);
-    assert!(!run.status.success());
-    let err = String::from_utf8_lossy(&run.stderr);
+    let (ok, err) = run;
+    assert!(!ok);
     assert!(
         err.contains("forces.csv") && err.contains(&*dir.path().to_string_lossy()),
         "{err}"
@@ -148,7 +138,7 @@ fn a_given_scene_without_exact_forces_is_refused_by_name() {
         "--sizes",
         "1e3",
     ]);
-    assert!(!both.status.success(), "--scenes replaces --sizes");
+    assert!(!both.0, "--scenes replaces --sizes");
     assert!(Path::new(&sheared_fixture()).join("forces.csv").is_file());
 }
 

@@ -533,27 +533,47 @@ pub fn plot_distances(results: &[CaseResult], noise: &str, title: &str) -> Optio
         let family = split_tolerance(&r.method).map_or(r.method.as_str(), |t| t.0);
         let name = format!("{}D {} ({} grains)", r.dim, family, r.grains);
         let time = r.cpu_time.filter(|t| *t > 0.0).unwrap_or(r.time);
-        match curves.iter_mut().find(|c| c.0 == name) {
-            Some(c) => c.1.push((time, d)),
-            None => curves.push((name, vec![(time, d)])),
-        }
+        add_point(&mut curves, name, (time, d));
     }
+    // In the order of the stops (loosest first): on a shared machine time
+    // alone does not order them.
+    for (_, pts) in &mut curves {
+        pts.sort_by(|a, b| b.1.total_cmp(&a.1));
+    }
+    log_log_chart(
+        curves,
+        title,
+        "time [s] (CPU where known)",
+        "distance to the tightest solve (relative)",
+    )
+}
+
+/// Adds a point to the named curve, starting the curve if it is new.
+fn add_point(curves: &mut Vec<(String, Vec<(f64, f64)>)>, name: String, point: (f64, f64)) {
+    match curves.iter_mut().find(|c| c.0 == name) {
+        Some(c) => c.1.push(point),
+        None => curves.push((name, vec![point])),
+    }
+}
+
+/// The curves as lines on log–log axes, in the palette's colours; `None`
+/// without a curve.
+fn log_log_chart(
+    curves: Vec<(String, Vec<(f64, f64)>)>,
+    title: &str,
+    x: &str,
+    y: &str,
+) -> Option<RgbImage> {
     if curves.is_empty() {
         return None;
     }
+    let palette = crate::report::chart::PALETTE;
     let mut chart = Chart::new(1000, 640)
         .title(title)
-        .x_axis("time [s] (CPU where known)", Scale::Log)
-        .y_axis("distance to the tightest solve (relative)", Scale::Log);
-    for (i, (name, mut pts)) in curves.into_iter().enumerate() {
-        // In the order of the stops (loosest first): on a shared machine
-        // time alone does not order them.
-        pts.sort_by(|a, b| b.1.total_cmp(&a.1));
-        chart = chart.line(
-            &name,
-            &pts,
-            crate::report::chart::PALETTE[i % crate::report::chart::PALETTE.len()],
-        );
+        .x_axis(x, Scale::Log)
+        .y_axis(y, Scale::Log);
+    for (i, (name, pts)) in curves.iter().enumerate() {
+        chart = chart.line(name, pts, palette[i % palette.len()]);
     }
     Some(chart.render())
 }
@@ -583,25 +603,10 @@ pub fn plot(results: &[CaseResult], noise: &str, title: &str) -> Option<RgbImage
         } else {
             format!("{}D {}", r.dim, r.method)
         };
-        match curves.iter_mut().find(|c| c.0 == name) {
-            Some(c) => c.1.push((r.time, r.relerr)),
-            None => curves.push((name, vec![(r.time, r.relerr)])),
-        }
+        add_point(&mut curves, name, (r.time, r.relerr));
     }
-    if curves.is_empty() {
-        return None;
-    }
-    let mut chart = Chart::new(1000, 640)
-        .title(title)
-        .x_axis("time [s]", Scale::Log)
-        .y_axis("relative error vs ground truth", Scale::Log);
-    for (i, (name, mut pts)) in curves.into_iter().enumerate() {
+    for (_, pts) in &mut curves {
         pts.sort_by(|a, b| a.0.total_cmp(&b.0));
-        chart = chart.line(
-            &name,
-            &pts,
-            crate::report::chart::PALETTE[i % crate::report::chart::PALETTE.len()],
-        );
     }
-    Some(chart.render())
+    log_log_chart(curves, title, "time [s]", "relative error vs ground truth")
 }
