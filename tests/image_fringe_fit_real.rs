@@ -7,6 +7,7 @@ use grainforce::image::fringe_fit::{fit_fringes, Balance, FringeFitSettings};
 use grainforce::image::{load_channel, Channel, PixelFrame};
 use grainforce::scene::{Body, Contact, Grain, Scene};
 use std::collections::HashMap;
+use std::f64::consts::PI;
 use std::path::{Path, PathBuf};
 
 fn data() -> Option<PathBuf> {
@@ -224,4 +225,589 @@ fn jlin_narrow21_against_pegs() {
 #[test]
 fn jlin_step83_against_pegs() {
     compare("jlin-step83", "jlin-step83", "image3.jpg", "image3_solved");
+}
+
+// ---------------------------------------------------------------------------
+// Both fits judged on the photograph (benches/pegs_fringe_residual.py, in
+// Rust): PeGS's own scene from its solved file, our balanced fit, and on
+// each disk PeGS fitted the rms residual over the disk's own spread.
+
+use grainforce::image::fringe_fit::{fit_fringes_per_disk, fitted_image, imbalances, FringeFit};
+use grainforce::image::FloatImage;
+use grainforce::import::mat5::{self, Value};
+
+/// One disk of PeGS's `pres` struct array (MATLAB pixels, 1-based).
+struct PegsDisk {
+    id: usize,
+    x: f64,
+    y: f64,
+    r: f64,
+    neighbours: Vec<i64>,
+    betas: Vec<f64>,
+    forces: Vec<f64>,
+    alphas: Vec<f64>,
+    /// (height, width, column-major values).
+    synth: Option<(usize, usize, Vec<f64>)>,
+    crop: Option<(usize, usize, Vec<f64>)>,
+}
+
+fn pegs_disks(path: &Path) -> Vec<PegsDisk> {
+    let vars = mat5::read(path).unwrap();
+    let pres = &vars.iter().find(|v| v.name == "pres").unwrap().value;
+    let numbers = |i: usize, f: &str| -> Vec<f64> {
+        pres.field(i, f)
+            .and_then(Value::numbers)
+            .unwrap_or_default()
+    };
+    let matrix = |i: usize, f: &str| match pres.field(i, f) {
+        Some(Value::Numeric { dims, real, .. }) if dims.len() == 2 && dims[0] > 1 && dims[1] > 1 => {
+            Some((dims[0], dims[1], real.to_f64()))
+        }
+        _ => None,
+    };
+    (0..pres.len())
+        .map(|i| PegsDisk {
+            id: numbers(i, "id")[0] as usize,
+            x: numbers(i, "x")[0],
+            y: numbers(i, "y")[0],
+            r: numbers(i, "r")[0],
+            neighbours: numbers(i, "neighbours").iter().map(|v| *v as i64).collect(),
+            betas: numbers(i, "betas"),
+            forces: numbers(i, "forces"),
+            alphas: numbers(i, "alphas"),
+            synth: matrix(i, "synthImg"),
+            crop: matrix(i, "forceImage"),
+        })
+        .collect()
+}
+
+const WALL_NAMES: [&str; 4] = ["left", "right", "top", "bottom"];
+
+/// PeGS's disks and the contacts it fitted (each disk pair once, from its
+/// lower id; walls along their angle), pixel units; and PeGS's force on
+/// grain `a` per contact (its sides averaged), scene axes.
+fn solved_scene(disks: &[PegsDisk], height: u32) -> (Scene, Vec<Sides>) {
+    let mut scene = Scene::new(2);
+    let index: HashMap<usize, usize> = disks.iter().enumerate().map(|(i, d)| (d.id, i)).collect();
+    let to_scene = |d: &PegsDisk| [d.x - 0.5, height as f64 - 0.5 - (d.y - 1.0)];
+    for d in disks {
+        let p = to_scene(d);
+        let mut g = Grain::new(d.id.to_string(), [p[0], p[1], 0.0], PI * d.r * d.r, [0.0; 6]);
+        g.radius = Some(d.r);
+        scene.grains.push(g);
+    }
+    // PeGS's force on a disk from its entry k: f along β + α (image axes).
+    let side = |d: &PegsDisk, k: usize| -> [f64; 2] {
+        let (f, a) = (
+            d.forces.get(k).copied().unwrap_or(0.0),
+            d.alphas.get(k).copied().unwrap_or(0.0),
+        );
+        let b = d.betas[k];
+        [-f * (b + a).cos(), f * (b + a).sin()]
+    };
+    let mut pegs = Vec::new();
+    for (i, d) in disks.iter().enumerate() {
+        let p = to_scene(d);
+        for (k, (&nb, &beta)) in d.neighbours.iter().zip(&d.betas).enumerate() {
+            if nb > 0 && (nb < d.id as i64 || !index.contains_key(&(nb as usize))) {
+                continue;
+            }
+            let n = [beta.cos(), -beta.sin()];
+            let body = if nb > 0 {
+                Body::Grain(index[&(nb as usize)])
+            } else {
+                let name = WALL_NAMES
+                    .get((-nb - 1) as usize)
+                    .map_or(format!("wall{}", -nb), |s| s.to_string());
+                Body::Wall(scene.wall_or_insert(&name))
+            };
+            let theirs = match body {
+                Body::Grain(j) => (disks[j].neighbours.iter())
+                    .position(|&m| m == d.id as i64)
+                    .map(|kk| side(&disks[j], kk)),
+                Body::Wall(_) => None,
+            };
+            pegs.push(Sides {
+                a: side(d, k),
+                b: theirs,
+            });
+            scene.contacts.push(Contact {
+                id: format!("{}-{}", d.id, scene.contacts.len()),
+                a: i,
+                b: body,
+                point: [p[0] + d.r * n[0], p[1] + d.r * n[1], 0.0],
+                normal: [n[0], n[1], 0.0],
+                mu: None,
+            });
+        }
+    }
+    (scene, pegs)
+}
+
+/// PeGS's force on each side of a contact (its own per-disk answers).
+#[derive(Clone, Copy)]
+struct Sides {
+    a: [f64; 2],
+    b: Option<[f64; 2]>,
+}
+
+impl Sides {
+    /// The force on grain `a`, the two sides averaged.
+    fn mean(&self) -> [f64; 2] {
+        match self.b {
+            Some(b) => [0.5 * (self.a[0] - b[0]), 0.5 * (self.a[1] - b[1])],
+            None => self.a,
+        }
+    }
+}
+
+/// `scene` with each disk-disk contact split into one contact per side,
+/// each against a wall: each disk's loads are then its own (a per-disk fit
+/// draws as each disk fitted itself). `sides` gives each side's force.
+fn split(scene: &Scene, sides: &[Sides]) -> (Scene, Vec<[f64; 2]>) {
+    let mut out = scene.clone();
+    out.contacts.clear();
+    let wall = out.wall_or_insert("split");
+    let mut forces = Vec::new();
+    for (c, s) in scene.contacts.iter().zip(sides) {
+        out.contacts.push(Contact {
+            id: format!("{}:a", c.id),
+            b: Body::Wall(wall),
+            ..c.clone()
+        });
+        forces.push(s.a);
+        if let Body::Grain(b) = c.b {
+            out.contacts.push(Contact {
+                id: format!("{}:b", c.id),
+                a: b,
+                b: Body::Wall(wall),
+                normal: [-c.normal[0], -c.normal[1], 0.0],
+                ..c.clone()
+            });
+            forces.push(s.b.unwrap_or([-s.a[0], -s.a[1]]));
+        }
+    }
+    (out, forces)
+}
+
+/// rms of `g` less its least-squares fit by the columns `design` (row-major,
+/// `cols` per pixel), over the std of `g`.
+fn fitted_rms(g: &[f64], design: &[f64], cols: usize) -> f64 {
+    let n = g.len();
+    let mut a = vec![0.0; cols * cols];
+    let mut b = vec![0.0; cols];
+    for (row, y) in design.chunks_exact(cols).zip(g) {
+        for i in 0..cols {
+            b[i] += row[i] * y;
+            for j in 0..cols {
+                a[i * cols + j] += row[i] * row[j];
+            }
+        }
+    }
+    // Gaussian elimination with a tiny ridge (a constant column may repeat).
+    for i in 0..cols {
+        a[i * cols + i] += 1e-12 * (1.0 + a[i * cols + i]);
+    }
+    for i in 0..cols {
+        let pivot = a[i * cols + i];
+        for r in i + 1..cols {
+            let m = a[r * cols + i] / pivot;
+            for c in i..cols {
+                a[r * cols + c] -= m * a[i * cols + c];
+            }
+            b[r] -= m * b[i];
+        }
+    }
+    let mut x = vec![0.0; cols];
+    for i in (0..cols).rev() {
+        let s: f64 = (i + 1..cols).map(|c| a[i * cols + c] * x[c]).sum();
+        x[i] = (b[i] - s) / a[i * cols + i];
+    }
+    let ssr: f64 = design
+        .chunks_exact(cols)
+        .zip(g)
+        .map(|(row, y)| {
+            let m: f64 = row.iter().zip(&x).map(|(r, c)| r * c).sum();
+            (y - m).powi(2)
+        })
+        .sum();
+    let mean = g.iter().sum::<f64>() / n as f64;
+    let sst: f64 = g.iter().map(|y| (y - mean).powi(2)).sum();
+    (ssr / sst).sqrt()
+}
+
+/// One judged disk: its pixels (row, col) within r − 3 px in the window where
+/// PeGS's forceImage sits, the photograph there, and PeGS's best residuals.
+struct Judged {
+    disk: usize,
+    pixels: Vec<(usize, usize)>,
+    g: Vec<f64>,
+    spread: f64,
+    /// PeGS's synthImg with its best affine map, and with a linear lighting term too.
+    pegs_affine: f64,
+    pegs_lit: f64,
+    pegs_imbalance: Option<f64>,
+}
+
+fn at(m: &(usize, usize, Vec<f64>), r: usize, c: usize) -> f64 {
+    m.2[c * m.0 + r]
+}
+
+/// The design rows [1, S] (or [1, S, dx, dy]) at the pixels.
+fn design(pixels: &[(usize, usize)], values: &[f64], centre: [f64; 2], r: f64, lit: bool) -> Vec<f64> {
+    let mut out = Vec::new();
+    for (&(row, col), v) in pixels.iter().zip(values) {
+        out.extend([1.0, *v]);
+        if lit {
+            out.extend([(col as f64 - centre[0]) / r, (row as f64 - centre[1]) / r]);
+        }
+    }
+    out
+}
+
+fn judge(green: &FloatImage, disks: &[PegsDisk]) -> Vec<Judged> {
+    let (w, h) = (green.width() as i64, green.height() as i64);
+    let px = |r: i64, c: i64| green.get_pixel(c as u32, r as u32)[0] as f64;
+    let mut out = Vec::new();
+    for (i, d) in disks.iter().enumerate() {
+        let (Some(synth), Some(crop)) = (&d.synth, &d.crop) else {
+            continue;
+        };
+        let (ch, cw) = (crop.0 as i64, crop.1 as i64);
+        // Where the crop sits: its best correlation with G near the centre.
+        let r0 = (d.y - 1.0).round_ties_even() as i64 - ch / 2;
+        let c0 = (d.x - 1.0).round_ties_even() as i64 - cw / 2;
+        let (mut best, mut origin) = (-2.0, (0i64, 0i64));
+        for dr in -3..=3 {
+            for dc in -3..=3 {
+                let (r, c) = (r0 + dr, c0 + dc);
+                if r < 0 || c < 0 || r + ch > h || c + cw > w {
+                    continue;
+                }
+                let (mut a, mut b) = (Vec::new(), Vec::new());
+                for rr in 0..ch {
+                    for cc in 0..cw {
+                        let v = at(crop, rr as usize, cc as usize);
+                        if v > 0.0 {
+                            a.push(px(r + rr, c + cc));
+                            b.push(v);
+                        }
+                    }
+                }
+                let k = pearson(&a, &b);
+                if k.is_finite() && k > best {
+                    best = k;
+                    origin = (r, c);
+                }
+            }
+        }
+        let centre = [d.x - 1.0, d.y - 1.0];
+        let mut pixels = Vec::new();
+        let mut local = Vec::new();
+        for rr in 0..ch {
+            for cc in 0..cw {
+                let (r, c) = (origin.0 + rr, origin.1 + cc);
+                if (c as f64 - centre[0]).hypot(r as f64 - centre[1]) < d.r - 3.0 {
+                    pixels.push((r as usize, c as usize));
+                    local.push((rr as usize, cc as usize));
+                }
+            }
+        }
+        let g: Vec<f64> = pixels.iter().map(|&(r, c)| px(r as i64, c as i64)).collect();
+        let spread = std_dev(&g);
+        if spread == 0.0 || g.len() < 50 {
+            continue;
+        }
+        let (mut pegs_affine, mut pegs_lit) = (f64::INFINITY, f64::INFINITY);
+        for dr in 0..2 {
+            for dc in 0..2 {
+                if dr + crop.0 > synth.0 || dc + crop.1 > synth.1 {
+                    continue;
+                }
+                let s: Vec<f64> = local.iter().map(|&(r, c)| at(synth, r + dr, c + dc)).collect();
+                pegs_affine = pegs_affine.min(fitted_rms(&g, &design(&pixels, &s, centre, d.r, false), 2));
+                pegs_lit = pegs_lit.min(fitted_rms(&g, &design(&pixels, &s, centre, d.r, true), 4));
+            }
+        }
+        let pegs_imbalance = (d.forces.len() >= 2).then(|| {
+            let (mut sum, mut total) = ([0.0f64; 2], 0.0);
+            for k in 0..d.forces.len() {
+                let (f, b, a) = (d.forces[k], d.betas[k], d.alphas[k]);
+                let v = [-f * (b + a).cos(), f * (b + a).sin()];
+                sum[0] += v[0];
+                sum[1] += v[1];
+                total += v[0].hypot(v[1]);
+            }
+            sum[0].hypot(sum[1]) / total.max(1e-300)
+        });
+        out.push(Judged {
+            disk: i,
+            pixels,
+            g,
+            spread,
+            pegs_affine,
+            pegs_lit,
+            pegs_imbalance,
+        });
+    }
+    out
+}
+
+fn std_dev(v: &[f64]) -> f64 {
+    let n = v.len() as f64;
+    let m = v.iter().sum::<f64>() / n;
+    (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / n).sqrt()
+}
+
+fn pearson(a: &[f64], b: &[f64]) -> f64 {
+    let n = a.len() as f64;
+    let (ma, mb) = (a.iter().sum::<f64>() / n, b.iter().sum::<f64>() / n);
+    let (mut sab, mut saa, mut sbb) = (0.0, 0.0, 0.0);
+    for (x, y) in a.iter().zip(b) {
+        sab += (x - ma) * (y - mb);
+        saa += (x - ma) * (x - ma);
+        sbb += (y - mb) * (y - mb);
+    }
+    sab / (saa * sbb).sqrt()
+}
+
+/// Our forces judged on the disks: as the overlay draws them (the fit's
+/// own background and contrast, the unfitted rim band left as the
+/// photograph: the old figure), and our model on every judged pixel with
+/// the same best affine map PeGS gets (and with a lighting term, as PeGS).
+struct Ours {
+    overlay: Vec<f64>,
+    affine: Vec<f64>,
+    lit: Vec<f64>,
+    imbalance: Vec<Option<f64>>,
+}
+
+fn judge_ours(
+    photo: &FloatImage,
+    frame: &PixelFrame,
+    scene: &Scene,
+    settings: &FringeFitSettings,
+    forces: &[[f64; 2]],
+    judged: &[Judged],
+    disks: &[PegsDisk],
+) -> Ours {
+    let drawn = fitted_image(photo, frame, scene, settings, forces).unwrap();
+    let mut wide = settings.clone();
+    wide.edge_px = 0.0;
+    let model = fitted_image(photo, frame, scene, &wide, forces).unwrap();
+    let imb = imbalances(scene, forces);
+    let mut loads = vec![0usize; scene.grains.len()];
+    for c in &scene.contacts {
+        loads[c.a] += 1;
+        if let Body::Grain(b) = c.b {
+            loads[b] += 1;
+        }
+    }
+    let mut out = Ours {
+        overlay: Vec::new(),
+        affine: Vec::new(),
+        lit: Vec::new(),
+        imbalance: Vec::new(),
+    };
+    for j in judged {
+        let d = &disks[j.disk];
+        let centre = [d.x - 1.0, d.y - 1.0];
+        let o: Vec<f64> = j.pixels.iter().map(|&(r, c)| drawn.get_pixel(c as u32, r as u32)[0] as f64).collect();
+        let rms = (o.iter().zip(&j.g).map(|(a, b)| (a - b).powi(2)).sum::<f64>() / o.len() as f64).sqrt();
+        out.overlay.push(rms / j.spread);
+        let m: Vec<f64> = j.pixels.iter().map(|&(r, c)| model.get_pixel(c as u32, r as u32)[0] as f64).collect();
+        out.affine.push(fitted_rms(&j.g, &design(&j.pixels, &m, centre, d.r, false), 2));
+        out.lit.push(fitted_rms(&j.g, &design(&j.pixels, &m, centre, d.r, true), 4));
+        out.imbalance.push((loads[j.disk] >= 2).then_some(imb[j.disk]));
+    }
+    out
+}
+
+fn median(v: &[f64]) -> f64 {
+    let mut s = v.to_vec();
+    s.sort_by(f64::total_cmp);
+    s[s.len() / 2]
+}
+
+fn share_closer(ours: &[f64], pegs: &[f64]) -> f64 {
+    ours.iter().zip(pegs).filter(|(o, p)| o <= p).count() as f64 / ours.len() as f64
+}
+
+struct Figures {
+    disks: usize,
+    ours_overlay: f64,
+    ours_affine: f64,
+    pegs_affine: f64,
+    closer_overlay: f64,
+    closer_affine: f64,
+    closer_lit: f64,
+    ours_imbalance: f64,
+    pegs_imbalance: f64,
+}
+
+fn fit_settings() -> FringeFitSettings {
+    let mut s = FringeFitSettings::new(1.0);
+    s.blur_px = 1.0;
+    s.edge_px = 5.0;
+    s
+}
+
+fn against_pegs(folder: &str, image: &str, solved: &str) -> Option<Figures> {
+    let root = data()?;
+    let dir = root.join(folder);
+    let photo = load_channel(&dir.join(image), Channel::Green).unwrap();
+    let frame = PixelFrame::at_origin(1.0, photo.width(), photo.height());
+    let disks = pegs_disks(&dir.join(solved));
+    let (scene, pegs_sides) = solved_scene(&disks, photo.height());
+    let settings = fit_settings();
+    let started = std::time::Instant::now();
+    let fit = fit_fringes(&photo, &frame, &scene, &settings).unwrap();
+    let seconds = started.elapsed().as_secs_f64();
+    let judged = judge(&photo, &disks);
+    let ours = judge_ours(&photo, &frame, &scene, &settings, &fit.forces, &judged, &disks);
+    let pegs_affine: Vec<f64> = judged.iter().map(|j| j.pegs_affine).collect();
+    let pegs_lit: Vec<f64> = judged.iter().map(|j| j.pegs_lit).collect();
+    let ours_imb: Vec<f64> = ours.imbalance.iter().flatten().copied().collect();
+    let pegs_imb: Vec<f64> = judged.iter().filter_map(|j| j.pegs_imbalance).collect();
+    let figures = Figures {
+        disks: judged.len(),
+        ours_overlay: median(&ours.overlay),
+        ours_affine: median(&ours.affine),
+        pegs_affine: median(&pegs_affine),
+        closer_overlay: share_closer(&ours.overlay, &pegs_affine),
+        closer_affine: share_closer(&ours.affine, &pegs_affine),
+        closer_lit: share_closer(&ours.lit, &pegs_lit),
+        ours_imbalance: median(&ours_imb),
+        pegs_imbalance: median(&pegs_imb),
+    };
+    eprintln!(
+        "{folder}: {} disks PeGS fitted; residual/std median: ours as drawn {:.3}, ours affine {:.3}, ours lit {:.3}, PeGS affine {:.3}, PeGS lit {:.3}; ours at least as close: as drawn {:.2}, affine {:.2}, lit {:.2}; imbalance median ours {:.2e}, PeGS {:.2}; {} steps, {seconds:.1} s",
+        figures.disks,
+        figures.ours_overlay,
+        figures.ours_affine,
+        median(&ours.lit),
+        figures.pegs_affine,
+        median(&pegs_lit),
+        figures.closer_overlay,
+        figures.closer_affine,
+        figures.closer_lit,
+        figures.ours_imbalance,
+        figures.pegs_imbalance,
+        fit.report.iterations,
+    );
+    if std::env::var_os("GRAINFORCE_FRINGE_DIAG").is_some() {
+        diagnose(&photo, &frame, &scene, &fit, &pegs_sides, &judged, &disks, &ours);
+    }
+    Some(figures)
+}
+
+/// Why ours loses where it does: each losing disk (our model under the
+/// same affine map as PeGS's) against the same model fitted freely per
+/// disk, started from our balanced forces and from PeGS's (a bound on what
+/// balance costs), our joint fit started from PeGS's forces (a local
+/// minimum?), PeGS's own forces drawn by our model (the model), and
+/// balance as a penalty.
+#[allow(clippy::too_many_arguments)]
+fn diagnose(
+    photo: &FloatImage,
+    frame: &PixelFrame,
+    scene: &Scene,
+    fit: &FringeFit,
+    pegs: &[Sides],
+    judged: &[Judged],
+    disks: &[PegsDisk],
+    ours: &Ours,
+) {
+    let settings = fit_settings();
+    let score = |scene: &Scene, forces: &[[f64; 2]]| {
+        judge_ours(photo, frame, scene, &settings, forces, judged, disks).affine
+    };
+    let per_disk = |start: Vec<[f64; 2]>| -> (Scene, FringeFit) {
+        let ours_sides: Vec<Sides> = fit.forces.iter().map(|f| Sides { a: *f, b: Some([-f[0], -f[1]]) }).collect();
+        let (split_scene, _) = split(scene, &ours_sides);
+        let mut s = fit_settings();
+        s.start = Some(start);
+        let free = fit_fringes_per_disk(photo, frame, &split_scene, &s).unwrap();
+        (split_scene, free)
+    };
+    let ours_sides: Vec<Sides> = fit.forces.iter().map(|f| Sides { a: *f, b: Some([-f[0], -f[1]]) }).collect();
+    let (split_scene, from_ours) = split(scene, &ours_sides);
+    let (_, from_pegs) = split(scene, pegs);
+    let (_, free_ours) = per_disk(from_ours.clone());
+    let (_, free_pegs) = per_disk(from_pegs.clone());
+    let free_a = score(&split_scene, &free_ours.forces);
+    let free_b = score(&split_scene, &free_pegs.forces);
+    let pegs_in_ours = score(&split_scene, &from_pegs);
+    let mut s = fit_settings();
+    s.start = Some(pegs.iter().map(Sides::mean).collect());
+    let joint_pegs = fit_fringes(photo, frame, scene, &s).unwrap();
+    let joint_pegs_score = score(scene, &joint_pegs.forces);
+    let mut s = fit_settings();
+    s.balance = Balance::Penalty(10.0);
+    let penalty = fit_fringes(photo, frame, scene, &s).unwrap();
+    let penalty_score = score(scene, &penalty.forces);
+    let left_out: std::collections::HashSet<&String> = fit.report.balance_left_out.iter().collect();
+    eprintln!("  disk  loads  ours(aff) PeGS(aff) | free(ours) free(PeGS) PeGS-in-our-model joint-from-PeGS penalty10 | ours-lit PeGS-lit  left-out");
+    let (mut losing, mut bound_wins, mut joint_wins, mut lit_wins) = (0, 0, 0, 0);
+    for (i, j) in judged.iter().enumerate() {
+        let bound = free_a[i].min(free_b[i]);
+        if ours.affine[i] <= j.pegs_affine {
+            continue;
+        }
+        losing += 1;
+        bound_wins += usize::from(bound <= j.pegs_affine);
+        joint_wins += usize::from(joint_pegs_score[i] <= j.pegs_affine);
+        lit_wins += usize::from(ours.lit[i] <= j.pegs_lit);
+        let id = &scene.grains[j.disk].id;
+        let loads = scene.contacts.iter().filter(|c| c.a == j.disk || c.b == Body::Grain(j.disk)).count();
+        eprintln!(
+            "  {id:>4}  {loads:>5}  {:.3}     {:.3}     | {:.3}      {:.3}      {:.3}             {:.3}           {:.3}     | {:.3}    {:.3}     {}",
+            ours.affine[i],
+            j.pegs_affine,
+            free_a[i],
+            free_b[i],
+            pegs_in_ours[i],
+            joint_pegs_score[i],
+            penalty_score[i],
+            ours.lit[i],
+            j.pegs_lit,
+            if left_out.contains(id) { "yes" } else { "" }
+        );
+    }
+    let all_bound: Vec<f64> = free_a.iter().zip(&free_b).map(|(a, b)| a.min(*b)).collect();
+    let pegs_affine: Vec<f64> = judged.iter().map(|j| j.pegs_affine).collect();
+    eprintln!(
+        "  losing {losing} of {}; the free per-disk fit (best start) reaches PeGS on {bound_wins} of them; joint from PeGS's start on {joint_wins}; with the lighting term on both, {lit_wins}. Shares at least as close: free per-disk {:.2}, PeGS's forces in our model {:.2}, joint from PeGS {:.2} (objective {:.4} vs ours {:.4}), penalty 10 {:.2}",
+        judged.len(),
+        share_closer(&all_bound, &pegs_affine),
+        share_closer(&pegs_in_ours, &pegs_affine),
+        share_closer(&joint_pegs_score, &pegs_affine),
+        joint_pegs.report.objective,
+        fit.report.objective,
+        share_closer(&penalty_score, &pegs_affine),
+    );
+}
+
+#[test]
+fn jlin_fixed48_fringes_against_pegs() {
+    let Some(f) = against_pegs("jlin-fixed48", "image2.jpg", "image2_solved.mat") else {
+        return;
+    };
+    let _ = f;
+}
+
+#[test]
+fn jlin_narrow21_fringes_against_pegs() {
+    let Some(f) = against_pegs("jlin-narrow21", "image.jpg", "image_solved.mat") else {
+        return;
+    };
+    let _ = f;
+}
+
+#[test]
+fn jlin_step83_fringes_against_pegs() {
+    let Some(f) = against_pegs("jlin-step83", "image3.jpg", "image3_solved.mat") else {
+        return;
+    };
+    let _ = f;
 }

@@ -2292,8 +2292,8 @@ pub fn contact_support(
 
 /// The per-disk fit the field uses (PeGS-like), as a baseline: each disk's
 /// forces fitted to its own fringes alone (no balance, no friction, forces
-/// of either sign), from the same G² start, and the two sides of each
-/// contact averaged.
+/// of either sign), from the same G² start (or `start`, each side from its
+/// contact's force), and the two sides of each contact averaged.
 pub fn fit_fringes_per_disk(
     image: &FloatImage,
     frame: &PixelFrame,
@@ -2306,9 +2306,22 @@ pub fn fit_fringes_per_disk(
     timing.prepare = started.elapsed().as_secs_f64();
     let levels = load_levels(&p);
     let mut x = vec![0.0; 2 * p.unknowns];
-    for (d, side_levels) in p.disks.iter().zip(&levels) {
-        for (l, v) in d.loads.iter().zip(side_levels) {
-            x[2 * l.unknown] = *v;
+    if let Some(forces) = &settings.start {
+        // Both sides of a contact start from its force.
+        let given = to_unknowns(scene, forces, p.scale)?;
+        let mut side = 0;
+        for (k, c) in scene.contacts.iter().enumerate() {
+            let sides = if matches!(c.b, Body::Grain(_)) { 2 } else { 1 };
+            for _ in 0..sides {
+                x[2 * side..2 * side + 2].copy_from_slice(&given[2 * k..2 * k + 2]);
+                side += 1;
+            }
+        }
+    } else {
+        for (d, side_levels) in p.disks.iter().zip(&levels) {
+            for (l, v) in d.loads.iter().zip(side_levels) {
+                x[2 * l.unknown] = *v;
+            }
         }
     }
     let objective_start = objective(&p, &x, &p.optics);
