@@ -89,6 +89,11 @@ pub struct FringeFitSettings {
     /// reaches in 73, but that answer, relerr 0.189, is not better than the
     /// plain fit's unconverged one, 0.184; docs/photoelastic.md).
     pub extrapolate: bool,
+    /// Each disk's background is a plane, fitted with its contrast in
+    /// closed form at every step, instead of a constant: light that falls
+    /// off across a disk is not taken for fringes (off by default;
+    /// docs/photoelastic.md "Why ours loses where it does").
+    pub lighting: bool,
 }
 
 impl FringeFitSettings {
@@ -107,6 +112,7 @@ impl FringeFitSettings {
             candidate_gap: None,
             support_prune: None,
             extrapolate: false,
+            lighting: false,
         }
     }
 
@@ -352,6 +358,9 @@ struct Optics {
     /// c π |∇N| e^{−2π² s²} / √2 per pixel (the root of the local mean of
     /// |∇I|²), with the image scale [px/m] given here.
     envelope: Option<f64>,
+    /// Each disk's background is a plane b + g·(p − centre) (its light
+    /// falling off across it) instead of a constant.
+    lighting: bool,
 }
 
 /// The Flamant field at p of a unit force along `dir` at q and its spatial
@@ -586,6 +595,18 @@ impl DiskData {
             vis += (a - mean_s) * (b - mean_i);
             sst += (b - mean_i) * (b - mean_i);
         }
+        // With a lighting plane, S and I are regressed with the plane's
+        // slopes projected out (the mean is already out).
+        let slopes = if optics.lighting {
+            self.slope_basis()
+        } else {
+            Vec::new()
+        };
+        for q in &slopes {
+            let (qs, qi) = (dot(q, &s), dot(q, &self.intensity));
+            vss -= qs * qs;
+            vis -= qs * qi;
+        }
         // A disk without fringe variation takes the packing's contrast; a
         // fitted one is kept within a factor 3 of it.
         let c_ref = optics.contrast;
@@ -595,7 +616,14 @@ impl DiskData {
             c_ref
         };
         let background = mean_i - contrast * mean_s;
-        let model: Vec<f64> = s.iter().map(|v| background + contrast * v).collect();
+        let mut model: Vec<f64> = s.iter().map(|v| background + contrast * v).collect();
+        for q in &slopes {
+            // The plane's slope along q fitted to what the fringes leave.
+            let g = dot(q, &self.intensity) - contrast * dot(q, &s);
+            for (m, qi) in model.iter_mut().zip(q) {
+                *m += g * qi;
+            }
+        }
         let residual: Vec<f64> = self
             .intensity
             .iter()
@@ -615,11 +643,28 @@ impl DiskData {
             for m in &mut mean_ds {
                 *m /= nf;
             }
+            // Each column's part along the plane's slopes, projected out too.
+            let slope_ds: Vec<Vec<f64>> = (slopes.iter())
+                .map(|q| {
+                    let mut c = vec![0.0; k];
+                    for (ds_i, qi) in ds.chunks_exact(k).zip(q) {
+                        for (o, v) in c.iter_mut().zip(ds_i) {
+                            *o += qi * v;
+                        }
+                    }
+                    c
+                })
+                .collect();
             // The rows' centred parts; the contrast is applied once at the end.
             let mut row = vec![0.0; k];
-            for (ds_i, r) in ds.chunks_exact(k).zip(&residual) {
+            for (i, (ds_i, r)) in ds.chunks_exact(k).zip(&residual).enumerate() {
                 for ((out, v), m) in row.iter_mut().zip(ds_i).zip(&mean_ds) {
                     *out = v - m;
+                }
+                for (q, c) in slopes.iter().zip(&slope_ds) {
+                    for (out, cm) in row.iter_mut().zip(c) {
+                        *out -= q[i] * cm;
+                    }
                 }
                 for a in 0..k {
                     let ra = row[a];
@@ -647,6 +692,30 @@ impl DiskData {
             rhs,
             model,
         }
+    }
+
+    /// The lighting plane's two slopes over the disk's pixels: x and y
+    /// about their means, orthonormalised (Gram–Schmidt); none for a disk
+    /// too small to tell a slope.
+    fn slope_basis(&self) -> Vec<Vec<f64>> {
+        let n = self.points.len() as f64;
+        let mut basis: Vec<Vec<f64>> = Vec::new();
+        for axis in 0..2 {
+            let mean = self.points.iter().map(|p| p[axis]).sum::<f64>() / n;
+            let mut v: Vec<f64> = self.points.iter().map(|p| p[axis] - mean).collect();
+            for q in &basis {
+                let a = dot(q, &v);
+                for (x, qi) in v.iter_mut().zip(q) {
+                    *x -= a * qi;
+                }
+            }
+            let norm = dot(&v, &v).sqrt();
+            if norm > 1e-9 * self.radius * n.sqrt() {
+                v.iter_mut().for_each(|x| *x /= norm);
+                basis.push(v);
+            }
+        }
+        basis
     }
 
     /// The envelope fit's residual (data in `intensity`) and normal equations.
@@ -709,6 +778,10 @@ impl DiskData {
             pixels: self.pixels.clone(),
         }
     }
+}
+
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
 }
 
 /// The problem shared by the joint and the per-disk fits.
@@ -874,6 +947,7 @@ fn prepare(
         blur2: blur_px2 / (s * s),
         contrast: contrast_estimate(&disks),
         envelope: None,
+        lighting: settings.lighting,
     };
     let balanced = vec![true; disks.len()];
     Ok(Prepared {
@@ -2697,6 +2771,7 @@ mod tests {
                 blur2: blur,
                 contrast: 0.6,
                 envelope,
+                lighting: false,
             };
             let u = vec![1.3, 0.2, 0.7, -0.1, 2.1, 0.4];
             let (_, ds) = d.fringes(&u, &optics, true);
@@ -2739,6 +2814,7 @@ mod tests {
                 blur2: blur,
                 contrast: 0.6,
                 envelope,
+                lighting: false,
             };
             let u: Vec<f64> = [1.3, 0.2, 0.7, -0.1, 2.1, 0.4]
                 .iter()
