@@ -710,6 +710,12 @@ fn fit_settings() -> FringeFitSettings {
     if let Some(mu) = var("GRAINFORCE_FRINGE_MU") {
         s.mu = mu;
     }
+    if let Some(px) = var("GRAINFORCE_FRINGE_BLUR") {
+        s.blur_px = px;
+    }
+    if let Some(px) = var("GRAINFORCE_FRINGE_EDGE") {
+        s.edge_px = px;
+    }
     if let Some(on) = var("GRAINFORCE_FRINGE_LIGHTING") {
         s.lighting = on != 0.0;
     }
@@ -719,6 +725,57 @@ fn fit_settings() -> FringeFitSettings {
     s
 }
 
+/// The lowest residual of several fits (chosen by the fit's own residual,
+/// never by PeGS). GRAINFORCE_FRINGE_SEARCH: `start` (the default) from the
+/// fringe start and from the per-disk fit's forces; `none` the fringe start
+/// only; `blur` the fringe start at blurs {1, 2, 3, 4} px; `both` each of
+/// those blurs from both starts.
+fn best_fit(
+    photo: &FloatImage,
+    frame: &PixelFrame,
+    scene: &Scene,
+    settings: &FringeFitSettings,
+) -> FringeFit {
+    let search = std::env::var("GRAINFORCE_FRINGE_SEARCH").unwrap_or_else(|_| "start".into());
+    if search == "none" {
+        return fit_fringes(photo, frame, scene, settings).unwrap();
+    }
+    let blurs = match search.as_str() {
+        "start" => vec![settings.blur_px],
+        _ => vec![1.0, 2.0, 3.0, 4.0],
+    };
+    let mut best: Option<FringeFit> = None;
+    for blur in blurs {
+        let mut s = settings.clone();
+        s.blur_px = blur;
+        let mut fits = vec![(
+            "fringe start",
+            fit_fringes(photo, frame, scene, &s).unwrap(),
+        )];
+        if search != "blur" {
+            let per_disk = fit_fringes_per_disk(photo, frame, scene, &s).unwrap();
+            s.start = Some(per_disk.forces);
+            fits.push((
+                "per-disk start",
+                fit_fringes(photo, frame, scene, &s).unwrap(),
+            ));
+        }
+        for (how, f) in fits {
+            eprintln!(
+                "  blur {blur} px, {how}: objective {:.1}",
+                f.report.objective
+            );
+            if best
+                .as_ref()
+                .is_none_or(|b| f.report.objective < b.report.objective)
+            {
+                best = Some(f);
+            }
+        }
+    }
+    best.unwrap()
+}
+
 fn against_pegs(folder: &str, image: &str, solved: &str) -> Option<Figures> {
     let root = data()?;
     let dir = root.join(folder);
@@ -726,9 +783,11 @@ fn against_pegs(folder: &str, image: &str, solved: &str) -> Option<Figures> {
     let frame = PixelFrame::at_origin(1.0, photo.width(), photo.height());
     let disks = pegs_disks(&dir.join(solved));
     let (scene, pegs_sides) = solved_scene(&disks, photo.height());
-    let settings = fit_settings();
+    let mut settings = fit_settings();
     let started = std::time::Instant::now();
-    let fit = fit_fringes(&photo, &frame, &scene, &settings).unwrap();
+    let fit = best_fit(&photo, &frame, &scene, &settings);
+    // Drawn and diagnosed with the blur the fit used.
+    settings.blur_px = fit.report.blur_px;
     let seconds = started.elapsed().as_secs_f64();
     let judged = judge(&photo, &disks);
     let ours = judge_ours(
@@ -758,7 +817,7 @@ fn against_pegs(folder: &str, image: &str, solved: &str) -> Option<Figures> {
         pegs_imbalance: median(&pegs_imb),
     };
     eprintln!(
-        "{folder}: {} disks PeGS fitted; residual/std median: ours as drawn {:.3}, ours affine {:.3}, ours lit {:.3}, PeGS affine {:.3}, PeGS lit {:.3}; ours at least as close: as drawn {:.2}, affine {:.2}, lit {:.2}; imbalance median ours {:.2e}, PeGS {:.2}; {} steps, {seconds:.1} s",
+        "{folder}: {} disks PeGS fitted; residual/std median: ours as drawn {:.3}, ours affine {:.3}, ours lit {:.3}, PeGS affine {:.3}, PeGS lit {:.3}; ours at least as close: as drawn {:.2}, affine {:.2}, lit {:.2}; imbalance median ours {:.2e}, PeGS {:.2}; objective {:.1}, {} steps, {seconds:.1} s",
         figures.disks,
         figures.ours_overlay,
         figures.ours_affine,
@@ -770,6 +829,7 @@ fn against_pegs(folder: &str, image: &str, solved: &str) -> Option<Figures> {
         figures.closer_lit,
         figures.ours_imbalance,
         figures.pegs_imbalance,
+        fit.report.objective,
         fit.report.iterations,
     );
     let mags = |f: &[[f64; 2]]| -> Vec<f64> { f.iter().map(|v| v[0].hypot(v[1])).collect() };
@@ -793,6 +853,7 @@ fn against_pegs(folder: &str, image: &str, solved: &str) -> Option<Figures> {
             &photo,
             &frame,
             &scene,
+            &settings,
             &fit,
             &pegs_sides,
             &judged,
@@ -814,13 +875,13 @@ fn diagnose(
     photo: &FloatImage,
     frame: &PixelFrame,
     scene: &Scene,
+    settings: &FringeFitSettings,
     fit: &FringeFit,
     pegs: &[Sides],
     judged: &[Judged],
     disks: &[PegsDisk],
     ours: &Ours,
 ) {
-    let settings = fit_settings();
     // With the lighting term ours draws a fitted plane: both are then judged
     // with one (the lit figure), else with the affine map alone.
     let lit = settings.lighting;
@@ -844,7 +905,7 @@ fn diagnose(
             })
             .collect();
         let (split_scene, _) = split(scene, &ours_sides);
-        let mut s = fit_settings();
+        let mut s = settings.clone();
         s.start = Some(start);
         let free = fit_fringes_per_disk(photo, frame, &split_scene, &s).unwrap();
         (split_scene, free)
@@ -884,11 +945,11 @@ fn diagnose(
     let free_a = score(&split_scene, &free_ours.forces);
     let free_b = score(&split_scene, &free_pegs.forces);
     let pegs_in_ours = score(&split_scene, &from_pegs);
-    let mut s = fit_settings();
+    let mut s = settings.clone();
     s.start = Some(pegs.iter().map(Sides::mean).collect());
     let joint_pegs = fit_fringes(photo, frame, scene, &s).unwrap();
     let joint_pegs_score = score(scene, &joint_pegs.forces);
-    let mut s = fit_settings();
+    let mut s = settings.clone();
     s.balance = Balance::Penalty(10.0);
     let penalty = fit_fringes(photo, frame, scene, &s).unwrap();
     let penalty_score = score(scene, &penalty.forces);
@@ -927,7 +988,7 @@ fn diagnose(
     let all_bound: Vec<f64> = free_a.iter().zip(&free_b).map(|(a, b)| a.min(*b)).collect();
     let pegs_affine = &reference;
     eprintln!(
-        "  losing {losing} of {}; the free per-disk fit (best start) reaches PeGS on {bound_wins} of them; joint from PeGS's start on {joint_wins}; with the lighting term on both, {lit_wins}. Shares at least as close: free per-disk {:.2}, PeGS's forces in our model {:.2}, joint from PeGS {:.2} (objective {:.4} vs ours {:.4}), penalty 10 {:.2}",
+        "  losing {losing} of {}; the free per-disk fit (best start) reaches PeGS on {bound_wins} of them; joint from PeGS's start on {joint_wins}; judged lit on both (affine before), {lit_wins}. Shares at least as close: free per-disk {:.2}, PeGS's forces in our model {:.2}, joint from PeGS {:.2} (objective {:.4} vs ours {:.4}), penalty 10 {:.2}",
         judged.len(),
         share_closer(&all_bound, pegs_affine),
         share_closer(&pegs_in_ours, pegs_affine),
@@ -938,11 +999,11 @@ fn diagnose(
     );
 }
 
-/// The comparison's figures hold: measured (dev and release give the same
-/// bits) with μ = 1000 and the lighting plane, both fits judged with a
-/// plane and an affine map on the same pixels: ours at least as close on
-/// 0.46 / 0.52 / 0.32 of the disks (fixed48 / narrow21 / step83), residual
-/// median ours 0.930 / 0.952 / 0.928 against PeGS's 0.938 / 0.952 / 0.821,
+/// The comparison's figures hold. Measured with μ = 1000, the lighting
+/// plane and the better of the two starts, both fits judged with a plane
+/// and an affine map on the same pixels: ours at least as close on 0.51 /
+/// 0.52 / 0.38 of the disks (fixed48 / narrow21 / step83), residual median
+/// ours 0.930 / 0.947 / 0.910 against PeGS's 0.938 / 0.952 / 0.821,
 /// imbalance ours ≤ 2·10⁻¹⁶, PeGS's 0.29 / 0.25 / 0.31.
 fn assert_figures(f: &Figures, closer: f64, ours_lit: f64) {
     assert!(
@@ -966,7 +1027,7 @@ fn assert_figures(f: &Figures, closer: f64, ours_lit: f64) {
 #[test]
 fn jlin_fixed48_fringes_against_pegs() {
     if let Some(f) = against_pegs("jlin-fixed48", "image2.jpg", "image2_solved.mat") {
-        assert_figures(&f, 0.43, 0.94);
+        assert_figures(&f, 0.48, 0.94);
         assert!(f.ours_lit < f.pegs_lit);
     }
 }
@@ -975,12 +1036,13 @@ fn jlin_fixed48_fringes_against_pegs() {
 fn jlin_narrow21_fringes_against_pegs() {
     if let Some(f) = against_pegs("jlin-narrow21", "image.jpg", "image_solved.mat") {
         assert_figures(&f, 0.48, 0.96);
+        assert!(f.ours_lit < f.pegs_lit);
     }
 }
 
 #[test]
 fn jlin_step83_fringes_against_pegs() {
     if let Some(f) = against_pegs("jlin-step83", "image3.jpg", "image3_solved.mat") {
-        assert_figures(&f, 0.30, 0.94);
+        assert_figures(&f, 0.35, 0.92);
     }
 }
