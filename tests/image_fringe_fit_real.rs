@@ -2,6 +2,9 @@
 //! (PeGS 1.x lists, read here from the shared folder named by
 //! `GRAINFORCE_TEST_DATA`), our joint fringe fit, compared with PeGS's own
 //! per-disk forces. Skipped (with a message) when the variable is unset.
+//! The `*_fringes_against_pegs` tests judge both fits on the photograph
+//! alike (docs/photoelastic.md, "Judged alike"); GRAINFORCE_FRINGE_DIAG=1
+//! prints why ours loses on each disk where it does.
 
 use grainforce::image::fringe_fit::{fit_fringes, Balance, FringeFitSettings};
 use grainforce::image::{load_channel, Channel, PixelFrame};
@@ -902,7 +905,7 @@ fn diagnose(
     let pick = |o: Ours| if lit { o.lit } else { o.affine };
     let score = |scene: &Scene, forces: &[[f64; 2]]| {
         pick(judge_ours(
-            photo, frame, scene, &settings, forces, judged, disks,
+            photo, frame, scene, settings, forces, judged, disks,
         ))
     };
     let reference: Vec<f64> = (judged.iter())
@@ -943,7 +946,7 @@ fn diagnose(
         })
         .collect();
     let (split_scene, from_ours) = split(scene, &ours_sides);
-    for k in [0.25, 0.5, 1.0, 2.0, 4.0] {
+    for k in [0.25, 0.5, 0.7, 1.0, 1.4, 2.0, 4.0] {
         let (_, f) = split(scene, &scaled(k * unit));
         let sc = score(&split_scene, &f);
         eprintln!(
