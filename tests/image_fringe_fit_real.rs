@@ -543,6 +543,10 @@ fn judge(green: &FloatImage, disks: &[PegsDisk]) -> Vec<Judged> {
         if spread == 0.0 || g.len() < 50 {
             continue;
         }
+        if std::env::var_os("GRAINFORCE_FRINGE_SIGN").is_some() {
+            let s: Vec<f64> = local.iter().map(|&(r, c)| at(synth, r, c)).collect();
+            eprintln!("  disk {}: correlation of the photograph with PeGS's synthImg {:+.3}", d.id, pearson(&g, &s));
+        }
         let (mut pegs_affine, mut pegs_lit) = (f64::INFINITY, f64::INFINITY);
         for dr in 0..2 {
             for dc in 0..2 {
@@ -718,6 +722,9 @@ fn fit_settings() -> FringeFitSettings {
     }
     if let Some(px) = var("GRAINFORCE_FRINGE_EDGE") {
         s.edge_px = px;
+    }
+    if let Some(on) = var("GRAINFORCE_FRINGE_BRIGHT") {
+        s.bright_field = on != 0.0;
     }
     if let Some(on) = var("GRAINFORCE_FRINGE_LIGHTING") {
         s.lighting = on != 0.0;

@@ -92,8 +92,11 @@ pub struct FringeFitSettings {
     /// Each disk's background is a plane, fitted with its contrast in
     /// closed form at every step, instead of a constant: light that falls
     /// off across a disk is not taken for fringes (off by default;
-    /// docs/photoelastic.md "Why ours loses where it does").
+    /// docs/photoelastic.md "Judged alike").
     pub lighting: bool,
+    /// A bright-field polariscope: the fringes are dark on a bright disk,
+    /// intensity b − c S (each disk's contrast is fitted negative).
+    pub bright_field: bool,
 }
 
 impl FringeFitSettings {
@@ -113,6 +116,7 @@ impl FringeFitSettings {
             support_prune: None,
             extrapolate: false,
             lighting: false,
+            bright_field: false,
         }
     }
 
@@ -361,6 +365,8 @@ struct Optics {
     /// Each disk's background is a plane b + g·(p − centre) (its light
     /// falling off across it) instead of a constant.
     lighting: bool,
+    /// Contrasts are negative (dark fringes, bright field).
+    bright_field: bool,
 }
 
 /// The Flamant field at p of a unit force along `dir` at q and its spatial
@@ -609,9 +615,19 @@ impl DiskData {
         }
         // A disk without fringe variation takes the packing's contrast; a
         // fitted one is kept within a factor 3 of it.
-        let c_ref = optics.contrast;
+        // Fringes are dark on a bright disk in a bright-field polariscope.
+        let c_ref = if optics.bright_field {
+            -optics.contrast
+        } else {
+            optics.contrast
+        };
+        let (low, high) = if optics.bright_field {
+            (3.0 * c_ref, c_ref / 3.0)
+        } else {
+            (c_ref / 3.0, 3.0 * c_ref)
+        };
         let contrast = if vss > 1e-3 * nf * 0.01 {
-            (vis / vss).clamp(c_ref / 3.0, 3.0 * c_ref)
+            (vis / vss).clamp(low, high)
         } else {
             c_ref
         };
@@ -948,6 +964,7 @@ fn prepare(
         contrast: contrast_estimate(&disks),
         envelope: None,
         lighting: settings.lighting,
+        bright_field: settings.bright_field,
     };
     let balanced = vec![true; disks.len()];
     Ok(Prepared {
@@ -2772,6 +2789,7 @@ mod tests {
                 contrast: 0.6,
                 envelope,
                 lighting: false,
+                bright_field: false,
             };
             let u = vec![1.3, 0.2, 0.7, -0.1, 2.1, 0.4];
             let (_, ds) = d.fringes(&u, &optics, true);
@@ -2815,6 +2833,7 @@ mod tests {
                 contrast: 0.6,
                 envelope,
                 lighting: false,
+                bright_field: false,
             };
             let u: Vec<f64> = [1.3, 0.2, 0.7, -0.1, 2.1, 0.4]
                 .iter()
