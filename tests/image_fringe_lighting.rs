@@ -1,6 +1,8 @@
-//! Issue 42: a disk lit unevenly (its background a plane across it) fitted
-//! with and without the lighting term of the fringe fit
-//! (`FringeFitSettings::lighting`).
+//! Issue 42: the fringe fit's imaging options on rendered disks: a disk lit
+//! unevenly (its background a plane across it) with and without the
+//! lighting term (`FringeFitSettings::lighting`), and dark fringes on a
+//! bright disk with and without the bright-field model
+//! (`FringeFitSettings::bright_field`).
 
 use grainforce::image::fringe_fit::{fit_fringes, FringeFitSettings};
 use grainforce::image::photoelastic::{render_photoelastic, PhotoelasticOptions};
@@ -84,4 +86,30 @@ fn a_light_gradient_across_a_disk_is_not_taken_for_fringes() {
     eprintln!("relerr: constant background {flat:.4}, lighting plane {lit:.4}");
     assert!(lit < 0.01, "with the lighting term: relerr {lit}");
     assert!(flat > 3.0 * lit.max(0.01), "without it: relerr {flat}");
+}
+
+#[test]
+fn dark_fringes_on_a_bright_disk_need_the_bright_field_model() {
+    let (scene, truth) = held_disk();
+    let truth: Vec<[f64; 2]> = truth.iter().map(|f| [4.0 * f[0], 4.0 * f[1]]).collect();
+    let fringe_stress = 1e4;
+    let mut o = PhotoelasticOptions::new(4000.0, fringe_stress);
+    o.blur_px = 0.8;
+    let (rgb, frame) = render_photoelastic(&scene, &truth, &o).unwrap();
+    // A bright-field polariscope: the dark-field picture inverted.
+    let image = FloatImage::from_fn(rgb.width(), rgb.height(), |x, y| {
+        ::image::Luma([1.0 - rgb.get_pixel(x, y)[1]])
+    });
+    let fit = |bright_field: bool| {
+        let mut s = FringeFitSettings::new(fringe_stress);
+        s.blur_px = 0.8;
+        s.bright_field = bright_field;
+        s.start = Some(truth.iter().map(|f| [1.1 * f[0], 0.9 * f[1]]).collect());
+        let f = fit_fringes(&image, &frame, &scene, &s).unwrap();
+        relerr(&f.forces, &truth)
+    };
+    let (dark, bright) = (fit(false), fit(true));
+    eprintln!("relerr: dark-field model {dark:.4}, bright-field model {bright:.4}");
+    assert!(bright < 0.01, "bright-field model: relerr {bright}");
+    assert!(dark > 0.05, "dark-field model: relerr {dark}");
 }

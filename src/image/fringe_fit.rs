@@ -232,6 +232,8 @@ pub struct FringeFitReport {
     pub balance: Balance,
     pub mu: f64,
     pub blur_px: f64,
+    /// The bright-field model was fitted (dark fringes, negative contrast).
+    pub bright_field: bool,
     pub iterations: usize,
     /// Σ of squared intensity residuals at the start and at the end.
     pub objective_start: f64,
@@ -2615,6 +2617,7 @@ fn report(
         balance: settings.balance,
         mu: settings.mu,
         blur_px: settings.blur_px,
+        bright_field: settings.bright_field,
         iterations,
         objective_start,
         objective: evals.iter().map(|e| e.ssr).sum(),
