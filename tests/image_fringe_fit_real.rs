@@ -769,7 +769,8 @@ fn polariscope(
 
 /// The fit from the fringe start, or with GRAINFORCE_FRINGE_SEARCH the
 /// lowest residual of several (chosen by the fit's own residual, never by
-/// PeGS): `start` from the fringe start and from the per-disk fit's forces;
+/// PeGS): `start` from the fringe start, from the per-disk fit's forces
+/// and from the fit with balance as a penalty (weight 10);
 /// `blur` the fringe start at blurs {1, 2, 3, 4} px; `both` each of those
 /// blurs from both starts. A fit that leaves more disks' balance out than
 /// the first is not taken (a start the balance pins at zero frees disks
@@ -799,6 +800,12 @@ fn best_fit(
             let per_disk = fit_fringes_per_disk(photo, frame, scene, &s).unwrap();
             s.start = Some(per_disk.forces);
             fits.push(("per-disk start", polariscope(photo, frame, scene, &s)));
+            // The fit with balance as a penalty, then exact from it.
+            let mut soft = s.clone();
+            soft.start = None;
+            soft.balance = Balance::Penalty(10.0);
+            s.start = Some(fit_fringes(photo, frame, scene, &soft).unwrap().forces);
+            fits.push(("penalty start", polariscope(photo, frame, scene, &s)));
         }
         for (how, f) in fits {
             let left_out = f.report.balance_left_out.len();
@@ -1040,13 +1047,15 @@ fn diagnose(
     let all_bound: Vec<f64> = free_a.iter().zip(&free_b).map(|(a, b)| a.min(*b)).collect();
     let pegs_affine = &reference;
     eprintln!(
-        "  losing {losing} of {}; the free per-disk fit (best start) reaches PeGS on {bound_wins} of them; joint from PeGS's start on {joint_wins}; judged lit on both (affine before), {lit_wins}. Shares at least as close: free per-disk {:.2}, PeGS's forces in our model {:.2}, joint from PeGS {:.2} (objective {:.4} vs ours {:.4}), penalty 10 {:.2}",
+        "  losing {losing} of {}; the free per-disk fit (best start) reaches PeGS on {bound_wins} of them; joint from PeGS's start on {joint_wins}; judged lit on both (affine before), {lit_wins}. Shares at least as close: free per-disk {:.2}, PeGS's forces in our model {:.2}, joint from PeGS {:.2} (objective {:.4} vs ours {:.4}, balance left out on {} disks vs {}), penalty 10 {:.2}",
         judged.len(),
         share_closer(&all_bound, pegs_affine),
         share_closer(&pegs_in_ours, pegs_affine),
         share_closer(&joint_pegs_score, pegs_affine),
         joint_pegs.report.objective,
         fit.report.objective,
+        joint_pegs.report.balance_left_out.len(),
+        fit.report.balance_left_out.len(),
         share_closer(&penalty_score, pegs_affine),
     );
 }
