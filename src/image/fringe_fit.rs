@@ -2893,6 +2893,64 @@ mod tests {
         }
     }
 
+    /// With the lighting plane (and the bright field's negative contrast)
+    /// the step's rows are the model's derivatives less their projection on
+    /// the plane, times the contrast: as central differences give them.
+    #[test]
+    fn lighting_normal_equations_match_finite_differences() {
+        let d = disk();
+        for bright_field in [false, true] {
+            let optics = Optics {
+                fringe: 1.0 / d.radius,
+                blur2: 1e-8,
+                contrast: 0.6,
+                envelope: None,
+                lighting: true,
+                bright_field,
+            };
+            let u = vec![1.3, 0.2, 0.7, -0.1, 2.1, 0.4];
+            let (k, n) = (u.len(), d.points.len());
+            let e = d.evaluate(&u, &optics, true);
+            assert_eq!(e.contrast < 0.0, bright_field);
+            let slopes = d.slope_basis();
+            assert_eq!(slopes.len(), 2);
+            let mut rows = vec![vec![0.0; k]; n];
+            for m in 0..k {
+                let (mut up, mut down) = (u.clone(), u.clone());
+                up[m] += 1e-6;
+                down[m] -= 1e-6;
+                let (sp, _) = d.fringes(&up, &optics, false);
+                let (sm, _) = d.fringes(&down, &optics, false);
+                let mut fd: Vec<f64> = (sp.iter().zip(&sm)).map(|(a, b)| (a - b) / 2e-6).collect();
+                let mean = fd.iter().sum::<f64>() / n as f64;
+                fd.iter_mut().for_each(|v| *v -= mean);
+                for q in &slopes {
+                    let a = dot(q, &fd);
+                    fd.iter_mut().zip(q).for_each(|(v, qi)| *v -= a * qi);
+                }
+                for i in 0..n {
+                    rows[i][m] = e.contrast * fd[i];
+                }
+            }
+            let residual: Vec<f64> = (d.intensity.iter().zip(&e.model))
+                .map(|(a, b)| a - b)
+                .collect();
+            // The residual is orthogonal to the plane it was fitted with.
+            for q in &slopes {
+                assert!(dot(q, &residual).abs() < 1e-9 * (1.0 + e.ssr.sqrt()));
+            }
+            let size = |v: &[f64]| v.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+            for a in 0..k {
+                let rhs: f64 = (0..n).map(|i| rows[i][a] * residual[i]).sum();
+                assert!((rhs - e.rhs[a]).abs() < 1e-6 * size(&e.rhs));
+                for b in 0..k {
+                    let g: f64 = (0..n).map(|i| rows[i][a] * rows[i][b]).sum();
+                    assert!((g - e.normal[a * k + b]).abs() < 1e-6 * size(&e.normal));
+                }
+            }
+        }
+    }
+
     #[test]
     fn extrapolation_follows_the_gain_ratio_and_stays_in_the_wedge() {
         let wedge = [Cone::Wedge {
