@@ -733,6 +733,9 @@ fn fit_settings() -> FringeFitSettings {
     if let Some(on) = var("GRAINFORCE_FRINGE_LIGHTING") {
         s.lighting = on != 0.0;
     }
+    if let Some(gap) = var("GRAINFORCE_FRINGE_CANDIDATES") {
+        s.candidate_gap = Some(gap);
+    }
     if let Some(w) = var("GRAINFORCE_FRINGE_PENALTY") {
         s.balance = Balance::Penalty(w);
     }
@@ -842,12 +845,16 @@ fn against_pegs(folder: &str, image: &str, solved: &str) -> Option<Figures> {
     settings.bright_field = fit.report.bright_field;
     let seconds = started.elapsed().as_secs_f64();
     let judged = judge(&photo, &disks);
+    // Candidate contacts (when fitted) carry loads the drawing must show.
+    let (drawn_scene, drawn_forces) = fit.with_candidates(&scene);
+    let mut drawn_settings = settings.clone();
+    drawn_settings.candidate_gap = None;
     let ours = judge_ours(
         &photo,
         &frame,
-        &scene,
-        &settings,
-        &fit.forces,
+        &drawn_scene,
+        &drawn_settings,
+        &drawn_forces,
         &judged,
         &disks,
     );
