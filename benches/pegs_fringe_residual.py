@@ -26,6 +26,13 @@ and contrast). Printed per photograph: the median over the disks of each
 fit's rms residual over the disk's own standard deviation (1 = explains
 nothing), the share of disks where ours is at least as close, and each force
 set's imbalance |ΣF|/Σ|F| (median over disks with two or more contacts).
+
+Caution (round 9): this residual flatters ours. `overlay()` draws our model
+only within r − edge, so the ring out to r − 3 px keeps the photograph's own
+pixels, and only PeGS's image gets a best affine map on the judged pixels.
+The comparison that judges both alike is tests/image_fringe_fit_real.rs
+(docs/photoelastic.md, "Judged alike, and the bright field"); the balance
+figures here are unaffected.
 """
 import argparse
 import os

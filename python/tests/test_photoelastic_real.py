@@ -15,17 +15,15 @@ pytestmark = pytest.mark.skipif(not DATA, reason="GRAINFORCE_TEST_DATA is not se
 
 
 @pytest.mark.parametrize("name", ["jlin-fixed48", "jlin-narrow21", "jlin-step83"])
-def test_the_balanced_fit_is_closer_to_the_photograph_than_pegs(name, monkeypatch):
+def test_the_balanced_fit_balances_where_pegs_does_not(name, monkeypatch):
     pytest.importorskip("scipy")
     monkeypatch.syspath_prepend(str(REPO / "benches"))
     from pegs_fringe_residual import compare
 
     found = compare(name, Path(DATA), None, "green")
-    # Measured (rms residual / the disk's std, median over PeGS's fitted
-    # disks; ours / PeGS's): fixed48 0.912 / 0.969, narrow21 0.946 / 0.983,
-    # step83 0.841 / 0.924; ours at least as close on 0.60, 0.81, 0.74 of
-    # the disks; median imbalance ours ≤ 0.03, PeGS's 0.24–0.29.
-    assert found["ours"] < found["pegs"]
-    assert found["closer"] >= 0.55
+    # Measured median imbalance |ΣF|/Σ|F|: ours ≤ 0.03, PeGS's 0.24–0.29.
+    # The bench's residual figure flatters ours (its docstring says why), so
+    # closeness to the photograph is asserted in tests/image_fringe_fit_real.rs,
+    # where both fits are judged alike.
     assert found["ours_imbalance"] < 0.05
     assert found["pegs_imbalance"] > 0.2
