@@ -57,7 +57,7 @@ pub struct PhotoelasticConfig {
     pub per_disk: bool,
     pub contacts: ContactChoice,
     /// Near-miss disk pairs (gap below this share of the smaller radius)
-    /// fitted as candidate contacts, listed in the report.
+    /// fitted as candidate contacts, listed in the report (None or 0: off).
     pub candidate_gap: Option<f64>,
     /// Weight of the term that fits unsupported contacts to zero (0: off).
     pub sparsity: f64,
@@ -78,7 +78,7 @@ impl Default for PhotoelasticConfig {
             iterations: 60,
             per_disk: false,
             contacts: ContactChoice::default(),
-            candidate_gap: None,
+            candidate_gap: Some(super::fringe_fit::DEFAULT_CANDIDATE_GAP),
             sparsity: 0.0,
         }
     }
