@@ -91,8 +91,13 @@ fn main() -> grainforce::Result<()> {
         s.max_iterations = steps as usize;
     }
     s.extrapolate = args.iter().any(|a| a == "--extrapolate");
-    // The walls' friction from the start (round 8's default) instead of
-    // the final stage only.
+    // As `grainforce photoelastic` on a scene from `detect`: candidates and
+    // the walls-frictionless-first path beside the other.
+    if detect {
+        s.candidate_gap = Some(grainforce::image::fringe_fit::DEFAULT_CANDIDATE_GAP);
+        s.smooth_walls_first = true;
+    }
+    // The walls' friction from the start only (round 8's fit).
     if args.iter().any(|a| a == "--walls-last") {
         s.smooth_walls_first = false;
     }

@@ -5,6 +5,7 @@
 
 use grainforce::image::fringe_fit::{
     contact_support, fit_fringes, fit_fringes_per_disk, imbalances, FringeFit, FringeFitSettings,
+    DEFAULT_CANDIDATE_GAP,
 };
 use grainforce::image::photoelastic::{render_photoelastic, PhotoelasticOptions};
 use grainforce::image::{FloatImage, PixelFrame};
@@ -352,11 +353,12 @@ fn smooth_walls_carry_no_friction() {
 }
 
 /// Walls frictionless until the final stage, beside walls with friction
-/// throughout, the lower final residual kept (the default): clusters by
+/// throughout, the lower final residual kept (a detected scene's default in
+/// the photoelastic run): clusters by
 /// the oedometer's walls, started from the fringes, their real walls' μ
 /// removed (smooth in the DEM, taken at the grains' 0.5) and the loads from
 /// outside the cluster on "outside" walls with real friction. The default
-/// is never worse than friction throughout (the old default) and better
+/// is never worse than friction throughout (the library's default) and better
 /// on one cluster (0.27 against 0.41: 12 disks in the corner, r = 20 px).
 /// Walls frictionless first alone (with candidates) landed at 1.8 on the
 /// 8-disk corner cluster, whose outside loads need their friction — hence
@@ -375,7 +377,7 @@ fn walls_take_their_friction_in_the_final_stage() {
         }
         let mut s = FringeFitSettings::new(4e4);
         s.blur_px = 0.8;
-        s.candidate_gap = None;
+        s.smooth_walls_first = true;
         let chosen = fit_fringes(&r.image, &r.frame, &r.scene, &s).unwrap();
         s.smooth_walls_first = false;
         let rough = fit_fringes(&r.image, &r.frame, &r.scene, &s).unwrap();
@@ -531,14 +533,14 @@ fn a_start_the_balance_pins_at_zero_leaves_its_disks_out() {
     );
 }
 
-/// The defaults fit near-miss pairs as candidates: a rendered cluster (8
-/// disks, r = 40 px, start from the fringes) with its strongest grain–grain
-/// contact left out of the list, as detection leaves out the contacts of a
-/// circle found a few pixels small. With the default candidate gap the
-/// contact comes back loaded and every force is closer to the DEM's than
-/// with candidates off.
+/// Candidates at the default gap (a detected scene's default in the
+/// photoelastic run): a rendered cluster (8 disks, r = 40 px, start from
+/// the fringes) with its strongest grain–grain contact left out of the
+/// list, as detection leaves out the contacts of a circle found a few
+/// pixels small. The contact comes back loaded and every force is closer
+/// to the DEM's than with candidates off.
 #[test]
-fn the_defaults_bring_a_missed_contact_back() {
+fn candidates_at_the_default_gap_bring_a_missed_contact_back() {
     let r = render(20, 8, 40.0, 4e4, 0.0, 0.02, 0.8);
     let strength = |k: usize| r.truth[k][0].hypot(r.truth[k][1]);
     let missed = (0..r.scene.contacts.len())
@@ -549,6 +551,7 @@ fn the_defaults_bring_a_missed_contact_back() {
     scene.contacts.remove(missed);
     let mut s = FringeFitSettings::new(4e4);
     s.blur_px = 0.8;
+    s.candidate_gap = Some(DEFAULT_CANDIDATE_GAP);
     let fit = fit_fringes(&r.image, &r.frame, &scene, &s).unwrap();
     s.candidate_gap = None;
     let without = fit_fringes(&r.image, &r.frame, &scene, &s).unwrap();

@@ -810,12 +810,10 @@ fn photoelastic(
         scale,
         balance_weight,
         per_disk,
+        candidate_gap: candidates,
         wall_mu,
         ..PhotoelasticConfig::default()
     };
-    if let Some(gap) = candidates {
-        config.candidate_gap = (gap > 0.0).then_some(gap);
-    }
     if let Some(name) = channel {
         config.channel = grainforce::image::Channel::parse(name).map_err(to_py)?;
     }

@@ -59,9 +59,10 @@ pub struct Args {
     /// Also fit every disk pair closer than this share of the smaller radius
     /// as a candidate contact (a contact detection may have missed: a circle
     /// found a few pixels small); the candidates' forces are listed in the
-    /// report, not in forces.csv. 0: off.
-    #[arg(long, default_value_t = grainforce::image::fringe_fit::DEFAULT_CANDIDATE_GAP)]
-    candidates: f64,
+    /// report, not in forces.csv. Default: 0.2 on a scene from `detect`
+    /// (its contacts-evidence.csv present), off on others; 0: off.
+    #[arg(long)]
+    candidates: Option<f64>,
     /// Fit contacts the fringes do not support to zero and drop them (listed
     /// in the report): a contact must explain this many pixels' worth of
     /// residual variance. Off (0) by default: measured, it drops weak true
@@ -90,7 +91,7 @@ pub fn run(args: Args) -> Result<()> {
         iterations: args.iterations,
         per_disk: args.per_disk,
         contacts: args.contacts,
-        candidate_gap: (args.candidates > 0.0).then_some(args.candidates),
+        candidate_gap: args.candidates,
         sparsity: args.sparsity,
     };
     let done = fringe_run::run(&args.image, &args.scene, &config).map_err(spell_flags)?;

@@ -78,10 +78,11 @@ pub struct FringeFitSettings {
     pub sparsity: f64,
     /// Disk pairs closer than this share of the smaller radius and not in
     /// the scene are fitted too, as candidate contacts (normal and point on
-    /// the centre line; None or 0: off). Reported in `candidates`. On by
-    /// default ([`DEFAULT_CANDIDATE_GAP`]): a detected circle found a few
-    /// pixels small loses its contacts, and the fringes load the true ones
-    /// back (measured in docs/photoelastic.md, round 9).
+    /// the centre line; None or 0: off). Reported in `candidates`. The
+    /// photoelastic run turns them on ([`DEFAULT_CANDIDATE_GAP`]) for a
+    /// scene from `detect`: a detected circle found a few pixels small loses
+    /// its contacts, and the fringes load the true ones back
+    /// (docs/photoelastic.md, round 9).
     pub candidate_gap: Option<f64>,
     /// After the fit, contacts whose [`contact_support`] is below this are
     /// dropped and the rest refitted (None: off).
@@ -95,8 +96,9 @@ pub struct FringeFitSettings {
     /// Where walls have friction and the fit starts from the fringe
     /// gradients, a second path is fitted too — the start and the coarse
     /// stages with every wall contact frictionless, the walls' friction in
-    /// the final stage only — and the lower final residual kept (on by
-    /// default: on detected geometry the walls' friction from the start
+    /// the final stage only — and the lower final residual kept (exact
+    /// balance only; the photoelastic run turns it on for a scene from
+    /// `detect`: on detected geometry the walls' friction from the start
     /// leads to sideways wall loads and loaded false wall contacts; where
     /// walls carry friction the other path wins; docs/photoelastic.md,
     /// round 9). Costs a second fit in that case.
@@ -122,10 +124,10 @@ impl FringeFitSettings {
             poor_fit: 0.5,
             start: None,
             sparsity: 0.0,
-            candidate_gap: Some(DEFAULT_CANDIDATE_GAP),
+            candidate_gap: None,
             support_prune: None,
             extrapolate: false,
-            smooth_walls_first: true,
+            smooth_walls_first: false,
         }
     }
 
@@ -2141,7 +2143,9 @@ fn fit_scene(
     let rough_walls = (scene.contacts.iter().zip(friction_cones(scene, settings))).any(
         |(c, cone)| matches!((c.b, cone), (Body::Wall(_), Cone::Wedge { mu, .. }) if mu > 0.0),
     );
-    if !(settings.smooth_walls_first && settings.start.is_none() && rough_walls) {
+    // Under a balance penalty the residual alone does not rank the paths.
+    let hard = settings.balance == Balance::Hard;
+    if !(settings.smooth_walls_first && settings.start.is_none() && rough_walls && hard) {
         return fit_path(image, frame, scene, settings, sparsity, false);
     }
     let first = fit_path(image, frame, scene, settings, sparsity, true)?;
