@@ -359,7 +359,7 @@ fn smooth_walls_carry_no_friction() {
 /// removed (smooth in the DEM, taken at the grains' 0.5) and the loads from
 /// outside the cluster on "outside" walls with real friction. The default
 /// is never worse than friction throughout (the library's default) and better
-/// on one cluster (0.27 against 0.41: 12 disks in the corner, r = 20 px).
+/// on one cluster (0.004 against 0.41: 12 disks in the corner, r = 20 px).
 /// Walls frictionless first alone (with candidates) landed at 1.8 on the
 /// 8-disk corner cluster, whose outside loads need their friction — hence
 /// both paths.

@@ -95,7 +95,7 @@ pub struct FringeFitSettings {
     pub extrapolate: bool,
     /// Where walls have friction and the fit starts from the fringe
     /// gradients, a second path is fitted too — the start and the coarse
-    /// stages with every wall contact frictionless, the walls' friction in
+    /// stages with every wall contact nearly frictionless (μ 0.02), the walls' friction in
     /// the final stage only — and the lower final residual kept (exact
     /// balance only; the photoelastic run turns it on for a scene from
     /// `detect`: on detected geometry the walls' friction from the start
@@ -2313,13 +2313,18 @@ fn fit_path(
     Ok((FringeFit { forces, report }, x))
 }
 
-/// `scene` with every wall contact frictionless; None without wall contacts.
+/// The walls' μ in the coarse stages of the walls-first path: nearly
+/// frictionless, a wedge wide enough for the step solver (at 0 its steps
+/// left the balance).
+const COARSE_WALL_MU: f64 = 0.02;
+
+/// `scene` with every wall contact (nearly) frictionless; None without wall contacts.
 fn frictionless_walls(scene: &Scene) -> Option<Scene> {
     let walls = |c: &&mut crate::scene::Contact| matches!(c.b, Body::Wall(_));
     let mut out = scene.clone();
     let mut any = false;
     for c in out.contacts.iter_mut().filter(walls) {
-        c.mu = Some(0.0);
+        c.mu = Some(COARSE_WALL_MU);
         any = true;
     }
     any.then_some(out)
