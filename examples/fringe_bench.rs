@@ -4,12 +4,16 @@
 //!     cargo run --release --example fringe_bench [-- --detect] [--per-disk] [--repeat N]
 //!         [--candidates GAP] [--prune FLOOR] [--wall-mu MU] [--settle-edges] [--detail]
 //!         [--fsigma-scale F] [--iterations N] [--extrapolate]
+//!         [--scene DIR] [--seed N] [--dump DIR] [--circles] [--walls-last]
 //!
 //! Without flags the disks and contacts are the DEM's; `--detect` finds them
 //! in the photograph (`detect`, walls at the DEM's lines) and scores the fit
 //! against the DEM contacts matched by disk pair (a missed contact counts as
 //! zero force). Prints relerr ‖f − f_true‖/‖f_true‖, the imbalance and the
-//! fit's time (wall and CPU).
+//! fit's time (wall and CPU). `--scene` takes another DEM folder with its
+//! forces.csv (e.g. `grainforce dem oedometer --seed 2 --gate 1e-10 -o DIR`)
+//! in place of fixtures/oedometer, `--seed` the renderer's noise seed, so a
+//! default is not judged on one picture alone.
 
 use grainforce::image::fringe_fit::{fit_fringes, fit_fringes_per_disk, FringeFitSettings};
 use grainforce::image::photoelastic::{render_photoelastic, save_jpeg, PhotoelasticOptions};
@@ -34,7 +38,10 @@ fn main() -> grainforce::Result<()> {
         .and_then(|k| args.get(k + 1))
         .and_then(|v| v.parse().ok())
         .unwrap_or(1);
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/oedometer");
+    let dir = match args.iter().position(|a| a == "--scene") {
+        Some(k) => std::path::PathBuf::from(&args[k + 1]),
+        None => Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/oedometer"),
+    };
     let scene = read_scene(&dir)?;
     let rows = read_forces(&dir.join("forces.csv"))?.rows;
     let truth: Vec<[f64; 2]> = scene
@@ -55,6 +62,13 @@ fn main() -> grainforce::Result<()> {
     o.blur_px = 0.8;
     o.noise = 0.02;
     o.uneven_lighting = 0.1;
+    if let Some(seed) = args
+        .iter()
+        .position(|a| a == "--seed")
+        .and_then(|k| args.get(k + 1)?.parse().ok())
+    {
+        o.seed = seed;
+    }
     let (rgb, frame) = render_photoelastic(&scene, &truth, &o)?;
     let tmp = tempfile::tempdir().map_err(|e| grainforce::Error::io("a temporary folder", e))?;
     let path = tmp.path().join("oedometer.jpg");
@@ -77,7 +91,19 @@ fn main() -> grainforce::Result<()> {
         s.max_iterations = steps as usize;
     }
     s.extrapolate = args.iter().any(|a| a == "--extrapolate");
-    s.candidate_gap = value("--candidates");
+    // As `grainforce photoelastic` on a scene from `detect`: candidates and
+    // the walls-frictionless-first path beside the other.
+    if detect {
+        s.candidate_gap = Some(grainforce::image::fringe_fit::DEFAULT_CANDIDATE_GAP);
+        s.smooth_walls_first = true;
+    }
+    // The walls' friction from the start only (round 8's fit).
+    if args.iter().any(|a| a == "--walls-last") {
+        s.smooth_walls_first = false;
+    }
+    if let Some(gap) = value("--candidates") {
+        s.candidate_gap = (gap > 0.0).then_some(gap);
+    }
     s.support_prune = value("--prune");
     let detail = args.iter().any(|a| a == "--detail");
     let found = if detect {
@@ -105,6 +131,27 @@ fn main() -> grainforce::Result<()> {
             found.scene.contacts.len(),
             found.scene.walls.len()
         );
+        if args.iter().any(|a| a == "--circles") {
+            // Each detected circle's error against its grain beside the
+            // detector's own measures of it.
+            let matched = match_disks(&scene, &frame, &found.disks, |r| 0.5 * r);
+            for (g, k) in matched.disk_of_grain.iter().enumerate() {
+                let Some(k) = *k else { continue };
+                let d = &found.disks[k];
+                let t = &scene.grains[g];
+                let c = frame.to_pixel([t.position[0], t.position[1]]);
+                let r = t.radius.unwrap_or(0.0) * frame.px_per_m;
+                println!(
+                    "  circle {g} = disk {k}: centre off {:.2} px, radius {:+.2} px; support {:.3} visible {:.3} contrast {:.3} rms {:.3}",
+                    (d.x - c[0]).hypot(d.y - c[1]),
+                    d.r - r,
+                    d.support,
+                    d.visible,
+                    d.contrast,
+                    d.rms
+                );
+            }
+        }
         if let Some(k) = args.iter().position(|a| a == "--dump") {
             let out = Path::new(&args[k + 1]);
             grainforce::scene::write_scene(out, &found.scene)?;
@@ -143,7 +190,7 @@ fn main() -> grainforce::Result<()> {
             relerr(&fit.forces, &truth)
         };
         println!(
-            "{} disks, {} contacts{}: relerr {e:.4}, imbalance median {:.2e} max {:.2e}, {} steps, {} flagged, {wall:.2} s wall, {cpu:.2} s CPU ({} threads)",
+            "{} disks, {} contacts{}: relerr {e:.5}, imbalance median {:.2e} max {:.2e}, {} steps, {} flagged, {wall:.2} s wall, {cpu:.2} s CPU ({} threads)",
             fit_scene.grains.len(),
             fit_scene.contacts.len(),
             if detect { " (detected)" } else { "" },
@@ -208,6 +255,9 @@ fn score(
         }
     }
     let (mut num, mut den, mut missed) = (0.0, 0.0, 0);
+    // Squared error by kind: true contacts missing from the fitted list,
+    // disk–wall and disk–disk contacts present in it.
+    let mut by_kind = [0.0f64; 3];
     let mut used = HashSet::new();
     let mut errors = Vec::new();
     for (c, t) in truth_scene.contacts.iter().zip(truth) {
@@ -216,20 +266,37 @@ fn score(
             Some((k, flip)) => {
                 let t = if flip { [-t[0], -t[1]] } else { *t };
                 let f = fitted.get(&k).copied().unwrap_or([0.0; 2]);
+                let e2 = (f[0] - t[0]).powi(2) + (f[1] - t[1]).powi(2);
                 if fitted.contains_key(&k) {
                     used.insert(k.clone());
+                    by_kind[if matches!(c.b, Body::Wall(_)) { 1 } else { 2 }] += e2;
                 } else {
                     missed += 1;
+                    by_kind[0] += e2;
+                    if std::env::args().any(|a| a == "--detail") {
+                        println!(
+                            "  missed {k:?}: {}",
+                            gaps(truth_scene, found, c, disk_of_grain)
+                        );
+                    }
                 }
-                num += (f[0] - t[0]).powi(2) + (f[1] - t[1]).powi(2);
+                num += e2;
                 errors.push(((f[0] - t[0]).hypot(f[1] - t[1]), format!("{k:?}"), t, f));
                 continue;
             }
             None => [0.0; 2],
         };
         missed += 1;
-        num += (f[0] - t[0]).powi(2) + (f[1] - t[1]).powi(2);
+        let e2 = (f[0] - t[0]).powi(2) + (f[1] - t[1]).powi(2);
+        by_kind[0] += e2;
+        num += e2;
     }
+    println!(
+        "  relerr alone: missed {:.4}, disk–wall {:.4}, disk–disk {:.4}",
+        (by_kind[0] / den).sqrt(),
+        (by_kind[1] / den).sqrt(),
+        (by_kind[2] / den).sqrt()
+    );
     if std::env::args().any(|a| a == "--detail") {
         errors.sort_by(|a, b| b.0.total_cmp(&a.0));
         for (e, k, t, f) in &errors {
@@ -258,6 +325,47 @@ fn score(
         extra.iter().fold(0.0f64, |m, v| m.max(*v))
     );
     (num / den).sqrt()
+}
+
+/// Why a true contact is missing from the detected list: its gap over the
+/// smaller radius in the detected circles and in the DEM's, and how far each
+/// detected circle is from its grain (centre, radius; over its radius).
+fn gaps(
+    truth: &Scene,
+    found: &Scene,
+    c: &grainforce::scene::Contact,
+    disk_of: &[Option<usize>],
+) -> String {
+    let Body::Grain(b) = c.b else {
+        return "a wall contact".into();
+    };
+    let gap = |sc: &Scene, i: usize, j: usize| {
+        let (p, q) = (sc.grains[i].position, sc.grains[j].position);
+        let (ri, rj) = (
+            sc.grains[i].equivalent_radius(2),
+            sc.grains[j].equivalent_radius(2),
+        );
+        ((q[0] - p[0]).hypot(q[1] - p[1]) - ri - rj) / ri.min(rj)
+    };
+    let (Some(i), Some(j)) = (disk_of[c.a], disk_of[b]) else {
+        return "a disk not found".into();
+    };
+    let off = |g: usize, k: usize| {
+        let (t, f) = (&truth.grains[g], &found.grains[k]);
+        let r = t.equivalent_radius(2);
+        format!(
+            "centre {:.3} radius {:+.3}",
+            (f.position[0] - t.position[0]).hypot(f.position[1] - t.position[1]) / r,
+            (f.equivalent_radius(2) - r) / r
+        )
+    };
+    format!(
+        "detected gap {:.3} R, DEM gap {:.3} R; circles off ({}), ({}) R",
+        gap(found, i, j),
+        gap(truth, c.a, b),
+        off(c.a, i),
+        off(b, j)
+    )
 }
 
 /// Each DEM wall contact beside the detected one: the disk's distance to the

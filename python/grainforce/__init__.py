@@ -756,10 +756,11 @@ def photoelastic(
     [px/m] default to the scene's. Every keyword left None keeps the CLI's
     default: channel green, mu 0.5, exact balance (balance_weight makes it a
     penalty), blur 1 px, edge 6 px, 60 iterations, contacts "all" (or "evidence": only those
-    ``detect`` judged force-bearing); off: candidates (near-miss pairs with
-    a gap below this share of the smaller radius fitted too, listed in the
-    report) and sparsity (weight of the term that fits unsupported contacts
-    to zero) — both measured in docs/photoelastic.md, neither yet better.
+    ``detect`` judged force-bearing), candidates 0.2 on a scene from
+    ``detect`` and off on others (near-miss pairs with a gap below this
+    share of the smaller radius fitted too, listed in the report; 0: off);
+    off: sparsity (weight of the term that fits unsupported
+    contacts to zero; measured in docs/photoelastic.md, not yet better).
     wall_mu: the friction coefficient of contacts with walls (default mu;
     0 for smooth walls).
     """

@@ -57,8 +57,10 @@ pub struct Args {
     #[arg(long, value_enum, default_value_t = ContactChoice::default())]
     contacts: ContactChoice,
     /// Also fit every disk pair closer than this share of the smaller radius
-    /// as a candidate contact (a contact detection may have missed); the
-    /// candidates' forces are listed in the report, not in forces.csv.
+    /// as a candidate contact (a contact detection may have missed: a circle
+    /// found a few pixels small); the candidates' forces are listed in the
+    /// report, not in forces.csv. Default: 0.2 on a scene from `detect`
+    /// (its contacts-evidence.csv present), off on others; 0: off.
     #[arg(long)]
     candidates: Option<f64>,
     /// Fit contacts the fringes do not support to zero and drop them (listed

@@ -78,7 +78,11 @@ pub struct FringeFitSettings {
     pub sparsity: f64,
     /// Disk pairs closer than this share of the smaller radius and not in
     /// the scene are fitted too, as candidate contacts (normal and point on
-    /// the centre line; None: off). Reported in `candidates`.
+    /// the centre line; None or 0: off). Reported in `candidates`. The
+    /// photoelastic run turns them on ([`DEFAULT_CANDIDATE_GAP`]) for a
+    /// scene from `detect`: a detected circle found a few pixels small loses
+    /// its contacts, and the fringes load the true ones back
+    /// (docs/photoelastic.md, round 9).
     pub candidate_gap: Option<f64>,
     /// After the fit, contacts whose [`contact_support`] is below this are
     /// dropped and the rest refitted (None: off).
@@ -97,7 +101,23 @@ pub struct FringeFitSettings {
     /// A bright-field polariscope: the fringes are dark on a bright disk,
     /// intensity b − c S (each disk's contrast is fitted negative).
     pub bright_field: bool,
+    /// Where walls have friction and the fit starts from the fringe
+    /// gradients, a second path is fitted too — the start and the coarse
+    /// stages with every wall contact nearly frictionless (μ 0.02), the walls' friction in
+    /// the final stage only — and the lower final residual kept (exact
+    /// balance only; the photoelastic run turns it on for a scene from
+    /// `detect`: on detected geometry the walls' friction from the start
+    /// leads to sideways wall loads and loaded false wall contacts; where
+    /// walls carry friction the other path wins; docs/photoelastic.md,
+    /// round 9). Costs a second fit in that case.
+    pub smooth_walls_first: bool,
 }
+
+/// The default [`FringeFitSettings::candidate_gap`], a share of the smaller
+/// radius: wide enough for the detected circles' worst radius errors (up to
+/// 0.1 R small on the rendered packings), narrow enough that the false
+/// candidates stay few (round 4: at 0.3 R they took their neighbours' load).
+pub const DEFAULT_CANDIDATE_GAP: f64 = 0.2;
 
 impl FringeFitSettings {
     pub fn new(fringe_stress: f64) -> Self {
@@ -117,6 +137,7 @@ impl FringeFitSettings {
             extrapolate: false,
             lighting: false,
             bright_field: false,
+            smooth_walls_first: false,
         }
     }
 
@@ -2160,7 +2181,7 @@ pub fn fit_fringes(
 /// not already in contact added as a contact (normal and point on the
 /// centre line), and each added pair's gap over the smaller radius.
 fn with_candidates(scene: &Scene, gap: Option<f64>) -> (std::borrow::Cow<'_, Scene>, Vec<f64>) {
-    let Some(gap) = gap else {
+    let Some(gap) = gap.filter(|g| *g > 0.0) else {
         return (std::borrow::Cow::Borrowed(scene), Vec::new());
     };
     let listed: std::collections::HashSet<(usize, usize)> = (scene.contacts.iter())
@@ -2199,13 +2220,48 @@ fn with_candidates(scene: &Scene, gap: Option<f64>) -> (std::borrow::Cow<'_, Sce
 }
 
 /// The joint fit of `scene`'s contacts, `sparsity` in the final stage; the
-/// forces, the report and the final unknowns.
+/// forces, the report and the final unknowns. With `smooth_walls_first`
+/// and walls that have friction, fitted twice — walls frictionless until
+/// the final stage, and with their friction throughout — and the lower
+/// final objective kept: the same problem in its final stage, two paths
+/// to it (the first avoids a basin of sideways wall loads on detected
+/// geometry; the second is needed where the walls do carry friction).
 fn fit_scene(
     image: &FloatImage,
     frame: &PixelFrame,
     scene: &Scene,
     settings: &FringeFitSettings,
     sparsity: f64,
+) -> Result<(FringeFit, Vec<f64>)> {
+    let rough_walls = (scene.contacts.iter().zip(friction_cones(scene, settings))).any(
+        |(c, cone)| matches!((c.b, cone), (Body::Wall(_), Cone::Wedge { mu, .. }) if mu > 0.0),
+    );
+    // Under a balance penalty the residual alone does not rank the paths.
+    let hard = settings.balance == Balance::Hard;
+    if !(settings.smooth_walls_first && settings.start.is_none() && rough_walls && hard) {
+        return fit_path(image, frame, scene, settings, sparsity, false);
+    }
+    let first = fit_path(image, frame, scene, settings, sparsity, true)?;
+    let throughout = fit_path(image, frame, scene, settings, sparsity, false)?;
+    let steps = first.0.report.iterations + throughout.0.report.iterations;
+    let mut kept = if first.0.report.objective <= throughout.0.report.objective {
+        first
+    } else {
+        throughout
+    };
+    kept.0.report.iterations = steps;
+    Ok(kept)
+}
+
+/// One path of [`fit_scene`]: `walls_first` holds the walls frictionless
+/// in the start and the coarse stages.
+fn fit_path(
+    image: &FloatImage,
+    frame: &PixelFrame,
+    scene: &Scene,
+    settings: &FringeFitSettings,
+    sparsity: f64,
+    walls_first: bool,
 ) -> Result<(FringeFit, Vec<f64>)> {
     let started = std::time::Instant::now();
     let mut timing = FitTiming::default();
@@ -2218,6 +2274,23 @@ fn fit_scene(
         .par_iter()
         .map(|d| can_balance(d, &cones))
         .collect::<Result<_>>()?;
+    // From the fringe gradients, the start and the coarse stages hold the
+    // walls frictionless (a disk that then cannot balance alone is left out
+    // of them); the final stage gives the walls their friction.
+    let coarse_scene = (walls_first && settings.start.is_none())
+        .then(|| frictionless_walls(scene))
+        .flatten();
+    let coarse = coarse_scene.as_ref().unwrap_or(scene);
+    let final_balanced = p.balanced.clone();
+    if coarse_scene.is_some() {
+        let cones = friction_cones(coarse, settings);
+        let alone: Vec<bool> = (p.disks.par_iter())
+            .map(|d| can_balance(d, &cones))
+            .collect::<Result<_>>()?;
+        for (b, a) in p.balanced.iter_mut().zip(alone) {
+            *b &= a;
+        }
+    }
     let levels = load_levels(&p);
     // The objective is reported at the start as given (before it is balanced).
     let (mut x, objective_start) = match &settings.start {
@@ -2230,7 +2303,7 @@ fn fit_scene(
             (feasible_start(&p, scene, settings, x0)?, given)
         }
         None => {
-            let x = balanced_start(&p, scene, settings, &levels)?;
+            let x = balanced_start(&p, coarse, settings, &levels)?;
             let at = objective(&p, &x, &p.optics);
             (x, at)
         }
@@ -2252,7 +2325,7 @@ fn fit_scene(
         };
         let stepper = Stepper {
             p: &env,
-            scene: Some(scene),
+            scene: Some(coarse),
             settings,
             sparsity: 0.0,
         };
@@ -2285,9 +2358,16 @@ fn fit_scene(
             None
         };
         timing.smoothing += clock.elapsed().as_secs_f64();
+        let last = i + 1 == STAGES.len();
+        if last && coarse_scene.is_some() && p.balanced != final_balanced {
+            // Disks left out of the coarse stages' balance are held to it
+            // again: the nearest balanced field, from which steps are taken.
+            p.balanced = final_balanced.clone();
+            x = feasible_start(&p, scene, settings, x)?;
+        }
         let stepper = Stepper {
             p: stage.as_ref().unwrap_or(&p),
-            scene: Some(scene),
+            scene: Some(if last { scene } else { coarse }),
             settings,
             sparsity: if i + 1 == STAGES.len() { sparsity } else { 0.0 },
         };
@@ -2324,6 +2404,23 @@ fn fit_scene(
         timing,
     );
     Ok((FringeFit { forces, report }, x))
+}
+
+/// The walls' μ in the coarse stages of the walls-first path: nearly
+/// frictionless, a wedge wide enough for the step solver (at 0 its steps
+/// left the balance).
+const COARSE_WALL_MU: f64 = 0.02;
+
+/// `scene` with every wall contact (nearly) frictionless; None without wall contacts.
+fn frictionless_walls(scene: &Scene) -> Option<Scene> {
+    let walls = |c: &&mut crate::scene::Contact| matches!(c.b, Body::Wall(_));
+    let mut out = scene.clone();
+    let mut any = false;
+    for c in out.contacts.iter_mut().filter(walls) {
+        c.mu = Some(COARSE_WALL_MU);
+        any = true;
+    }
+    any.then_some(out)
 }
 
 /// How much each contact's load explains of its disks' fringes: for each

@@ -8,7 +8,7 @@
 
 use super::fringe_fit::{
     fit_fringes, fit_fringes_per_disk, fitted_image, wall_scale, Balance, FringeFit,
-    FringeFitSettings,
+    FringeFitSettings, DEFAULT_CANDIDATE_GAP,
 };
 use super::{load_channel, Channel, FloatImage, PixelFrame, FRAME_FILE};
 use crate::error::{Error, Result};
@@ -57,7 +57,9 @@ pub struct PhotoelasticConfig {
     pub per_disk: bool,
     pub contacts: ContactChoice,
     /// Near-miss disk pairs (gap below this share of the smaller radius)
-    /// fitted as candidate contacts, listed in the report.
+    /// fitted as candidate contacts, listed in the report (0: off). None:
+    /// [`DEFAULT_CANDIDATE_GAP`] on a scene from `detect` (its
+    /// contacts-evidence.csv present), off on others (a DEM's, PeGS's).
     pub candidate_gap: Option<f64>,
     /// Weight of the term that fits unsupported contacts to zero (0: off).
     pub sparsity: f64,
@@ -220,6 +222,15 @@ pub fn force_bearing_contacts(scene_dir: &Path) -> Result<Option<Vec<String>>> {
 
 const EVIDENCE_FILE: &str = "contacts-evidence.csv";
 
+/// The candidate gap a run uses: the one asked for (0: none), else the
+/// default on a scene from `detect` and none on others.
+fn candidate_gap(asked: Option<f64>, detected: bool) -> Option<f64> {
+    match asked {
+        Some(gap) => (gap > 0.0).then_some(gap),
+        None => detected.then_some(DEFAULT_CANDIDATE_GAP),
+    }
+}
+
 /// Reads the photograph and the scene folder and fits (see the module).
 pub fn run(image: &Path, scene_dir: &Path, config: &PhotoelasticConfig) -> Result<PhotoelasticRun> {
     let scene = read_scene(scene_dir)?;
@@ -288,7 +299,13 @@ pub fn run(image: &Path, scene_dir: &Path, config: &PhotoelasticConfig) -> Resul
     settings.blur_px = config.blur;
     settings.edge_px = config.edge;
     settings.max_iterations = config.iterations;
-    settings.candidate_gap = config.candidate_gap;
+    // A detected scene's contact list misses the contacts of circles found
+    // small, and it knows nothing of its walls' friction: candidates, and the
+    // walls-frictionless-first path beside the other (round 9). Scenes that
+    // list their own contacts (a DEM's, PeGS's) are fitted as given.
+    let detected = scene_dir.join(EVIDENCE_FILE).is_file();
+    settings.candidate_gap = candidate_gap(config.candidate_gap, detected);
+    settings.smooth_walls_first = detected;
     settings.sparsity = config.sparsity;
     if let Some(w) = config.balance_weight {
         settings.balance = Balance::Penalty(w);
@@ -363,4 +380,17 @@ pub fn run(image: &Path, scene_dir: &Path, config: &PhotoelasticConfig) -> Resul
         contacts: config.contacts,
         fsigma_fitted,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn candidates_by_default_on_detected_scenes_only() {
+        assert_eq!(candidate_gap(None, true), Some(DEFAULT_CANDIDATE_GAP));
+        assert_eq!(candidate_gap(None, false), None);
+        assert_eq!(candidate_gap(Some(0.0), true), None);
+        assert_eq!(candidate_gap(Some(0.1), false), Some(0.1));
+    }
 }
