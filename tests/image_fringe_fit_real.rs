@@ -6,7 +6,7 @@
 //! alike (docs/photoelastic.md, "Judged alike"); GRAINFORCE_FRINGE_DIAG=1
 //! prints why ours loses on each disk where it does.
 
-use grainforce::image::fringe_fit::{fit_fringes, Balance, FringeFitSettings};
+use grainforce::image::fringe_fit::{fit_fringes, Balance, FringeFitSettings, Polariscope};
 use grainforce::image::{load_channel, Channel, PixelFrame};
 use grainforce::scene::{Body, Contact, Grain, Scene};
 use std::collections::HashMap;
@@ -728,7 +728,7 @@ fn fit_settings() -> FringeFitSettings {
         s.edge_px = px;
     }
     if let Some(on) = var("GRAINFORCE_FRINGE_BRIGHT") {
-        s.bright_field = on != 0.0;
+        s.polariscope = lit_by(on != 0.0);
     }
     if let Some(on) = var("GRAINFORCE_FRINGE_LIGHTING") {
         s.lighting = on != 0.0;
@@ -757,7 +757,7 @@ fn polariscope(
     let fits: Vec<FringeFit> = [false, true]
         .into_iter()
         .map(|bright| {
-            s.bright_field = bright;
+            s.polariscope = lit_by(bright);
             fit_fringes(photo, frame, scene, &s).unwrap()
         })
         .collect();
@@ -799,7 +799,7 @@ fn best_fit(
         s.blur_px = blur;
         let mut fits = vec![("fringe start", polariscope(photo, frame, scene, &s))];
         if search != "blur" {
-            s.bright_field = fits[0].1.report.bright_field;
+            s.polariscope = lit_by(fits[0].1.report.bright_field);
             let per_disk = fit_fringes_per_disk(photo, frame, scene, &s).unwrap();
             s.start = Some(per_disk.forces);
             fits.push(("per-disk start", polariscope(photo, frame, scene, &s)));
@@ -842,7 +842,7 @@ fn against_pegs(folder: &str, image: &str, solved: &str) -> Option<Figures> {
     let fit = best_fit(&photo, &frame, &scene, &settings);
     // Drawn and diagnosed with the blur and polariscope the fit used.
     settings.blur_px = fit.report.blur_px;
-    settings.bright_field = fit.report.bright_field;
+    settings.polariscope = lit_by(fit.report.bright_field);
     let seconds = started.elapsed().as_secs_f64();
     let judged = judge(&photo, &disks);
     // Candidate contacts (when fitted) carry loads the drawing must show.
@@ -1113,5 +1113,14 @@ fn jlin_narrow21_fringes_against_pegs() {
 fn jlin_step83_fringes_against_pegs() {
     if let Some(f) = against_pegs("jlin-step83", "image3.jpg", "image3_solved.mat") {
         assert_figures(&f, 0.38, 0.93);
+    }
+}
+
+/// The polariscope named by whether it is a bright field.
+fn lit_by(bright_field: bool) -> Polariscope {
+    if bright_field {
+        Polariscope::Bright
+    } else {
+        Polariscope::Dark
     }
 }

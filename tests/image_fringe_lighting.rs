@@ -2,9 +2,9 @@
 //! unevenly (its background a plane across it) with and without the
 //! lighting term (`FringeFitSettings::lighting`), and dark fringes on a
 //! bright disk with and without the bright-field model
-//! (`FringeFitSettings::bright_field`).
+//! (`FringeFitSettings::polariscope`).
 
-use grainforce::image::fringe_fit::{fit_fringes, FringeFitSettings};
+use grainforce::image::fringe_fit::{fit_fringes, FringeFitSettings, Polariscope};
 use grainforce::image::photoelastic::{render_photoelastic, PhotoelasticOptions};
 use grainforce::image::FloatImage;
 use grainforce::scene::{Body, Contact, Grain, Scene};
@@ -89,7 +89,7 @@ fn a_light_gradient_across_a_disk_is_not_taken_for_fringes() {
 }
 
 #[test]
-fn dark_fringes_on_a_bright_disk_need_the_bright_field_model() {
+fn dark_fringes_on_a_bright_disk_need_the_bright_field_model_and_auto_finds_it() {
     let (scene, truth) = held_disk();
     let truth: Vec<[f64; 2]> = truth.iter().map(|f| [4.0 * f[0], 4.0 * f[1]]).collect();
     let fringe_stress = 1e4;
@@ -100,16 +100,31 @@ fn dark_fringes_on_a_bright_disk_need_the_bright_field_model() {
     let image = FloatImage::from_fn(rgb.width(), rgb.height(), |x, y| {
         ::image::Luma([1.0 - rgb.get_pixel(x, y)[1]])
     });
-    let fit = |bright_field: bool| {
+    let fit = |image: &FloatImage, polariscope: Polariscope| {
         let mut s = FringeFitSettings::new(fringe_stress);
         s.blur_px = 0.8;
-        s.bright_field = bright_field;
+        s.polariscope = polariscope;
         s.start = Some(truth.iter().map(|f| [1.1 * f[0], 0.9 * f[1]]).collect());
-        let f = fit_fringes(&image, &frame, &scene, &s).unwrap();
-        relerr(&f.forces, &truth)
+        let f = fit_fringes(image, &frame, &scene, &s).unwrap();
+        (relerr(&f.forces, &truth), f.report.bright_field)
     };
-    let (dark, bright) = (fit(false), fit(true));
+    let (dark, _) = fit(&image, Polariscope::Dark);
+    let (bright, _) = fit(&image, Polariscope::Bright);
     eprintln!("relerr: dark-field model {dark:.4}, bright-field model {bright:.4}");
     assert!(bright < 0.01, "bright-field model: relerr {bright}");
     assert!(dark > 0.05, "dark-field model: relerr {dark}");
+    // Read from the picture: bright here, dark on the picture as rendered.
+    let (auto, lit) = fit(&image, Polariscope::Auto);
+    assert!(
+        lit && auto == bright,
+        "auto: bright field {lit}, relerr {auto}"
+    );
+    let rendered = FloatImage::from_fn(rgb.width(), rgb.height(), |x, y| {
+        ::image::Luma([rgb.get_pixel(x, y)[1]])
+    });
+    let (auto, lit) = fit(&rendered, Polariscope::Auto);
+    assert!(
+        !lit && auto < 0.01,
+        "auto on the dark field: bright {lit}, relerr {auto}"
+    );
 }

@@ -744,12 +744,14 @@ def photoelastic(
     candidates: Optional[float] = None,
     sparsity: Optional[float] = None,
     wall_mu: Optional[float] = None,
+    polariscope: Optional[str] = None,
+    lighting: bool = False,
 ) -> Photoelastic:
     """Contact forces fitted to a photoelastic photograph's fringes, all
     disks at once under balance and friction (``grainforce photoelastic``,
     docs/photoelastic.md).
 
-    image: the photograph (dark-field circular polariscope). scene: the scene
+    image: the photograph (circular polariscope). scene: the scene
     folder from ``grainforce detect`` or ``import pegs`` (disks, contacts,
     image-frame.json). fsigma: the fringe constant f_σ [N/m]; without it f_σ
     is fitted to the walls' load cells (walls.csv). thickness [m] and scale
@@ -762,7 +764,10 @@ def photoelastic(
     off: sparsity (weight of the term that fits unsupported
     contacts to zero; measured in docs/photoelastic.md, not yet better).
     wall_mu: the friction coefficient of contacts with walls (default mu;
-    0 for smooth walls).
+    0 for smooth walls). polariscope: "dark" (bright fringes on dark disks),
+    "bright" (dark fringes on bright disks) or "auto" (the default: read from
+    the photograph; ``report["bright_field"]`` says which). lighting: fit
+    each disk's background as a plane (light falling off across it).
     """
     opt = lambda v: None if v is None else float(v)
     return Photoelastic(
@@ -783,6 +788,8 @@ def photoelastic(
             opt(candidates),
             opt(sparsity),
             opt(wall_mu),
+            polariscope,
+            bool(lighting),
         )
     )
 

@@ -781,7 +781,7 @@ impl Photoelastic {
 /// at once under balance and friction (`grainforce photoelastic`). `None`
 /// keeps the CLI's default.
 #[pyfunction]
-#[pyo3(signature = (image, scene, fsigma=None, thickness=None, scale=None, channel=None, mu=None, balance_weight=None, blur=None, edge=None, iterations=None, per_disk=false, contacts=None, candidates=None, sparsity=None, wall_mu=None))]
+#[pyo3(signature = (image, scene, fsigma=None, thickness=None, scale=None, channel=None, mu=None, balance_weight=None, blur=None, edge=None, iterations=None, per_disk=false, contacts=None, candidates=None, sparsity=None, wall_mu=None, polariscope=None, lighting=false))]
 #[allow(clippy::too_many_arguments)]
 fn photoelastic(
     py: Python<'_>,
@@ -801,6 +801,8 @@ fn photoelastic(
     candidates: Option<f64>,
     sparsity: Option<f64>,
     wall_mu: Option<f64>,
+    polariscope: Option<&str>,
+    lighting: bool,
 ) -> PyResult<Photoelastic> {
     use grainforce::image::fringe_run::{self, ContactChoice, PhotoelasticConfig};
     // Fields a caller leaves out keep the library's defaults (the CLI's).
@@ -812,8 +814,12 @@ fn photoelastic(
         per_disk,
         candidate_gap: candidates,
         wall_mu,
+        lighting,
         ..PhotoelasticConfig::default()
     };
+    if let Some(name) = polariscope {
+        config.polariscope = name.parse().map_err(PyValueError::new_err)?;
+    }
     if let Some(name) = channel {
         config.channel = grainforce::image::Channel::parse(name).map_err(to_py)?;
     }

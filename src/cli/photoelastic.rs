@@ -1,6 +1,7 @@
 //! `grainforce photoelastic`: contact forces fitted to a photoelastic
 //! photograph's fringes, all disks at once, under balance and friction.
 
+use grainforce::image::fringe_fit::Polariscope;
 use grainforce::image::fringe_run::{self, ContactChoice, PhotoelasticConfig};
 use grainforce::image::Channel;
 use grainforce::{Error, Result};
@@ -69,6 +70,16 @@ pub struct Args {
     /// contacts and leaves the costly false ones (docs/photoelastic.md).
     #[arg(long, default_value_t = 0.0)]
     sparsity: f64,
+    /// The polariscope: `dark` field (bright fringes on dark disks), `bright`
+    /// field (dark fringes on bright disks), or `auto`: read from the
+    /// photograph (the disks vote by how their intensity follows the start's
+    /// fringes); the report and the summary say which.
+    #[arg(long, value_enum, default_value_t = Polariscope::Auto)]
+    polariscope: Polariscope,
+    /// Fit each disk's background as a plane (light falling off across the
+    /// disk) instead of a constant.
+    #[arg(long)]
+    lighting: bool,
     /// Write the photograph and the fitted fringes side by side (PNG).
     #[arg(long)]
     overlay: Option<PathBuf>,
@@ -93,6 +104,8 @@ pub fn run(args: Args) -> Result<()> {
         contacts: args.contacts,
         candidate_gap: args.candidates,
         sparsity: args.sparsity,
+        polariscope: args.polariscope,
+        lighting: args.lighting,
     };
     let done = fringe_run::run(&args.image, &args.scene, &config).map_err(spell_flags)?;
     done.write(
@@ -112,10 +125,11 @@ pub fn run(args: Args) -> Result<()> {
     }
     let r = &done.fit.report;
     status!(
-        "{} disks, {} contacts ({} fitted): fringe residual {:.4} → {:.4} in {} steps, imbalance median {:.2e}, {} disk(s) flagged, {:.2} s",
+        "{} disks, {} contacts ({} fitted), {} field: fringe residual {:.4} → {:.4} in {} steps, imbalance median {:.2e}, {} disk(s) flagged, {:.2} s",
         done.scene.grains.len(),
         done.scene.contacts.len(),
         done.scene.contacts.len() - done.left_out.len(),
+        if r.bright_field { "bright" } else { "dark" },
         r.objective_start,
         r.objective,
         r.iterations,

@@ -98,9 +98,10 @@ pub struct FringeFitSettings {
     /// off across a disk is not taken for fringes (off by default;
     /// docs/photoelastic.md "Judged alike").
     pub lighting: bool,
-    /// A bright-field polariscope: the fringes are dark on a bright disk,
-    /// intensity b − c S (each disk's contrast is fitted negative).
-    pub bright_field: bool,
+    /// The polariscope: dark field (bright fringes on dark, unloaded disks),
+    /// bright field (dark fringes on bright disks: each disk's contrast is
+    /// fitted negative), or read from the photograph at the start.
+    pub polariscope: Polariscope,
     /// Where walls have friction and the fit starts from the fringe
     /// gradients, a second path is fitted too — the start and the coarse
     /// stages with every wall contact nearly frictionless (μ 0.02), the walls' friction in
@@ -111,6 +112,33 @@ pub struct FringeFitSettings {
     /// walls carry friction the other path wins; docs/photoelastic.md,
     /// round 9). Costs a second fit in that case.
     pub smooth_walls_first: bool,
+}
+
+/// How the photograph was lit: [`FringeFitSettings::polariscope`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
+pub enum Polariscope {
+    /// Crossed polarisers: I = b + c sin²(πN), dark where unloaded.
+    Dark,
+    /// Parallel polarisers: I = b − c sin²(πN), bright where unloaded.
+    Bright,
+    /// Both fitted, the one closer to the photograph kept (twice the time).
+    #[default]
+    Auto,
+}
+
+impl std::str::FromStr for Polariscope {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        match s {
+            "dark" => Ok(Polariscope::Dark),
+            "bright" => Ok(Polariscope::Bright),
+            "auto" => Ok(Polariscope::Auto),
+            other => Err(format!(
+                "unknown polariscope {other:?} (expected dark, bright or auto)"
+            )),
+        }
+    }
 }
 
 /// The default [`FringeFitSettings::candidate_gap`], a share of the smaller
@@ -136,7 +164,7 @@ impl FringeFitSettings {
             support_prune: None,
             extrapolate: false,
             lighting: false,
-            bright_field: false,
+            polariscope: Polariscope::Auto,
             smooth_walls_first: false,
         }
     }
@@ -987,7 +1015,7 @@ fn prepare(
         contrast: contrast_estimate(&disks),
         envelope: None,
         lighting: settings.lighting,
-        bright_field: settings.bright_field,
+        bright_field: settings.polariscope == Polariscope::Bright,
     };
     let balanced = vec![true; disks.len()];
     Ok(Prepared {
@@ -2068,6 +2096,34 @@ fn smoothed(p: &Prepared, sigma_px: f64) -> Prepared {
     }
 }
 
+/// [`Polariscope::Auto`]: the fit under each polariscope, and the one whose
+/// fringes come closer to the photograph kept (steps and seconds of both).
+/// A vote of the disks at the start was tried instead and picked the dark
+/// field on real bright-field photographs (docs/photoelastic.md, round 9).
+fn either_polariscope(
+    settings: &FringeFitSettings,
+    fit: impl Fn(&FringeFitSettings) -> Result<FringeFit>,
+) -> Result<FringeFit> {
+    let lit = |polariscope| FringeFitSettings {
+        polariscope,
+        ..settings.clone()
+    };
+    let dark = fit(&lit(Polariscope::Dark))?;
+    let bright = fit(&lit(Polariscope::Bright))?;
+    let (steps, seconds) = (
+        dark.report.iterations + bright.report.iterations,
+        dark.report.seconds + bright.report.seconds,
+    );
+    let mut kept = if bright.report.objective < dark.report.objective {
+        bright
+    } else {
+        dark
+    };
+    kept.report.iterations = steps;
+    kept.report.seconds = seconds;
+    Ok(kept)
+}
+
 fn stage_optics(
     p: &Prepared,
     frame: &PixelFrame,
@@ -2093,6 +2149,9 @@ pub fn fit_fringes(
     scene: &Scene,
     settings: &FringeFitSettings,
 ) -> Result<FringeFit> {
+    if settings.polariscope == Polariscope::Auto {
+        return either_polariscope(settings, |s| fit_fringes(image, frame, scene, s));
+    }
     let started = std::time::Instant::now();
     settings.validate()?;
     let (work, gaps) = with_candidates(scene, settings.candidate_gap);
@@ -2304,9 +2363,13 @@ fn fit_path(
         }
         None => {
             let x = balanced_start(&p, coarse, settings, &levels)?;
-            let at = objective(&p, &x, &p.optics);
-            (x, at)
+            (x, 0.0)
         }
+    };
+    let objective_start = if settings.start.is_some() {
+        objective_start
+    } else {
+        objective(&p, &x, &p.optics)
     };
     timing.start = clock.elapsed().as_secs_f64();
     let radius_px = p.scale / settings.fringe_stress * frame.px_per_m;
@@ -2490,6 +2553,9 @@ pub fn fit_fringes_per_disk(
     scene: &Scene,
     settings: &FringeFitSettings,
 ) -> Result<FringeFit> {
+    if settings.polariscope == Polariscope::Auto {
+        return either_polariscope(settings, |s| fit_fringes_per_disk(image, frame, scene, s));
+    }
     let started = std::time::Instant::now();
     let mut timing = FitTiming::default();
     let p = prepare(image, frame, scene, settings, true)?;
@@ -2714,7 +2780,7 @@ fn report(
         balance: settings.balance,
         mu: settings.mu,
         blur_px: settings.blur_px,
-        bright_field: settings.bright_field,
+        bright_field: p.optics.bright_field,
         iterations,
         objective_start,
         objective: evals.iter().map(|e| e.ssr).sum(),

@@ -8,7 +8,7 @@
 
 use super::fringe_fit::{
     fit_fringes, fit_fringes_per_disk, fitted_image, wall_scale, Balance, FringeFit,
-    FringeFitSettings, DEFAULT_CANDIDATE_GAP,
+    FringeFitSettings, Polariscope, DEFAULT_CANDIDATE_GAP,
 };
 use super::{load_channel, Channel, FloatImage, PixelFrame, FRAME_FILE};
 use crate::error::{Error, Result};
@@ -63,6 +63,10 @@ pub struct PhotoelasticConfig {
     pub candidate_gap: Option<f64>,
     /// Weight of the term that fits unsupported contacts to zero (0: off).
     pub sparsity: f64,
+    /// Dark or bright field, or read from the photograph.
+    pub polariscope: Polariscope,
+    /// Each disk's background a plane (light falling off across it).
+    pub lighting: bool,
 }
 
 impl Default for PhotoelasticConfig {
@@ -82,6 +86,8 @@ impl Default for PhotoelasticConfig {
             contacts: ContactChoice::default(),
             candidate_gap: None,
             sparsity: 0.0,
+            polariscope: Polariscope::Auto,
+            lighting: false,
         }
     }
 }
@@ -307,6 +313,8 @@ pub fn run(image: &Path, scene_dir: &Path, config: &PhotoelasticConfig) -> Resul
     settings.candidate_gap = candidate_gap(config.candidate_gap, detected);
     settings.smooth_walls_first = detected;
     settings.sparsity = config.sparsity;
+    settings.polariscope = config.polariscope;
+    settings.lighting = config.lighting;
     if let Some(w) = config.balance_weight {
         settings.balance = Balance::Penalty(w);
     }
