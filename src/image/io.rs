@@ -219,43 +219,34 @@ fn colour_distance<T: Copy + Into<f32> + Sync>(
     (width, height): (u32, u32),
     full_scale: f32,
 ) -> (FloatImage, (FloatImage, Channel), [f32; 3], f64, f64) {
-    const LEVELS: usize = 16;
-    let bin = |p: &[T]| -> usize {
-        let q =
-            |v: T| ((Into::<f32>::into(v) / full_scale * LEVELS as f32) as usize).min(LEVELS - 1);
-        (q(p[0]) * LEVELS + q(p[1])) * LEVELS + q(p[2])
-    };
     // Every pixel of a small image, every 7th (a prime stride) of a big one.
     let pixels = raw.len() / 3;
     let stride = if pixels > 4_000_000 { 7 } else { 1 };
-    let mut count = vec![0usize; LEVELS * LEVELS * LEVELS];
-    let mut sum = vec![[0.0f64; 3]; LEVELS * LEVELS * LEVELS];
-    let mut seen = 0usize;
-    for p in raw.chunks_exact(3).step_by(stride) {
-        let b = bin(p);
-        count[b] += 1;
-        for c in 0..3 {
-            sum[b][c] += Into::<f32>::into(p[c]) as f64;
-        }
-        seen += 1;
+    // Each channel binned on its own scale (its 99th percentile): light of
+    // one colour leaves the others a few levels, where the backdrop and the
+    // disks would share bins. Where that finds no bright field, the
+    // channels are binned on the full scale, as before (dark fields).
+    let own = channel_tops(raw, stride.max(3), full_scale);
+    let mut scales = own;
+    let mut found = histogram_background(raw, stride, own);
+    if found
+        .2
+        .iter()
+        .all(|&v| (v as f32) < BRIGHT_FIELD * full_scale)
+    {
+        scales = [full_scale; 3];
+        found = histogram_background(raw, stride, scales);
     }
-    let luma = |p: [f64; 3]| 0.299 * p[0] + 0.587 * p[1] + 0.114 * p[2];
-    let bin_luma: Vec<f64> = (0..count.len())
-        .map(|b| luma(sum[b]) / count[b].max(1) as f64)
-        .collect();
-    let sample: Vec<f64> = raw
-        .chunks_exact(3)
-        .step_by(stride.max(3))
-        .map(|p| luma([0, 1, 2].map(|c| Into::<f32>::into(p[c]) as f64)))
-        .collect();
-    let fullest = background_bin(&count, &bin_luma, sample, full_scale as f64 / LEVELS as f64);
-    let n = count[fullest];
-    let background = [0, 1, 2].map(|c| (sum[fullest][c] / n.max(1) as f64) as f32 / full_scale);
+    let (fullest, n, mean, seen) = found;
+    let bin = |p: &[T]| bin_of(p, &scales);
+    let background = mean.map(|v| v as f32 / full_scale);
     let spreads = channel_spreads(raw, stride);
+    let gain = white_balance(background);
     let distance: Vec<f32> = raw
         .par_chunks_exact(3)
         .map(|p| {
-            let d = [0, 1, 2].map(|c| Into::<f32>::into(p[c]) / full_scale - background[c]);
+            let d =
+                [0, 1, 2].map(|c| (Into::<f32>::into(p[c]) / full_scale - background[c]) * gain[c]);
             (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt()
         })
         .collect();
@@ -300,6 +291,121 @@ fn colour_distance<T: Copy + Into<f32> + Sync>(
         background_level,
     )
 }
+
+/// Histogram bins per channel for [`histogram_background`].
+const LEVELS: usize = 16;
+
+/// The bin of pixel `p`, each channel on its own `scales`.
+fn bin_of<T: Copy + Into<f32>>(p: &[T], scales: &[f32; 3]) -> usize {
+    let q =
+        |c: usize| ((Into::<f32>::into(p[c]) / scales[c] * LEVELS as f32) as usize).min(LEVELS - 1);
+    (q(0) * LEVELS + q(1)) * LEVELS + q(2)
+}
+
+/// The background's bin ([`background_bin`]) of a histogram of every
+/// `stride`-th pixel binned on `scales`: the bin, its count, its mean
+/// colour (raw units) and the pixels counted.
+fn histogram_background<T: Copy + Into<f32>>(
+    raw: &[T],
+    stride: usize,
+    scales: [f32; 3],
+) -> (usize, usize, [f64; 3], usize) {
+    let mut count = vec![0usize; LEVELS * LEVELS * LEVELS];
+    let mut sum = vec![[0.0f64; 3]; LEVELS * LEVELS * LEVELS];
+    let mut seen = 0usize;
+    for p in raw.chunks_exact(3).step_by(stride) {
+        let b = bin_of(p, &scales);
+        count[b] += 1;
+        for c in 0..3 {
+            sum[b][c] += Into::<f32>::into(p[c]) as f64;
+        }
+        seen += 1;
+    }
+    // Luma on the channels' scales too.
+    let luma = |p: [f64; 3]| {
+        0.299 * p[0] / scales[0] as f64
+            + 0.587 * p[1] / scales[1] as f64
+            + 0.114 * p[2] / scales[2] as f64
+    };
+    let bin_luma: Vec<f64> = (0..count.len())
+        .map(|b| luma(sum[b]) / count[b].max(1) as f64)
+        .collect();
+    let sample: Vec<f64> = raw
+        .chunks_exact(3)
+        .step_by(stride.max(3))
+        .map(|p| luma([0, 1, 2].map(|c| Into::<f32>::into(p[c]) as f64)))
+        .collect();
+    let fullest = background_bin(&count, &bin_luma, sample, 1.0 / LEVELS as f64);
+    let n = count[fullest];
+    let mean = [0, 1, 2].map(|c| sum[fullest][c] / n.max(1) as f64);
+    (fullest, n, mean, seen)
+}
+
+/// Each channel's 99th percentile over every `stride`-th pixel, at least
+/// one 255th of full scale.
+fn channel_tops<T: Copy + Into<f32>>(raw: &[T], stride: usize, full_scale: f32) -> [f32; 3] {
+    [0, 1, 2].map(|c| {
+        let mut v: Vec<f32> = raw
+            .chunks_exact(3)
+            .step_by(stride)
+            .map(|p| p[c].into())
+            .collect();
+        if v.is_empty() {
+            return full_scale;
+        }
+        let k = (v.len() * 99 / 100).min(v.len() - 1);
+        v.select_nth_unstable_by(k, f32::total_cmp)
+            .1
+            .max(full_scale / 255.0)
+    })
+}
+
+/// Per-channel gains that make a bright background grey (von Kries white
+/// balance): behind a bright field the background is the light itself, and
+/// light of one colour (red, orange, green) dims the other channels, and
+/// with them every difference between a disk and the background that lies
+/// in those channels (`jl-static0765` under red light in
+/// benches/robustness_photos.py: 139 → 104 of 152 disks). Each channel is scaled by
+/// the brightest background channel over its own, at most [`MAX_GAIN`]
+/// times (noise grows with the gain). A dark field (no background channel
+/// of [`BRIGHT_FIELD`]) and a channel the light leaves nearly empty (under
+/// [`DEAD_CHANNEL`] of the brightest: its noise, not its picture) keep a
+/// gain of 1.
+fn white_balance(background: [f32; 3]) -> [f32; 3] {
+    let brightest = background.iter().copied().fold(0.0f32, f32::max);
+    if brightest < BRIGHT_FIELD {
+        return [1.0; 3];
+    }
+    let gain = background.map(|b| {
+        if b < DEAD_CHANNEL * brightest {
+            1.0
+        } else {
+            (brightest / b).clamp(1.0, MAX_GAIN)
+        }
+    });
+    if gain.iter().all(|&g| g < COLOURED_LIGHT) {
+        return [1.0; 3];
+    }
+    gain
+}
+
+/// See [`white_balance`]: a light is coloured when one channel's gain
+/// reaches this; a white light's tint is left alone (the photographs of
+/// docs/image.md in white light: at most 1.09, `jl-video181`'s yellowish
+/// backlight; the sweep's coloured lights 3.3–8).
+const COLOURED_LIGHT: f32 = 1.5;
+
+/// See [`white_balance`]: the largest channel gain (a red light's blue is
+/// 0.12 of its red in the sweep's illuminants, gain 8.3).
+const MAX_GAIN: f32 = 8.0;
+/// See [`white_balance`]: a background whose brightest channel is under
+/// this (fraction of full scale) is a dark field, left unbalanced.
+const BRIGHT_FIELD: f32 = 0.25;
+/// See [`white_balance`]: a background channel under this fraction of the
+/// brightest carries too little of the picture to balance (a red LED's
+/// green and blue, 2–5 %, `tests/image_real_photos.rs`; amplified, their
+/// noise made circles: `jlin-narrow21` +6, `jlin-iphone83` 83 → 60).
+const DEAD_CHANNEL: f32 = 0.1;
 
 /// The background's histogram bin: the fullest bin whose colour is among the
 /// image's darkest or brightest (its mean luma within one bin of the 5th
