@@ -3,6 +3,8 @@
 //! (DEM) forces: a cluster of the 58-disk oedometer, its outside neighbours'
 //! contacts kept as loads from an "outside" body.
 
+mod common;
+use common::relerr_2d as relerr;
 use grainforce::image::fringe_fit::{
     contact_support, fit_fringes, fit_fringes_per_disk, imbalances, FringeFit, FringeFitSettings,
     DEFAULT_CANDIDATE_GAP,
@@ -101,15 +103,6 @@ fn sparsity_sweep() -> Vec<f64> {
                 .expect("GRAINFORCE_SPARSITY: numbers, comma-separated")
         })
         .collect()
-}
-
-fn relerr(fit: &[[f64; 2]], truth: &[[f64; 2]]) -> f64 {
-    let (mut num, mut den) = (0.0, 0.0);
-    for (f, t) in fit.iter().zip(truth) {
-        num += (f[0] - t[0]).powi(2) + (f[1] - t[1]).powi(2);
-        den += t[0] * t[0] + t[1] * t[1];
-    }
-    (num / den).sqrt()
 }
 
 struct Rendered {

@@ -961,15 +961,15 @@ fn diagnose(
         .map(|j| if lit { j.pegs_lit } else { j.pegs_affine })
         .collect();
     let mine = if lit { &ours.lit } else { &ours.affine };
+    let ours_sides: Vec<Sides> = fit
+        .forces
+        .iter()
+        .map(|f| Sides {
+            a: *f,
+            b: Some([-f[0], -f[1]]),
+        })
+        .collect();
     let per_disk = |start: Vec<[f64; 2]>| -> (Scene, FringeFit) {
-        let ours_sides: Vec<Sides> = fit
-            .forces
-            .iter()
-            .map(|f| Sides {
-                a: *f,
-                b: Some([-f[0], -f[1]]),
-            })
-            .collect();
         let (split_scene, _) = split(scene, &ours_sides);
         let mut s = settings.clone();
         s.start = Some(start);
@@ -986,14 +986,6 @@ fn diagnose(
             })
             .collect()
     };
-    let ours_sides: Vec<Sides> = fit
-        .forces
-        .iter()
-        .map(|f| Sides {
-            a: *f,
-            b: Some([-f[0], -f[1]]),
-        })
-        .collect();
     let (split_scene, from_ours) = split(scene, &ours_sides);
     for k in [0.25, 0.5, 0.7, 1.0, 1.4, 2.0, 4.0] {
         let (_, f) = split(scene, &scaled(k * unit));

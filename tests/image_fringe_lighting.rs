@@ -4,6 +4,8 @@
 //! bright disk with and without the bright-field model
 //! (`FringeFitSettings::polariscope`).
 
+mod common;
+use common::relerr_2d as relerr;
 use grainforce::image::fringe_fit::{fit_fringes, FringeFitSettings, Polariscope};
 use grainforce::image::photoelastic::{render_photoelastic, PhotoelasticOptions};
 use grainforce::image::FloatImage;
@@ -46,15 +48,6 @@ fn held_disk() -> (Scene, Vec<[f64; 2]>) {
         forces.push([-f * n[0], -f * n[1]]);
     }
     (scene, forces)
-}
-
-fn relerr(fit: &[[f64; 2]], truth: &[[f64; 2]]) -> f64 {
-    let (mut num, mut den) = (0.0, 0.0);
-    for (f, t) in fit.iter().zip(truth) {
-        num += (f[0] - t[0]).powi(2) + (f[1] - t[1]).powi(2);
-        den += t[0] * t[0] + t[1] * t[1];
-    }
-    (num / den).sqrt()
 }
 
 #[test]

@@ -239,6 +239,16 @@ pub fn relerr(truth: &[Vec3], inferred: &[Vec3]) -> f64 {
     (e / n).sqrt()
 }
 
+/// The relative error of 2D forces (x, y per contact) against the truth.
+pub fn relerr_2d(fit: &[[f64; 2]], truth: &[[f64; 2]]) -> f64 {
+    let (mut num, mut den) = (0.0, 0.0);
+    for (f, t) in fit.iter().zip(truth) {
+        num += (f[0] - t[0]).powi(2) + (f[1] - t[1]).powi(2);
+        den += t[0] * t[0] + t[1] * t[1];
+    }
+    (num / den).sqrt()
+}
+
 /// A frictional 2D packing: `nx` × `ny` disks on a triangular lattice between
 /// four frictionless walls, with exact forces.
 pub fn lattice_2d(nx: usize, ny: usize, mu: f64) -> (Scene, Vec<Vec3>) {
