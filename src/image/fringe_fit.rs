@@ -1657,6 +1657,8 @@ struct LmOutcome {
     x: Vec<f64>,
     iterations: usize,
     damping: f64,
+    /// The stage's objective at `x`.
+    objective: f64,
 }
 
 impl Stepper<'_> {
@@ -1834,11 +1836,11 @@ impl Stepper<'_> {
                 break;
             }
         }
-        let _ = current;
         Ok(LmOutcome {
             x,
             iterations,
             damping,
+            objective: current,
         })
     }
 
@@ -2149,9 +2151,6 @@ pub fn fit_fringes(
     scene: &Scene,
     settings: &FringeFitSettings,
 ) -> Result<FringeFit> {
-    if settings.polariscope == Polariscope::Auto {
-        return either_polariscope(settings, |s| fit_fringes(image, frame, scene, s));
-    }
     let started = std::time::Instant::now();
     settings.validate()?;
     let (work, gaps) = with_candidates(scene, settings.candidate_gap);
@@ -2165,6 +2164,14 @@ pub fn fit_fringes(
         forces.resize(work.contacts.len(), [0.0; 2]);
     }
     let (mut fit, x) = fit_scene(image, frame, &work, &start, settings.sparsity)?;
+    // Under `Auto`, the prune and the refit keep the polariscope the fit chose.
+    let settings = &FringeFitSettings {
+        polariscope: match fit.report.bright_field {
+            true => Polariscope::Bright,
+            false => Polariscope::Dark,
+        },
+        ..settings.clone()
+    };
     let mut dropped = vec![false; work.contacts.len()];
     if settings.sparsity > 0.0 {
         for (k, d) in dropped.iter_mut().enumerate() {
@@ -2352,9 +2359,13 @@ fn fit_path(
     }
     let levels = load_levels(&p);
     // The objective is reported at the start as given (before it is balanced).
-    let (mut x, objective_start) = match &settings.start {
-        Some(forces) => {
-            let x0 = to_unknowns(scene, forces, p.scale)?;
+    let given_x = match &settings.start {
+        Some(forces) => Some(to_unknowns(scene, forces, p.scale)?),
+        None => None,
+    };
+    let (mut x, objective_start) = match &given_x {
+        Some(x0) => {
+            let x0 = x0.clone();
             let given = objective(&p, &x0, &p.optics);
             if settings.balance == Balance::Hard {
                 release_forced_zeros(&mut p, scene, settings, &x0)?;
@@ -2366,6 +2377,8 @@ fn fit_path(
             (x, 0.0)
         }
     };
+    // Under `Auto`, the start is judged again once the polariscope is known.
+    let start_x = given_x.unwrap_or_else(|| x.clone());
     let objective_start = if settings.start.is_some() {
         objective_start
     } else {
@@ -2374,7 +2387,6 @@ fn fit_path(
     timing.start = clock.elapsed().as_secs_f64();
     let radius_px = p.scale / settings.fringe_stress * frame.px_per_m;
     let mut iterations = 0;
-    let mut damping = 0.0;
     if settings.start.is_none() {
         // The envelope first: smooth in the forces, its minimum near the
         // intensity fit's basin.
@@ -2403,54 +2415,43 @@ fn fit_path(
         iterations += out.iterations;
         timing.steps.push(out.iterations);
     }
-    for (i, &extra) in STAGES.iter().enumerate() {
-        let left = settings.max_iterations.saturating_sub(iterations);
-        let budget = if i + 1 == STAGES.len() {
-            left
-        } else {
-            left / 3
-        };
-        if budget == 0 {
-            continue;
-        }
-        let sigma = extra * radius_px;
-        let clock = std::time::Instant::now();
-        let stage = if sigma > 0.5 {
-            Some(thinned(smoothed(&p, sigma), stride_for(sigma)))
-        } else {
-            None
-        };
-        timing.smoothing += clock.elapsed().as_secs_f64();
-        let last = i + 1 == STAGES.len();
-        if last && coarse_scene.is_some() && p.balanced != final_balanced {
-            // Disks left out of the coarse stages' balance are held to it
-            // again: the nearest balanced field, from which steps are taken.
-            p.balanced = final_balanced.clone();
-            x = feasible_start(&p, scene, settings, x)?;
-        }
-        let stepper = Stepper {
-            p: stage.as_ref().unwrap_or(&p),
-            scene: Some(if last { scene } else { coarse }),
-            settings,
-            sparsity: if i + 1 == STAGES.len() { sparsity } else { 0.0 },
-        };
-        let optics = stage_optics(
-            &p,
-            frame,
-            settings,
-            if stage.is_some() { sigma } else { 0.0 },
-        );
-        let tolerance = if i + 1 == STAGES.len() {
-            FINAL_TOLERANCE
-        } else {
-            COARSE_TOLERANCE
-        };
-        let out = stepper.run(x, &optics, budget, tolerance, &mut timing)?;
-        x = out.x;
-        iterations += out.iterations;
-        damping = out.damping;
-        timing.steps.push(out.iterations);
+    let stages = Stages {
+        frame,
+        settings,
+        scene,
+        coarse,
+        walls_first: coarse_scene.is_some(),
+        final_balanced: &final_balanced,
+        radius_px,
+        sparsity,
+    };
+    let mut state = StageState {
+        x,
+        iterations,
+        discarded: 0,
+        damping: 0.0,
+        objective: f64::INFINITY,
+    };
+    let mut next = 0;
+    if settings.polariscope == Polariscope::Auto {
+        next = stages.decide_polariscope(&mut p, &mut state, &mut timing)?;
     }
+    for i in next..STAGES.len() {
+        stages.run(i, &mut p, &mut state, &mut timing)?;
+    }
+    let StageState {
+        x,
+        iterations,
+        discarded,
+        damping,
+        ..
+    } = state;
+    let iterations = iterations + discarded;
+    let objective_start = if settings.polariscope == Polariscope::Auto {
+        objective(&p, &start_x, &p.optics)
+    } else {
+        objective_start
+    };
     let forces = to_forces(scene, &x, p.scale);
     let report = report(
         "joint",
@@ -2467,6 +2468,155 @@ fn fit_path(
         timing,
     );
     Ok((FringeFit { forces, report }, x))
+}
+
+/// The last stage whose end decides [`Polariscope::Auto`]: both
+/// polariscopes are fitted through it from the shared start and envelope
+/// stage (neither depends on the polariscope), and the lower objective
+/// continues alone (docs/photoelastic.md, "An early polariscope").
+const DECIDE_POLARISCOPE_AFTER: usize = 0;
+
+/// Where a path's stages have brought the unknowns.
+#[derive(Clone)]
+struct StageState {
+    x: Vec<f64>,
+    /// Steps on this path (the stages' budgets come from them).
+    iterations: usize,
+    /// Steps of the polariscope not kept (reported, not budgeted).
+    discarded: usize,
+    damping: f64,
+    objective: f64,
+}
+
+/// What every intensity stage of one path shares.
+struct Stages<'a> {
+    frame: &'a PixelFrame,
+    settings: &'a FringeFitSettings,
+    scene: &'a Scene,
+    coarse: &'a Scene,
+    walls_first: bool,
+    final_balanced: &'a [bool],
+    radius_px: f64,
+    sparsity: f64,
+}
+
+impl Stages<'_> {
+    /// Stages up to [`DECIDE_POLARISCOPE_AFTER`] under each polariscope,
+    /// the better kept in `p` and `state`; the next stage to run.
+    /// `GRAINFORCE_POLARISCOPE_TRACE` (a diagnostic) runs both to the end
+    /// instead, printing each stage's objective, and keeps the lower final one.
+    fn decide_polariscope(
+        &self,
+        p: &mut Prepared,
+        state: &mut StageState,
+        timing: &mut FitTiming,
+    ) -> Result<usize> {
+        let trace = std::env::var_os("GRAINFORCE_POLARISCOPE_TRACE").is_some();
+        let last = if trace {
+            STAGES.len() - 1
+        } else {
+            DECIDE_POLARISCOPE_AFTER.min(STAGES.len() - 1)
+        };
+        let balanced = p.balanced.clone();
+        let mut best: Option<(bool, StageState)> = None;
+        for bright in [false, true] {
+            p.optics.bright_field = bright;
+            p.balanced = balanced.clone();
+            let mut s = state.clone();
+            let mut objectives = Vec::new();
+            for i in 0..=last {
+                self.run(i, p, &mut s, timing)?;
+                objectives.push(s.objective);
+            }
+            if trace {
+                eprintln!("polariscope trace: bright {bright} stage objectives {objectives:?}");
+            }
+            match best.as_mut() {
+                Some((_, b)) if s.objective >= b.objective => {
+                    b.discarded += s.iterations - state.iterations;
+                }
+                Some((_, b)) => {
+                    s.discarded += b.iterations - state.iterations;
+                    best = Some((bright, s));
+                }
+                None => best = Some((bright, s)),
+            }
+        }
+        let (bright, kept) = best.expect("two polariscopes fitted");
+        *state = kept;
+        p.optics.bright_field = bright;
+        if trace || last + 1 == STAGES.len() {
+            return Ok(STAGES.len());
+        }
+        p.balanced = balanced;
+        Ok(last + 1)
+    }
+
+    /// Stage `i` of [`STAGES`] from `state`.
+    fn run(
+        &self,
+        i: usize,
+        p: &mut Prepared,
+        state: &mut StageState,
+        timing: &mut FitTiming,
+    ) -> Result<()> {
+        let (frame, settings, scene, coarse) = (self.frame, self.settings, self.scene, self.coarse);
+        let extra = STAGES[i];
+        let left = settings.max_iterations.saturating_sub(state.iterations);
+        let budget = if i + 1 == STAGES.len() {
+            left
+        } else {
+            left / 3
+        };
+        if budget == 0 {
+            return Ok(());
+        }
+        let sigma = extra * self.radius_px;
+        let clock = std::time::Instant::now();
+        let stage = if sigma > 0.5 {
+            Some(thinned(smoothed(p, sigma), stride_for(sigma)))
+        } else {
+            None
+        };
+        timing.smoothing += clock.elapsed().as_secs_f64();
+        let last = i + 1 == STAGES.len();
+        if last && self.walls_first && p.balanced != self.final_balanced {
+            // Disks left out of the coarse stages' balance are held to it
+            // again: the nearest balanced field, from which steps are taken.
+            p.balanced = self.final_balanced.to_vec();
+            state.x = feasible_start(p, scene, settings, std::mem::take(&mut state.x))?;
+        }
+        let stepper = Stepper {
+            p: stage.as_ref().unwrap_or(p),
+            scene: Some(if last { scene } else { coarse }),
+            settings,
+            sparsity: if last { self.sparsity } else { 0.0 },
+        };
+        let optics = stage_optics(
+            p,
+            frame,
+            settings,
+            if stage.is_some() { sigma } else { 0.0 },
+        );
+        let tolerance = if last {
+            FINAL_TOLERANCE
+        } else {
+            COARSE_TOLERANCE
+        };
+        let out = stepper.run(
+            std::mem::take(&mut state.x),
+            &optics,
+            budget,
+            tolerance,
+            timing,
+        )?;
+        state.x = out.x;
+        state.iterations += out.iterations;
+        state.damping = out.damping;
+        state.objective = out.objective;
+        timing.steps.push(out.iterations);
+        Ok(())
+    }
 }
 
 /// The walls' μ in the coarse stages of the walls-first path: nearly
