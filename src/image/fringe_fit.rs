@@ -2098,8 +2098,10 @@ fn smoothed(p: &Prepared, sigma_px: f64) -> Prepared {
     }
 }
 
-/// [`Polariscope::Auto`]: the fit under each polariscope, and the one whose
-/// fringes come closer to the photograph kept (steps and seconds of both).
+/// [`Polariscope::Auto`] for the per-disk fit: the fit under each
+/// polariscope, and the one whose fringes come closer to the photograph
+/// kept (steps and seconds of both). The joint fit decides early instead
+/// ([`Stages::decide_polariscope`]).
 /// A vote of the disks at the start was tried instead and picked the dark
 /// field on real bright-field photographs (docs/photoelastic.md, round 9).
 fn either_polariscope(
@@ -2475,6 +2477,7 @@ fn fit_path(
 /// stage (neither depends on the polariscope), and the lower objective
 /// continues alone (docs/photoelastic.md, "An early polariscope").
 const DECIDE_POLARISCOPE_AFTER: usize = 0;
+const _: () = assert!(DECIDE_POLARISCOPE_AFTER < STAGES.len());
 
 /// Where a path's stages have brought the unknowns.
 #[derive(Clone)]
@@ -2515,7 +2518,7 @@ impl Stages<'_> {
         let last = if trace {
             STAGES.len() - 1
         } else {
-            DECIDE_POLARISCOPE_AFTER.min(STAGES.len() - 1)
+            DECIDE_POLARISCOPE_AFTER
         };
         let balanced = p.balanced.clone();
         let mut best: Option<(bool, StageState)> = None;
