@@ -384,8 +384,8 @@ fn single_channel_instead(
     by_distance: &[Disk],
     choice: &ChannelChoice,
 ) -> Result<Option<(Vec<Disk>, ChannelChoice)>> {
-    // Shrunk as the colour distance is: at full resolution a 21-megapixel
-    // dark field took 8.8 s of CPU (docs/image.md, "21 megapixels").
+    // Shrunk as the colour distance is on big pictures: at full resolution
+    // a 21-megapixel dark field took 9 s of CPU (docs/image.md, "21 megapixels").
     let single =
         detect::detect_disks_shrunk(channel, options, signal_search_factor(channel, options))?;
     let (ours, theirs) = (outline_evidence(&single), outline_evidence(by_distance));
@@ -585,7 +585,7 @@ pub fn detect_images(
                 None => by_distance,
             }
         } else {
-            // At the defaults the gray picture is searched shrunk as the
+            // At the defaults a big gray picture is searched shrunk as the
             // colour distance is (its rim rules were made for radii of
             // 30–90 px); at full resolution a 21-megapixel gray dark field
             // took 28 of its 32 s of CPU here.
