@@ -9,7 +9,7 @@ use std::path::PathBuf;
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// The photograph (dark-field circular polariscope).
+    /// The photograph (circular polariscope, dark or bright field: see --polariscope).
     image: PathBuf,
     /// Scene folder with the disks and contacts (from `detect` or `import pegs`).
     #[arg(long)]
