@@ -2360,32 +2360,22 @@ fn fit_path(
         }
     }
     let levels = load_levels(&p);
-    // The objective is reported at the start as given (before it is balanced).
     let given_x = match &settings.start {
         Some(forces) => Some(to_unknowns(scene, forces, p.scale)?),
         None => None,
     };
-    let (mut x, objective_start) = match &given_x {
+    let mut x = match &given_x {
         Some(x0) => {
-            let x0 = x0.clone();
-            let given = objective(&p, &x0, &p.optics);
             if settings.balance == Balance::Hard {
-                release_forced_zeros(&mut p, scene, settings, &x0)?;
+                release_forced_zeros(&mut p, scene, settings, x0)?;
             }
-            (feasible_start(&p, scene, settings, x0)?, given)
+            feasible_start(&p, scene, settings, x0.clone())?
         }
-        None => {
-            let x = balanced_start(&p, coarse, settings, &levels)?;
-            (x, 0.0)
-        }
+        None => balanced_start(&p, coarse, settings, &levels)?,
     };
-    // Under `Auto`, the start is judged again once the polariscope is known.
+    // The objective is reported at the start as given (before it is
+    // balanced), under the polariscope the fit ends with.
     let start_x = given_x.unwrap_or_else(|| x.clone());
-    let objective_start = if settings.start.is_some() {
-        objective_start
-    } else {
-        objective(&p, &x, &p.optics)
-    };
     timing.start = clock.elapsed().as_secs_f64();
     let radius_px = p.scale / settings.fringe_stress * frame.px_per_m;
     let mut iterations = 0;
@@ -2449,11 +2439,7 @@ fn fit_path(
         ..
     } = state;
     let iterations = iterations + discarded;
-    let objective_start = if settings.polariscope == Polariscope::Auto {
-        objective(&p, &start_x, &p.optics)
-    } else {
-        objective_start
-    };
+    let objective_start = objective(&p, &start_x, &p.optics);
     let forces = to_forces(scene, &x, p.scale);
     let report = report(
         "joint",
