@@ -456,6 +456,8 @@ fn fitted_rms(g: &[f64], design: &[f64], cols: usize) -> f64 {
 /// PeGS's forceImage sits, the photograph there, and PeGS's best residuals.
 struct Judged {
     disk: usize,
+    /// The grain of the fitted scene drawn there (PeGS's scene: `disk`).
+    grain: usize,
     pixels: Vec<(usize, usize)>,
     g: Vec<f64>,
     spread: f64,
@@ -488,6 +490,17 @@ fn design(
 }
 
 fn judge(green: &FloatImage, disks: &[PegsDisk]) -> Vec<Judged> {
+    judge_within(green, disks, &|i, _, _| Some(i))
+}
+
+/// `judge` on the pixels where `drawn(disk, row, col)` names the grain of
+/// the fitted scene drawn there (None: the pixel is left out; a disk left
+/// with under 50 pixels is not judged).
+fn judge_within(
+    green: &FloatImage,
+    disks: &[PegsDisk],
+    drawn: &dyn Fn(usize, usize, usize) -> Option<usize>,
+) -> Vec<Judged> {
     let (w, h) = (green.width() as i64, green.height() as i64);
     let px = |r: i64, c: i64| green.get_pixel(c as u32, r as u32)[0] as f64;
     let mut out = Vec::new();
@@ -526,15 +539,21 @@ fn judge(green: &FloatImage, disks: &[PegsDisk]) -> Vec<Judged> {
         let centre = [d.x - 1.0, d.y - 1.0];
         let mut pixels = Vec::new();
         let mut local = Vec::new();
+        let mut grain = None;
         for rr in 0..ch {
             for cc in 0..cw {
                 let (r, c) = (origin.0 + rr, origin.1 + cc);
-                if (c as f64 - centre[0]).hypot(r as f64 - centre[1]) < d.r - 3.0 {
+                if (c as f64 - centre[0]).hypot(r as f64 - centre[1]) >= d.r - 3.0 {
+                    continue;
+                }
+                if let Some(g) = drawn(i, r as usize, c as usize) {
+                    grain = Some(g);
                     pixels.push((r as usize, c as usize));
                     local.push((rr as usize, cc as usize));
                 }
             }
         }
+        let Some(grain) = grain else { continue };
         let g: Vec<f64> = pixels
             .iter()
             .map(|&(r, c)| px(r as i64, c as i64))
@@ -579,6 +598,7 @@ fn judge(green: &FloatImage, disks: &[PegsDisk]) -> Vec<Judged> {
         });
         out.push(Judged {
             disk: i,
+            grain,
             pixels,
             g,
             spread,
@@ -678,7 +698,7 @@ fn judge_ours(
             4,
         ));
         out.imbalance
-            .push((loads[j.disk] >= 2).then_some(imb[j.disk]));
+            .push((loads[j.grain] >= 2).then_some(imb[j.grain]));
     }
     out
 }
@@ -1114,5 +1134,237 @@ fn lit_by(bright_field: bool) -> Polariscope {
         Polariscope::Bright
     } else {
         Polariscope::Dark
+    }
+}
+
+// ---------------------------------------------------------------------------
+// The product's own path (round 10): `grainforce detect` with only the radius
+// range, then `photoelastic` at its defaults (auto polariscope), judged
+// against PeGS's per-disk fits alike. Each PeGS disk is matched to our
+// nearest detected disk within half its radius (one to one, nearest first,
+// as real-photos/match.py does); both are judged on the same ring: the
+// pixels within r − 3 px of PeGS's circle *and* of ours (so neither model is
+// judged where the other is not drawn).
+
+use grainforce::image::fringe_run::{self, PhotoelasticConfig};
+
+/// Our grain matched to each PeGS disk (nearest centre within half PeGS's
+/// radius, one to one), and each grain's centre [px] and radius [px].
+fn match_disks(
+    disks: &[PegsDisk],
+    scene: &Scene,
+    frame: &PixelFrame,
+) -> (Vec<Option<usize>>, Vec<([f64; 2], f64)>) {
+    let ours: Vec<([f64; 2], f64)> = scene
+        .grains
+        .iter()
+        .map(|g| {
+            let c = frame.to_pixel([g.position[0], g.position[1]]);
+            (c, g.equivalent_radius(2) * frame.px_per_m)
+        })
+        .collect();
+    let mut pairs = Vec::new();
+    for (i, d) in disks.iter().enumerate() {
+        for (j, (c, _)) in ours.iter().enumerate() {
+            let offset = (c[0] - (d.x - 1.0)).hypot(c[1] - (d.y - 1.0));
+            if offset < 0.5 * d.r {
+                pairs.push((offset, i, j));
+            }
+        }
+    }
+    pairs.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let mut to_ours = vec![None; disks.len()];
+    let mut taken = vec![false; ours.len()];
+    for (_, i, j) in pairs {
+        if to_ours[i].is_none() && !taken[j] {
+            to_ours[i] = Some(j);
+            taken[j] = true;
+        }
+    }
+    (to_ours, ours)
+}
+
+/// The figures of the product's path on one photograph (None: no data).
+fn detected_against_pegs(
+    folder: &str,
+    image: &str,
+    solved: &str,
+    radius: (f64, f64),
+) -> Option<Figures> {
+    let root = data()?;
+    let dir = root.join(folder);
+    let image = dir.join(image);
+    let scene_dir = std::env::temp_dir().join(format!(
+        "grainforce-fringe-real-{folder}-{}",
+        std::process::id()
+    ));
+    let _ = std::fs::remove_dir_all(&scene_dir);
+    let started = std::time::Instant::now();
+    let status = std::process::Command::new(env!("CARGO_BIN_EXE_grainforce"))
+        .arg("detect")
+        .arg(&image)
+        .arg("-o")
+        .arg(&scene_dir)
+        .arg(format!("--radius={}..{}", radius.0, radius.1))
+        .stdout(std::process::Stdio::null())
+        .status()
+        .unwrap();
+    assert!(status.success(), "detect failed on {folder}");
+    let detect_seconds = started.elapsed().as_secs_f64();
+    let mut config = PhotoelasticConfig {
+        fsigma: Some(100.0),
+        thickness: Some(0.005),
+        ..PhotoelasticConfig::default()
+    };
+    // Measuring switches (docs/photoelastic.md): the product's defaults otherwise.
+    let var = |name: &str| std::env::var(name).ok().and_then(|v| v.parse::<f64>().ok());
+    if let Some(mu) = var("GRAINFORCE_FRINGE_MU") {
+        config.mu = mu;
+    }
+    if let Some(on) = var("GRAINFORCE_FRINGE_LIGHTING") {
+        config.lighting = on != 0.0;
+    }
+    if let Some(gap) = var("GRAINFORCE_FRINGE_CANDIDATES") {
+        config.candidate_gap = Some(gap);
+    }
+    let started = std::time::Instant::now();
+    let run = fringe_run::run(&image, &scene_dir, &config).unwrap();
+    let fit_seconds = started.elapsed().as_secs_f64();
+    let _ = std::fs::remove_dir_all(&scene_dir);
+    let disks = pegs_disks(&dir.join(solved));
+    let (to_ours, ours_circles) = match_disks(&disks, &run.scene, &run.frame);
+    let all = judge(&run.image, &disks);
+    let ring = |i: usize, row: usize, col: usize| -> Option<usize> {
+        let g = to_ours[i]?;
+        let (c, r) = ours_circles[g];
+        ((col as f64 - c[0]).hypot(row as f64 - c[1]) < r - 3.0).then_some(g)
+    };
+    let judged = judge_within(&run.image, &disks, &ring);
+    let mut settings = run.settings.clone();
+    settings.blur_px = run.fit.report.blur_px;
+    settings.polariscope = lit_by(run.fit.report.bright_field);
+    settings.candidate_gap = None;
+    let (drawn_scene, drawn_forces) = run.fit.with_candidates(&run.scene);
+    let ours = judge_ours(
+        &run.image,
+        &run.frame,
+        &drawn_scene,
+        &settings,
+        &drawn_forces,
+        &judged,
+        &disks,
+    );
+    let pegs_lit: Vec<f64> = judged.iter().map(|j| j.pegs_lit).collect();
+    let pegs_affine: Vec<f64> = judged.iter().map(|j| j.pegs_affine).collect();
+    // Balance over our disks with two or more loads, those whose balance the
+    // fit left out included.
+    let ours_imb: Vec<f64> = ours.imbalance.iter().flatten().copied().collect();
+    let pegs_imb: Vec<f64> = judged.iter().filter_map(|j| j.pegs_imbalance).collect();
+    let ring_share = judged.iter().map(|j| j.pixels.len()).sum::<usize>() as f64
+        / (all.iter())
+            .filter(|a| judged.iter().any(|j| j.disk == a.disk))
+            .map(|a| a.pixels.len())
+            .sum::<usize>() as f64;
+    let figures = Figures {
+        disks: judged.len(),
+        ours_overlay: f64::NAN,
+        ours_affine: median(&ours.affine),
+        pegs_affine: median(&pegs_affine),
+        closer_overlay: f64::NAN,
+        closer_affine: share_closer(&ours.affine, &pegs_affine),
+        closer_lit: share_closer(&ours.lit, &pegs_lit),
+        ours_lit: median(&ours.lit),
+        pegs_lit: median(&pegs_lit),
+        ours_imbalance: median(&ours_imb),
+        pegs_imbalance: median(&pegs_imb),
+    };
+    let closer = ours
+        .lit
+        .iter()
+        .zip(&pegs_lit)
+        .filter(|(o, p)| o <= p)
+        .count();
+    eprintln!(
+        "{folder} (detect → photoelastic, defaults): {} disks detected, {} of PeGS's {} judged disks matched and judged ({:.2} of their ring pixels); {} bright field; residual/std median ours lit {:.3} affine {:.3}, PeGS lit {:.3} affine {:.3}; ours at least as close lit {closer}/{} = {:.2} ({:.2} of all PeGS's judged disks), affine {:.2}; imbalance median ours {:.1e} (> 0.01 on {} of {} judged disks with two loads, balance left out on {} disks), PeGS {:.2}; {} contacts + {} candidates; detect {detect_seconds:.1} s, fit {fit_seconds:.1} s",
+        run.scene.grains.len(),
+        judged.len(),
+        all.len(),
+        ring_share,
+        if run.fit.report.bright_field { "the" } else { "not the" },
+        figures.ours_lit,
+        figures.ours_affine,
+        figures.pegs_lit,
+        figures.pegs_affine,
+        judged.len(),
+        figures.closer_lit,
+        closer as f64 / all.len() as f64,
+        figures.closer_affine,
+        figures.ours_imbalance,
+        ours_imb.iter().filter(|v| **v > 0.01).count(),
+        ours_imb.len(),
+        run.fit.report.balance_left_out.len(),
+        figures.pegs_imbalance,
+        run.scene.contacts.len(),
+        run.fit.report.candidates.len(),
+    );
+    if std::env::var_os("GRAINFORCE_FRINGE_DIAG").is_some() {
+        for ((j, o), p) in judged.iter().zip(&ours.lit).zip(&pegs_lit) {
+            if o > p {
+                let g = j.grain;
+                let loads = drawn_scene
+                    .contacts
+                    .iter()
+                    .zip(&drawn_forces)
+                    .filter(|(c, _)| c.a == g || c.b == Body::Grain(g))
+                    .map(|(_, f)| f[0].hypot(f[1]))
+                    .collect::<Vec<_>>();
+                eprintln!(
+                    "  PeGS disk {} (ours {}): ours {o:.3} PeGS {p:.3}; {} loads |F| {:?}; PeGS's {} loads; imbalance {:?}",
+                    disks[j.disk].id,
+                    run.scene.grains[g].id,
+                    loads.len(),
+                    loads.iter().map(|f| (f * 10.0).round() / 10.0).collect::<Vec<_>>(),
+                    disks[j.disk].forces.len(),
+                    ours.imbalance[judged.iter().position(|k| k.disk == j.disk).unwrap()],
+                );
+            }
+        }
+    }
+    Some(figures)
+}
+
+#[test]
+fn jlin_fixed48_detected_fringes_against_pegs() {
+    if let Some(f) = detected_against_pegs(
+        "jlin-fixed48",
+        "image2.jpg",
+        "image2_solved.mat",
+        (28.0, 42.0),
+    ) {
+        assert!(f.closer_lit >= 0.0 && f.ours_imbalance.is_finite());
+    }
+}
+
+#[test]
+fn jlin_narrow21_detected_fringes_against_pegs() {
+    if let Some(f) = detected_against_pegs(
+        "jlin-narrow21",
+        "image.jpg",
+        "image_solved.mat",
+        (59.0, 78.0),
+    ) {
+        assert!(f.closer_lit >= 0.0 && f.ours_imbalance.is_finite());
+    }
+}
+
+#[test]
+fn jlin_step83_detected_fringes_against_pegs() {
+    if let Some(f) = detected_against_pegs(
+        "jlin-step83",
+        "image3.jpg",
+        "image3_solved.mat",
+        (27.0, 39.0),
+    ) {
+        assert!(f.closer_lit >= 0.0 && f.ours_imbalance.is_finite());
     }
 }
