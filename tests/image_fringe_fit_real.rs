@@ -4,7 +4,9 @@
 //! per-disk forces. Skipped (with a message) when the variable is unset.
 //! The `*_fringes_against_pegs` tests judge both fits on the photograph
 //! alike (docs/photoelastic.md, "Judged alike"); GRAINFORCE_FRINGE_DIAG=1
-//! prints why ours loses on each disk where it does.
+//! prints why ours loses on each disk where it does. The
+//! `*_detected_fringes_against_pegs` tests judge the product's own path
+//! (`detect` → `photoelastic`) the same way (round 10).
 
 use grainforce::image::fringe_fit::{fit_fringes, Balance, FringeFitSettings, Polariscope};
 use grainforce::image::{load_channel, Channel, PixelFrame};
@@ -1148,14 +1150,17 @@ fn lit_by(bright_field: bool) -> Polariscope {
 
 use grainforce::image::fringe_run::{self, PhotoelasticConfig};
 
+/// A disk's centre and radius [px].
+type Circle = ([f64; 2], f64);
+
 /// Our grain matched to each PeGS disk (nearest centre within half PeGS's
 /// radius, one to one), and each grain's centre [px] and radius [px].
 fn match_disks(
     disks: &[PegsDisk],
     scene: &Scene,
     frame: &PixelFrame,
-) -> (Vec<Option<usize>>, Vec<([f64; 2], f64)>) {
-    let ours: Vec<([f64; 2], f64)> = scene
+) -> (Vec<Option<usize>>, Vec<Circle>) {
+    let ours: Vec<Circle> = scene
         .grains
         .iter()
         .map(|g| {
