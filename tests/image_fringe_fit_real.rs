@@ -1308,6 +1308,12 @@ fn detected_against_pegs(
     if let Some(mu) = var("GRAINFORCE_FRINGE_WALL_MU") {
         config.wall_mu = Some(mu);
     }
+    if let Some(px) = var("GRAINFORCE_FRINGE_EDGE") {
+        config.edge = px;
+    }
+    if let Some(px) = var("GRAINFORCE_FRINGE_BLUR") {
+        config.blur = px;
+    }
     let started = std::time::Instant::now();
     let run = fringe_run::run(&image, &scene_dir, &config).unwrap();
     let fit_seconds = started.elapsed().as_secs_f64();
@@ -1477,4 +1483,53 @@ fn jlin_step83_detected_fringes_against_pegs() {
         (27.0, 39.0),
         [0.06, 0.51],
     );
+}
+
+/// `photoelastic` warns when no fitted contact touches a wall (the balanced
+/// compressive field is then zero), and not when one does. Needs no shared
+/// data: the bundled photograph, its scene with and without its wall contacts.
+#[test]
+fn photoelastic_warns_without_a_wall_contact() {
+    let fixture = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/photoelastic");
+    let dir = std::env::temp_dir().join(format!("grainforce-no-wall-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    for file in ["grains.csv", "image-frame.json", "scene.json"] {
+        std::fs::copy(fixture.join("scene").join(file), dir.join(file)).unwrap();
+    }
+    let contacts = std::fs::read_to_string(fixture.join("scene/contacts.csv")).unwrap();
+    let disk_pairs: String = contacts
+        .lines()
+        .filter(|l| {
+            let b = l.split(',').nth(2).unwrap_or("");
+            b == "b" || b.parse::<usize>().is_ok()
+        })
+        .map(|l| format!("{l}\n"))
+        .collect();
+    assert!(disk_pairs.lines().count() < contacts.lines().count());
+    std::fs::write(dir.join("contacts.csv"), disk_pairs).unwrap();
+    let warned = |scene: &Path| {
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_grainforce"))
+            .arg("photoelastic")
+            .arg(fixture.join("photo.jpg"))
+            .arg("--scene")
+            .arg(scene)
+            .arg("-o")
+            .arg(dir.join("forces.csv"))
+            .args([
+                "--fsigma",
+                "200",
+                "--iterations",
+                "2",
+                "--polariscope",
+                "dark",
+            ])
+            .output()
+            .unwrap();
+        assert!(out.status.success());
+        String::from_utf8_lossy(&out.stderr).contains("no fitted contact touches a wall")
+    };
+    assert!(warned(&dir));
+    assert!(!warned(&fixture.join("scene")));
+    let _ = std::fs::remove_dir_all(&dir);
 }
