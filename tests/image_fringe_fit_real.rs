@@ -1315,7 +1315,16 @@ fn detected_against_pegs(
         config.blur = px;
     }
     let started = std::time::Instant::now();
-    let run = fringe_run::run(&image, &scene_dir, &config).unwrap();
+    let mut run = fringe_run::run(&image, &scene_dir, &config).unwrap();
+    if let Some(mu) = var("GRAINFORCE_FRINGE_REFIT_MU") {
+        // A measuring switch: the fit again at this μ, started from the
+        // first fit's forces (does the first μ's answer survive?).
+        let mut s = run.settings.clone();
+        s.mu = mu;
+        s.start = Some(run.fit.forces.clone());
+        run.fit = fit_fringes(&run.image, &run.frame, &run.scene, &s).unwrap();
+        run.settings = s;
+    }
     let fit_seconds = started.elapsed().as_secs_f64();
     let _ = std::fs::remove_dir_all(&scene_dir);
     let disks = pegs_disks(&dir.join(solved));
@@ -1433,12 +1442,12 @@ fn detected(folder: &str, image: &str, solved: &str, radius: (f64, f64), closer:
     let Some(plain) = detected_against_pegs(folder, image, solved, radius, DEFAULTS) else {
         return;
     };
+    let walls = detected_against_pegs(folder, image, solved, radius, WALLS_AS_PEGS).unwrap();
     assert!(
         plain.closer_lit >= closer[0],
         "defaults: at least as close on {:.2}",
         plain.closer_lit
     );
-    let walls = detected_against_pegs(folder, image, solved, radius, WALLS_AS_PEGS).unwrap();
     assert!(
         walls.closer_lit >= closer[1],
         "box walls: at least as close on {:.2}",
