@@ -1315,12 +1315,20 @@ fn detected_against_pegs(
         config.blur = px;
     }
     let started = std::time::Instant::now();
+    // A measuring switch: the first fit with balance as this penalty, then
+    // refitted exactly from it (below).
+    let penalty_start = var("GRAINFORCE_FRINGE_PENALTY_START");
+    if penalty_start.is_some() {
+        config.balance_weight = penalty_start;
+    }
     let mut run = fringe_run::run(&image, &scene_dir, &config).unwrap();
-    if let Some(mu) = var("GRAINFORCE_FRINGE_REFIT_MU") {
-        // A measuring switch: the fit again at this μ, started from the
-        // first fit's forces (does the first μ's answer survive?).
+    let refit_mu = var("GRAINFORCE_FRINGE_REFIT_MU");
+    if refit_mu.is_some() || penalty_start.is_some() {
+        // A measuring switch: the fit again (at this μ), started from the
+        // first fit's forces (does the first fit's answer survive?).
         let mut s = run.settings.clone();
-        s.mu = mu;
+        s.mu = refit_mu.unwrap_or(s.mu);
+        s.balance = Balance::Hard;
         s.start = Some(run.fit.forces.clone());
         run.fit = fit_fringes(&run.image, &run.frame, &run.scene, &s).unwrap();
         run.settings = s;
@@ -1381,7 +1389,7 @@ fn detected_against_pegs(
         .filter(|(o, p)| o <= p)
         .count();
     eprintln!(
-        "{folder} (detect{} → photoelastic, μ {}{}): {} disks detected, {} of PeGS's {} judged disks matched and judged ({:.2} of their ring pixels); {} bright field; residual/std median ours lit {:.3} affine {:.3}, PeGS lit {:.3} affine {:.3}; ours at least as close lit {closer}/{} = {:.2} ({:.2} of all PeGS's judged disks), affine {:.2}; imbalance median ours {:.1e} (> 0.01 on {} of {} judged disks with two loads, balance left out on {} disks), PeGS {:.2}; {} contacts + {} candidates; detect {detect_seconds:.1} s, fit {fit_seconds:.1} s",
+        "{folder} (detect{} → photoelastic, μ {}{}): {} disks detected, {} of PeGS's {} judged disks matched and judged ({:.2} of their ring pixels); {} bright field; residual/std median ours lit {:.3} affine {:.3}, PeGS lit {:.3} affine {:.3}; ours at least as close lit {closer}/{} = {:.2} ({:.2} of all PeGS's judged disks), affine {:.2}; imbalance median ours {:.1e} (> 0.01 on {} of {} judged disks with two loads, balance left out on {} disks), PeGS {:.2}; {} contacts + {} candidates; objective {:.1}; detect {detect_seconds:.1} s, fit {fit_seconds:.1} s",
         if box_walls { " with box walls" } else { "" },
         config.mu,
         if config.lighting { ", lighting" } else { "" },
@@ -1405,6 +1413,7 @@ fn detected_against_pegs(
         figures.pegs_imbalance,
         run.scene.contacts.len(),
         run.fit.report.candidates.len(),
+        run.fit.report.objective,
     );
     if std::env::var_os("GRAINFORCE_FRINGE_DIAG").is_some() {
         for ((j, o), p) in judged.iter().zip(&ours.lit).zip(&pegs_lit) {
