@@ -1189,28 +1189,6 @@ fn match_disks(
     (to_ours, ours)
 }
 
-/// `--walls` lines [px] along the bounding box of a detected scene's disks.
-fn box_walls_of(scene_dir: &Path) -> Vec<String> {
-    let scene = grainforce::scene::read_scene(scene_dir).unwrap();
-    let frame = PixelFrame::read(&scene_dir.join("image-frame.json")).unwrap();
-    let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
-    for g in &scene.grains {
-        let c = frame.to_pixel([g.position[0], g.position[1]]);
-        let r = g.equivalent_radius(2) * frame.px_per_m;
-        for k in 0..2 {
-            lo[k] = lo[k].min(c[k] - r);
-            hi[k] = hi[k].max(c[k] + r);
-        }
-    }
-    let (w, h) = (frame.width as f64, frame.height as f64);
-    vec![
-        format!("left={},0,{},{h}", lo[0], lo[0]),
-        format!("right={},0,{},{h}", hi[0], hi[0]),
-        format!("top=0,{},{w},{}", lo[1], lo[1]),
-        format!("bottom=0,{},{w},{}", hi[1], hi[1]),
-    ]
-}
-
 /// Runs `grainforce detect` with only the radius range into `scene_dir`.
 fn detect(image: &Path, scene_dir: &Path, radius: (f64, f64), walls: &[String]) {
     let _ = std::fs::remove_dir_all(scene_dir);
@@ -1236,7 +1214,7 @@ fn detect(image: &Path, scene_dir: &Path, radius: (f64, f64), walls: &[String]) 
 /// --thickness` (the defaults otherwise).
 #[derive(Clone, Copy)]
 struct Given {
-    /// `--walls` along the bounding box of the disks a first `detect` found
+    /// `detect --walls box`: walls along the bounding box of the disks found
     /// (where PeGS puts its four walls): without walls a balanced field of
     /// compressive contact forces can only be zero.
     box_walls: bool,
@@ -1277,12 +1255,14 @@ fn detected_against_pegs(
         given.box_walls
     ));
     let started = std::time::Instant::now();
-    detect(&image, &scene_dir, radius, &[]);
     let box_walls =
         given.box_walls || std::env::var("GRAINFORCE_FRINGE_WALLS").as_deref() == Ok("box");
-    if box_walls {
-        detect(&image, &scene_dir, radius, &box_walls_of(&scene_dir));
-    }
+    let walls = if box_walls {
+        vec!["box".to_string()]
+    } else {
+        Vec::new()
+    };
+    detect(&image, &scene_dir, radius, &walls);
     let detect_seconds = started.elapsed().as_secs_f64();
     let mut config = PhotoelasticConfig {
         fsigma: Some(100.0),

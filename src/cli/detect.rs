@@ -31,7 +31,10 @@ pub struct Args {
     /// Out-of-plane thickness of the disks [m] (recorded in scene.json).
     #[arg(long)]
     thickness: Option<f64>,
-    /// Walls: `edges` for the image borders, or NAME=x0,y0,x1,y1 lines in pixels.
+    /// Walls: `edges` for the image borders, `box` along the bounding box of
+    /// the disks found (what holds a packing whose walls the picture does not
+    /// show; the fringe fit needs some external load), or NAME=x0,y0,x1,y1
+    /// lines in pixels.
     #[arg(long, num_args = 1..)]
     walls: Vec<String>,
     /// A fixed contact rule: the largest gap [px] between fitted circles that
@@ -181,13 +184,18 @@ fn walls(specs: &[String]) -> Result<WallSource> {
     if specs.is_empty() {
         return Ok(WallSource::None);
     }
-    if specs.iter().any(|s| s == "edges") {
-        if specs.len() > 1 {
-            return Err(Error::Invalid(
-                "--walls edges cannot be combined with wall lines".into(),
-            ));
+    for (word, source) in [
+        ("edges", WallSource::ImageEdges),
+        ("box", WallSource::PackingBox),
+    ] {
+        if specs.iter().any(|s| s == word) {
+            if specs.len() > 1 {
+                return Err(Error::Invalid(format!(
+                    "--walls {word} cannot be combined with other walls"
+                )));
+            }
+            return Ok(source);
         }
-        return Ok(WallSource::ImageEdges);
     }
     Ok(WallSource::Lines(
         specs
@@ -237,7 +245,7 @@ pub fn run(args: Args) -> Result<()> {
         Polarity::Bright
     };
     let count = args.images.len();
-    let walls_for_overlay = match &settings.walls {
+    let mut walls_for_overlay = match &settings.walls {
         WallSource::Lines(l) => l.clone(),
         _ => Vec::new(),
     };
@@ -264,6 +272,10 @@ pub fn run(args: Args) -> Result<()> {
                 String::new()
             }
         );
+        if k == 0 && matches!(settings.walls, WallSource::PackingBox) {
+            // The same box the detection drew from the first frame's disks.
+            walls_for_overlay = grainforce::image::contacts::packing_box_walls(&found.disks);
+        }
         if let Some(base) = &args.overlay {
             let mut picture = overlay::draw_overlay(
                 image,

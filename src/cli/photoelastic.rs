@@ -156,7 +156,8 @@ pub fn run(args: Args) -> Result<()> {
 /// and each compressive contact adds −r f_n to it): docs/photoelastic.md.
 const NO_WALL_WARNING: &str = "warning: no fitted contact touches a wall, and a balanced field of \
 compressive forces without an external load is zero: only disks whose balance is left out carry \
-load. Give the walls that hold the packing (`detect --walls`), or --balance-weight";
+load. Give the walls that hold the packing (`detect --walls`; `--walls box` for \
+the packing's bounding box), or --balance-weight";
 
 /// Whether a fitted contact of the run is with a wall.
 fn holds_a_wall(run: &fringe_run::PhotoelasticRun) -> bool {

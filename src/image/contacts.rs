@@ -65,6 +65,33 @@ impl WallLine {
     }
 }
 
+/// Four walls along the bounding box of `disks` (`left`, `right`, `top`,
+/// `bottom`, in the image's axes), each spanning it: the outermost disk on
+/// each side touches its wall. None without disks.
+pub fn packing_box_walls(disks: &[Disk]) -> Vec<WallLine> {
+    if disks.is_empty() {
+        return Vec::new();
+    }
+    let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+    for d in disks {
+        for (k, c) in [d.x, d.y].into_iter().enumerate() {
+            lo[k] = lo[k].min(c - d.r);
+            hi[k] = hi[k].max(c + d.r);
+        }
+    }
+    let wall = |name: &str, p0, p1| WallLine {
+        name: name.into(),
+        p0,
+        p1,
+    };
+    vec![
+        wall("left", [lo[0], lo[1]], [lo[0], hi[1]]),
+        wall("right", [hi[0], lo[1]], [hi[0], hi[1]]),
+        wall("top", [lo[0], lo[1]], [hi[0], lo[1]]),
+        wall("bottom", [lo[0], hi[1]], [hi[0], hi[1]]),
+    ]
+}
+
 /// The four image borders as walls named `left`, `right`, `top` and `bottom`
 /// (the outer edges of the edge pixels).
 pub fn edge_walls(width: u32, height: u32) -> Vec<WallLine> {

@@ -212,6 +212,19 @@ pub enum WallSource {
     Lines(Vec<WallLine>),
     /// The four image borders (`left`, `right`, `top`, `bottom`).
     ImageEdges,
+    /// Four walls along the bounding box of the first frame's disks
+    /// (`left`, `right`, `top`, `bottom`): what holds a packing whose walls
+    /// the picture does not show. Without any wall a balanced field of
+    /// compressive forces has no load and is zero (docs/photoelastic.md).
+    PackingBox,
+}
+
+/// Sets the walls of a [`WallSource::PackingBox`] from the first frame's
+/// disks, as the contacts will see them (after any growth to their outline).
+fn box_walls_once(walls: &mut Vec<WallLine>, source: &WallSource, first: bool, disks: &[Disk]) {
+    if first && matches!(source, WallSource::PackingBox) {
+        *walls = contacts::packing_box_walls(disks);
+    }
 }
 
 #[derive(Debug, Clone)]
@@ -555,6 +568,8 @@ pub fn detect_images(
                     WallSource::None => Vec::new(),
                     WallSource::Lines(lines) => lines.clone(),
                     WallSource::ImageEdges => contacts::edge_walls(image.width(), image.height()),
+                    // Set once the first frame's disks are known.
+                    WallSource::PackingBox => Vec::new(),
                 };
                 // Only its size is needed for the checks that follow.
                 first = Some(FloatImage::new(image.width(), image.height()));
@@ -643,6 +658,7 @@ pub fn detect_images(
         }
         let (disks, rims, candidates, contacts) = match settings.gap_px {
             Some(gap) => {
+                box_walls_once(&mut walls, &settings.walls, k == 0, &disks);
                 let contacts = find_contacts(&disks, &walls, gap);
                 (disks, Vec::new(), Vec::new(), contacts)
             }
@@ -663,6 +679,7 @@ pub fn detect_images(
                 // The disks were found in the image shrunk by this factor:
                 // the outlines are placed to its pixels, not the photograph's.
                 options.base_px *= colour_search_factor(&settings.detect) as f64;
+                box_walls_once(&mut walls, &settings.walls, k == 0, &disks);
                 let candidates = find_image_contacts(&image, &disks, &rims, &walls, &options);
                 let contacts = candidates
                     .iter()
@@ -674,6 +691,7 @@ pub fn detect_images(
             None => {
                 let rims = contacts::measure_rims(&image, &disks);
                 let outer = contacts::outer_disks(&disks, &rims);
+                box_walls_once(&mut walls, &settings.walls, k == 0, &outer);
                 let candidates =
                     find_image_contacts(&image, &outer, &rims, &walls, &settings.contacts);
                 let contacts = candidates
