@@ -61,7 +61,9 @@ pub struct Args {
     /// as a candidate contact (a contact detection may have missed: a circle
     /// found a few pixels small); the candidates' forces are listed in the
     /// report, not in forces.csv. Default: 0.2 on a scene from `detect`
-    /// (its contacts-evidence.csv present), off on others; 0: off.
+    /// (its contacts-evidence.csv present), off on others; 0: off. On a
+    /// scene from `detect`, disks that stop short of a wall by less than
+    /// this share of their radius are wall candidates too.
     #[arg(long)]
     candidates: Option<f64>,
     /// Fit contacts the fringes do not support to zero and drop them (listed
