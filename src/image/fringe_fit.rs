@@ -2327,7 +2327,8 @@ struct WalledFit {
 /// elsewhere (noise seed 3: 2191 against 1397, 0.20 against 0.12); refitted
 /// from `fit`'s answer instead they stay in its basin (0.077). Costs one
 /// path: walls frictionless first where [`fit_scene`] fits two (that path
-/// won on every detected render), and `fit`'s polariscope.
+/// won on every detected render), and `fit`'s polariscope; fitted only
+/// where some candidate's disk is flagged by `fit`.
 fn with_wall_candidates(
     image: &FloatImage,
     frame: &PixelFrame,
@@ -2343,7 +2344,14 @@ fn with_wall_candidates(
     }
     let mut walled = scene.clone();
     let gaps = add_wall_candidates(&mut walled, gap);
-    if gaps.is_empty() {
+    // Only where a candidate's disk says a contact is missing: its fringes
+    // unexplained (flagged). A disk whose balance is left out but that shows
+    // no fringes needs no load (the bundled render's disk 10 by the right
+    // wall: its candidate is fitted to zero).
+    let flagged = &fit.report.flagged;
+    let missing = (walled.contacts[scene.contacts.len()..].iter())
+        .any(|c| flagged.contains(&scene.grains[c.a].id));
+    if !missing {
         return Ok(None);
     }
     let start = settings.start.as_ref().map(|forces| {
