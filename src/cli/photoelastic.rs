@@ -73,9 +73,9 @@ pub struct Args {
     #[arg(long, default_value_t = 0.0)]
     sparsity: f64,
     /// The polariscope: `dark` field (bright fringes on dark disks), `bright`
-    /// field (dark fringes on bright disks), or `auto`: read from the
-    /// photograph (the disks vote by how their intensity follows the start's
-    /// fringes); the report and the summary say which.
+    /// field (dark fringes on bright disks), or `auto`: both fitted through
+    /// the first smoothed stage and the one closer to the photograph kept;
+    /// the report and the summary say which.
     #[arg(long, value_enum, default_value_t = Polariscope::Auto)]
     polariscope: Polariscope,
     /// Fit each disk's background as a plane (light falling off across the
