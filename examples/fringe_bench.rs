@@ -5,6 +5,7 @@
 //!         [--candidates GAP] [--prune FLOOR] [--wall-mu MU] [--settle-edges] [--detail]
 //!         [--fsigma-scale F] [--iterations N] [--extrapolate]
 //!         [--scene DIR] [--seed N] [--dump DIR] [--circles] [--walls-last]
+//!         [--no-wall-candidates]
 //!
 //! Without flags the disks and contacts are the DEM's; `--detect` finds them
 //! in the photograph (`detect`, walls at the DEM's lines) and scores the fit
@@ -105,6 +106,9 @@ fn main() -> grainforce::Result<()> {
         s.candidate_gap = (gap > 0.0).then_some(gap);
     }
     s.support_prune = value("--prune");
+    // Disk–wall pairs within the candidate gap as candidates too, as on a
+    // scene from `detect` (round 10); off: round 9's fit.
+    s.wall_candidates = detect && !args.iter().any(|a| a == "--no-wall-candidates");
     let detail = args.iter().any(|a| a == "--detail");
     let found = if detect {
         let px = frame.px_per_m;
@@ -200,10 +204,19 @@ fn main() -> grainforce::Result<()> {
             fit.report.flagged.len(),
             rayon::current_num_threads()
         );
-        println!("  phases: {}", fit.report.timing);
+        println!(
+            "  phases: {}; objective {:.2} → {:.2}",
+            fit.report.timing, fit.report.objective_start, fit.report.objective
+        );
         if detail {
             if let Some(found) = &found {
                 walls_detail(&scene, &truth, &frame, found, &fit);
+            }
+            for c in fit.report.candidates.iter().filter(|c| c.wall) {
+                println!(
+                    "  wall candidate {}: gap {:.3} R, fitted ({:.1}, {:.1})",
+                    c.id, c.gap, c.force[0], c.force[1]
+                );
             }
             for d in fit.report.disks.iter().filter(|d| d.imbalance > 1e-6) {
                 let left_out = fit.report.balance_left_out.contains(&d.grain);

@@ -760,7 +760,8 @@ def photoelastic(
     penalty), blur 1 px, edge 6 px, 60 iterations, contacts "all" (or "evidence": only those
     ``detect`` judged force-bearing), candidates 0.2 on a scene from
     ``detect`` and off on others (near-miss pairs with a gap below this
-    share of the smaller radius fitted too, listed in the report; 0: off);
+    share of the smaller radius fitted too, and on a ``detect`` scene disks
+    that near a wall as closely, listed in the report; 0: off);
     off: sparsity (weight of the term that fits unsupported
     contacts to zero; measured in docs/photoelastic.md, not yet better).
     wall_mu: the friction coefficient of contacts with walls (default mu;

@@ -62,7 +62,9 @@ pub struct Args {
     /// as a candidate contact (a contact detection may have missed: a circle
     /// found a few pixels small); the candidates' forces are listed in the
     /// report, not in forces.csv. Default: 0.2 on a scene from `detect`
-    /// (its contacts-evidence.csv present), off on others; 0: off.
+    /// (its contacts-evidence.csv present), off on others; 0: off. On a
+    /// scene from `detect`, disks that stop short of a wall by less than
+    /// this share of their radius are wall candidates too.
     #[arg(long)]
     candidates: Option<f64>,
     /// Fit contacts the fringes do not support to zero and drop them (listed
@@ -72,9 +74,9 @@ pub struct Args {
     #[arg(long, default_value_t = 0.0)]
     sparsity: f64,
     /// The polariscope: `dark` field (bright fringes on dark disks), `bright`
-    /// field (dark fringes on bright disks), or `auto`: read from the
-    /// photograph (the disks vote by how their intensity follows the start's
-    /// fringes); the report and the summary say which.
+    /// field (dark fringes on bright disks), or `auto`: both fitted through
+    /// the first smoothed stage and the one closer to the photograph kept;
+    /// the report and the summary say which.
     #[arg(long, value_enum, default_value_t = Polariscope::Auto)]
     polariscope: Polariscope,
     /// Fit each disk's background as a plane (light falling off across the

@@ -84,6 +84,15 @@ pub struct FringeFitSettings {
     /// its contacts, and the fringes load the true ones back
     /// (docs/photoelastic.md, round 9).
     pub candidate_gap: Option<f64>,
+    /// With `candidate_gap`, disk–wall pairs within it are candidates too:
+    /// a disk whose circle stops short of a wall by less than the gap (over
+    /// its radius) and is not listed against it. A wall's line is read from
+    /// its listed contacts (their mean point and normal); a wall without
+    /// contacts, or whose contacts are not on one line, gets none. Fitted
+    /// as one more path, kept where it ends with the lower residual. The
+    /// photoelastic run turns it on for a scene from `detect`
+    /// (docs/photoelastic.md, round 10).
+    pub wall_candidates: bool,
     /// After the fit, contacts whose [`contact_support`] is below this are
     /// dropped and the rest refitted (None: off).
     pub support_prune: Option<f64>,
@@ -161,6 +170,7 @@ impl FringeFitSettings {
             start: None,
             sparsity: 0.0,
             candidate_gap: None,
+            wall_candidates: false,
             support_prune: None,
             extrapolate: false,
             lighting: false,
@@ -308,13 +318,16 @@ pub struct FringeFitReport {
     pub candidates: Vec<CandidateContact>,
 }
 
-/// A near-miss disk pair fitted as a contact: grains by index into the
-/// scene, force on `a` by `b` [N/m] (zero when dropped).
+/// A near-miss disk pair (or disk and wall) fitted as a contact: grain `a`
+/// and grain or wall `b` by index into the scene, force on `a` by `b` [N/m]
+/// (zero when dropped).
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct CandidateContact {
     pub id: String,
     pub a: usize,
     pub b: usize,
+    /// `b` is a wall (index into the scene's walls), not a grain.
+    pub wall: bool,
     pub point: [f64; 2],
     pub normal: [f64; 2],
     /// Gap between the disks over the smaller radius.
@@ -341,7 +354,11 @@ impl FringeFit {
             scene.contacts.push(Contact {
                 id: c.id.clone(),
                 a: c.a,
-                b: Body::Grain(c.b),
+                b: if c.wall {
+                    Body::Wall(c.b)
+                } else {
+                    Body::Grain(c.b)
+                },
                 point: [c.point[0], c.point[1], 0.0],
                 normal: [c.normal[0], c.normal[1], 0.0],
                 mu: None,
@@ -2155,7 +2172,7 @@ pub fn fit_fringes(
 ) -> Result<FringeFit> {
     let started = std::time::Instant::now();
     settings.validate()?;
-    let (work, gaps) = with_candidates(scene, settings.candidate_gap);
+    let (mut work, mut gaps) = with_candidates(scene, settings.candidate_gap);
     let mut start = settings.clone();
     // Candidates start unloaded (a start of the wrong length is refused below).
     if let Some(forces) = start
@@ -2165,7 +2182,7 @@ pub fn fit_fringes(
     {
         forces.resize(work.contacts.len(), [0.0; 2]);
     }
-    let (mut fit, x) = fit_scene(image, frame, &work, &start, settings.sparsity)?;
+    let (mut fit, mut x) = fit_scene(image, frame, &work, &start, settings.sparsity)?;
     // Under `Auto`, the prune and the refit keep the polariscope the fit chose.
     let settings = &FringeFitSettings {
         polariscope: match fit.report.bright_field {
@@ -2174,6 +2191,11 @@ pub fn fit_fringes(
         },
         ..settings.clone()
     };
+    if let Some(walled) = with_wall_candidates(image, frame, &work, &mut fit, settings)? {
+        (fit, x) = walled.fit;
+        work = std::borrow::Cow::Owned(walled.scene);
+        gaps.extend(walled.gaps);
+    }
     let mut dropped = vec![false; work.contacts.len()];
     if settings.sparsity > 0.0 {
         for (k, d) in dropped.iter_mut().enumerate() {
@@ -2230,9 +2252,9 @@ pub fn fit_fringes(
             id: c.id.clone(),
             a: c.a,
             b: match c.b {
-                Body::Grain(b) => b,
-                Body::Wall(_) => unreachable!("candidates join two disks"),
+                Body::Grain(b) | Body::Wall(b) => b,
             },
+            wall: matches!(c.b, Body::Wall(_)),
             point: [c.point[0], c.point[1]],
             normal: [c.normal[0], c.normal[1]],
             gap,
@@ -2287,6 +2309,155 @@ fn with_candidates(scene: &Scene, gap: Option<f64>) -> (std::borrow::Cow<'_, Sce
     (std::borrow::Cow::Owned(out), gaps)
 }
 
+/// The fit with disk–wall candidates added: the scene, the added pairs'
+/// gaps and the refit (forces, report, unknowns).
+struct WalledFit {
+    scene: Scene,
+    gaps: Vec<f64>,
+    fit: (FringeFit, Vec<f64>),
+}
+
+/// With `wall_candidates`, the scene with the disk–wall candidates
+/// ([`add_wall_candidates`]) fitted too, kept only where its final objective
+/// is below `fit`'s, the fit without them (None otherwise, or with none to
+/// add; `fit` then counts the extra path's steps): the same pixels, and the candidates can carry zero, so the
+/// fringes choose. Fitted alone they reach the right basin where a wall
+/// contact was missed (bundled render: objective 730 against 1413, relerr
+/// 0.012 against 0.085) but can lead the coarse stages into a worse one
+/// elsewhere (noise seed 3: 2191 against 1397, 0.20 against 0.12); refitted
+/// from `fit`'s answer instead they stay in its basin (0.077). Costs one
+/// path: walls frictionless first where [`fit_scene`] fits two (that path
+/// won on every detected render), and `fit`'s polariscope; fitted only
+/// where some candidate's disk is flagged by `fit`.
+fn with_wall_candidates(
+    image: &FloatImage,
+    frame: &PixelFrame,
+    scene: &Scene,
+    fit: &mut FringeFit,
+    settings: &FringeFitSettings,
+) -> Result<Option<WalledFit>> {
+    let Some(gap) = settings.candidate_gap.filter(|g| *g > 0.0) else {
+        return Ok(None);
+    };
+    if !settings.wall_candidates {
+        return Ok(None);
+    }
+    let mut walled = scene.clone();
+    let gaps = add_wall_candidates(&mut walled, gap);
+    // Only where a candidate's disk says a contact is missing: its fringes
+    // unexplained (flagged). A disk whose balance is left out but that shows
+    // no fringes needs no load (the bundled render's disk 10 by the right
+    // wall: its candidate is fitted to zero).
+    let flagged = &fit.report.flagged;
+    let missing = (walled.contacts[scene.contacts.len()..].iter())
+        .any(|c| flagged.contains(&scene.grains[c.a].id));
+    if !missing {
+        return Ok(None);
+    }
+    let start = settings.start.as_ref().map(|forces| {
+        let mut forces = forces.clone();
+        forces.resize(walled.contacts.len(), [0.0; 2]);
+        forces
+    });
+    let refit = FringeFitSettings {
+        start,
+        ..settings.clone()
+    };
+    let walls_first = two_paths(&walled, &refit);
+    let (mut again, x) = fit_path(
+        image,
+        frame,
+        &walled,
+        &refit,
+        settings.sparsity,
+        walls_first,
+    )?;
+    if again.report.objective >= fit.report.objective {
+        fit.report.iterations += again.report.iterations;
+        return Ok(None);
+    }
+    again.report.iterations += fit.report.iterations;
+    again.report.objective_start = fit.report.objective_start;
+    let mut steps = fit.report.timing.steps.clone();
+    steps.extend(&again.report.timing.steps);
+    again.report.timing.steps = steps;
+    Ok(Some(WalledFit {
+        scene: walled,
+        gaps,
+        fit: (again, x),
+    }))
+}
+
+/// Appends to `scene` every disk–wall pair closer than `gap` × the disk's
+/// radius and not already in contact (normal the wall's, point on its
+/// line), and returns each added pair's gap over the radius. A wall's line
+/// is its listed contacts' mean point and normal (as
+/// `walls_from_scene_contacts` reads it); a disk must face the wall from
+/// the side its contacts do.
+fn add_wall_candidates(scene: &mut Scene, gap: f64) -> Vec<f64> {
+    let mut gaps = Vec::new();
+    for w in 0..scene.walls.len() {
+        let (mut point, mut normal, mut n) = ([0.0; 2], [0.0; 2], 0usize);
+        let mut listed = std::collections::HashSet::new();
+        for c in scene.contacts.iter().filter(|c| c.b == Body::Wall(w)) {
+            for k in 0..2 {
+                point[k] += c.point[k];
+                normal[k] += c.normal[k];
+            }
+            n += 1;
+            listed.insert(c.a);
+        }
+        let length = normal[0].hypot(normal[1]);
+        if n == 0 || !(length.is_finite() && length > 0.0) {
+            continue;
+        }
+        let point = [point[0] / n as f64, point[1] / n as f64];
+        let normal = [normal[0] / length, normal[1] / length];
+        if !is_straight(scene, w, point, normal) {
+            continue;
+        }
+        for (a, grain) in scene.grains.iter().enumerate() {
+            let r = grain.equivalent_radius(2);
+            // The disk's centre to the wall, along the wall's normal.
+            let reach = (point[0] - grain.position[0]) * normal[0]
+                + (point[1] - grain.position[1]) * normal[1];
+            let relative = (reach - r) / r;
+            if listed.contains(&a) || !(reach > 0.0 && relative < gap) {
+                continue;
+            }
+            let id = format!("candidate:{}-{}", grain.id, scene.walls[w].name);
+            let at = [
+                grain.position[0] + reach * normal[0],
+                grain.position[1] + reach * normal[1],
+            ];
+            scene.contacts.push(crate::scene::Contact {
+                id,
+                a,
+                b: Body::Wall(w),
+                point: [at[0], at[1], 0.0],
+                normal: [normal[0], normal[1], 0.0],
+                mu: None,
+            });
+            gaps.push(relative);
+        }
+    }
+    gaps
+}
+
+/// Whether wall `w`'s listed contacts lie on one line (`point`, `normal`):
+/// every normal within 5° of it and every point within a tenth of its
+/// disk's radius. Loads from outside a cut-out cluster, or a curved
+/// boundary, have no line to measure a gap to.
+fn is_straight(scene: &Scene, w: usize, point: [f64; 2], normal: [f64; 2]) -> bool {
+    let cos_5_degrees = 5f64.to_radians().cos();
+    (scene.contacts.iter().filter(|c| c.b == Body::Wall(w))).all(|c| {
+        let n = [c.normal[0], c.normal[1]];
+        let along = (n[0] * normal[0] + n[1] * normal[1]) / n[0].hypot(n[1]);
+        let off = (c.point[0] - point[0]) * normal[0] + (c.point[1] - point[1]) * normal[1];
+        along > cos_5_degrees && off.abs() < 0.1 * scene.grains[c.a].equivalent_radius(2)
+    })
+}
+
 /// The joint fit of `scene`'s contacts, `sparsity` in the final stage; the
 /// forces, the report and the final unknowns. With `smooth_walls_first`
 /// and walls that have friction, fitted twice — walls frictionless until
@@ -2301,12 +2472,7 @@ fn fit_scene(
     settings: &FringeFitSettings,
     sparsity: f64,
 ) -> Result<(FringeFit, Vec<f64>)> {
-    let rough_walls = (scene.contacts.iter().zip(friction_cones(scene, settings))).any(
-        |(c, cone)| matches!((c.b, cone), (Body::Wall(_), Cone::Wedge { mu, .. }) if mu > 0.0),
-    );
-    // Under a balance penalty the residual alone does not rank the paths.
-    let hard = settings.balance == Balance::Hard;
-    if !(settings.smooth_walls_first && settings.start.is_none() && rough_walls && hard) {
+    if !two_paths(scene, settings) {
         return fit_path(image, frame, scene, settings, sparsity, false);
     }
     let first = fit_path(image, frame, scene, settings, sparsity, true)?;
@@ -2319,6 +2485,17 @@ fn fit_scene(
     };
     kept.0.report.iterations = steps;
     Ok(kept)
+}
+
+/// Whether [`fit_scene`] fits two paths: `smooth_walls_first`, walls with
+/// friction, the fringe start and exact balance (under a balance penalty
+/// the residual alone does not rank the paths).
+fn two_paths(scene: &Scene, settings: &FringeFitSettings) -> bool {
+    let rough_walls = (scene.contacts.iter().zip(friction_cones(scene, settings))).any(
+        |(c, cone)| matches!((c.b, cone), (Body::Wall(_), Cone::Wedge { mu, .. }) if mu > 0.0),
+    );
+    let hard = settings.balance == Balance::Hard;
+    settings.smooth_walls_first && settings.start.is_none() && rough_walls && hard
 }
 
 /// One path of [`fit_scene`]: `walls_first` holds the walls frictionless
