@@ -1426,7 +1426,8 @@ fn detected_against_pegs(
 /// as PeGS (lit) at the defaults and with [`WALLS_AS_PEGS`]. Measured
 /// (round 10): 0.17 / 0.00 / 0.08 at the defaults (fixed48 / narrow21 /
 /// step83; the fit is nearly the zero field: no walls), 0.83 / 0.67 / 0.53
-/// with the box walls, μ 1000 and the lighting plane, balanced to 10⁻¹⁶.
+/// with the box walls, μ 1000 and the lighting plane, balanced to 10⁻¹⁶;
+/// 0.83 / 0.67 / 0.68 with the disk–wall candidates of round 10.
 fn detected(folder: &str, image: &str, solved: &str, radius: (f64, f64), closer: [f64; 2]) {
     let Some(plain) = detected_against_pegs(folder, image, solved, radius, DEFAULTS) else {
         return;
@@ -1479,7 +1480,7 @@ fn jlin_step83_detected_fringes_against_pegs() {
         "image3.jpg",
         "image3_solved.mat",
         (27.0, 39.0),
-        [0.06, 0.51],
+        [0.06, 0.65],
     );
 }
 
