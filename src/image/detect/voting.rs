@@ -267,8 +267,10 @@ pub(crate) fn distance_peaks(smooth: &FloatImage, sign: f64, o: &DetectOptions) 
 }
 
 /// The votes at the centre of a whole disk of the smallest radius, drawn
-/// with value 1 on 0 and smoothed as `o` says: what a region of a binary
-/// mask gives for a disk of that size whose outline shows whole.
+/// with value 1 on 0 and smoothed as `o` says: a scale for the votes of a
+/// binary mask's regions. The smoothed edge peaks just inside the radius,
+/// where no votes are cast, so a disk 10 % bigger gets about twice these
+/// (`rim_mask_gate_passes_disks_not_specks`: 2.19 at 22 px for 20..30).
 pub(crate) fn whole_disk_votes(o: &DetectOptions) -> f32 {
     let sigma = o.smoothing();
     let r = o.radius_min;
