@@ -149,6 +149,31 @@ impl ChannelChoice {
 /// signal is read in green (PeGS's choice). A gray image, or an explicit
 /// channel, is searched as it is, disks as `polarity` says.
 pub fn read_for_detection(path: &Path, channel: Channel, polarity: &str) -> Result<DetectionImage> {
+    let (read, signal) = read_search_picture(path, channel, polarity)?;
+    Ok(DetectionImage {
+        signal: signal.unwrap_or_else(|| read.search.clone()),
+        search: read.search,
+        choice: read.choice,
+        background_level: read.background_level,
+    })
+}
+
+/// [`DetectionImage`] without its signal picture where that is the searched
+/// one (a gray image, or a channel asked for): returned as `None`, so that a
+/// big picture is not held twice.
+pub(crate) struct SearchPicture {
+    pub search: FloatImage,
+    pub choice: ChannelChoice,
+    pub background_level: f64,
+}
+
+/// [`read_for_detection`]: the searched picture, and the signal picture
+/// when it is another.
+pub(crate) fn read_search_picture(
+    path: &Path,
+    channel: Channel,
+    polarity: &str,
+) -> Result<(SearchPicture, Option<FloatImage>)> {
     let reader = ::image::ImageReader::open(path).map_err(|e| Error::io(path, e))?;
     let reader = reader
         .with_guessed_format()
@@ -173,8 +198,7 @@ pub fn read_for_detection(path: &Path, channel: Channel, polarity: &str) -> Resu
         } else {
             "gray".to_owned()
         };
-        return Ok(DetectionImage {
-            signal: single.clone(),
+        let picture = SearchPicture {
             search: single,
             choice: ChannelChoice {
                 channel: name,
@@ -185,7 +209,8 @@ pub fn read_for_detection(path: &Path, channel: Channel, polarity: &str) -> Resu
                 instead_of: None,
             },
             background_level: 0.0,
-        });
+        };
+        return Ok((picture, None));
     }
     let (w, h) = (decoded.width(), decoded.height());
     // 8-bit RGB (cameras' JPEGs) is read in place; anything else as floats.
@@ -193,9 +218,8 @@ pub fn read_for_detection(path: &Path, channel: Channel, polarity: &str) -> Resu
         DynamicImage::ImageRgb8(c) => colour_distance(c.as_raw(), (w, h), 255.0),
         other => colour_distance(other.to_rgb32f().as_raw(), (w, h), 1.0),
     };
-    Ok(DetectionImage {
+    let picture = SearchPicture {
         search,
-        signal,
         choice: ChannelChoice {
             channel: "colour-distance".to_owned(),
             background: Some(background.iter().map(|&v| v as f64).collect()),
@@ -205,7 +229,8 @@ pub fn read_for_detection(path: &Path, channel: Channel, polarity: &str) -> Resu
             instead_of: None,
         },
         background_level,
-    })
+    };
+    Ok((picture, Some(signal)))
 }
 
 /// The colour distance of every pixel from the background colour (scaled so
@@ -444,62 +469,89 @@ fn background_bin(count: &[usize], bin_luma: &[f64], mut sample: Vec<f64>, one_b
 /// fraction of pixels in its bin and the background's own level in the
 /// distance (90th percentile over the bin).
 pub fn gray_distance(gray: &FloatImage) -> (FloatImage, f32, f64, f64) {
-    const LEVELS: usize = 16;
+    let levels = GrayDistance::of(gray);
     let values = gray.as_raw();
-    let bin = |v: f32| ((v.clamp(0.0, 1.0) * LEVELS as f32) as usize).min(LEVELS - 1);
-    let stride = if values.len() > 4_000_000 { 7 } else { 1 };
-    let mut count = [0usize; LEVELS];
-    let mut sum = [0.0f64; LEVELS];
-    for &v in values.iter().step_by(stride) {
-        count[bin(v)] += 1;
-        sum[bin(v)] += v as f64;
-    }
-    let bin_luma: Vec<f64> = (0..LEVELS)
-        .map(|b| sum[b] / count[b].max(1) as f64)
-        .collect();
-    let sample: Vec<f64> = values
-        .iter()
-        .step_by(stride.max(3))
-        .map(|&v| v as f64)
-        .collect();
-    let b = background_bin(&count, &bin_luma, sample, 1.0 / LEVELS as f64);
-    let level = bin_luma[b] as f32;
-    let seen: usize = count.iter().sum();
-    let mut sample: Vec<f32> = values
-        .iter()
-        .step_by(stride.max(3))
-        .map(|&v| (v - level).abs())
-        .collect();
-    let k = (sample.len() * 99 / 100).min(sample.len().saturating_sub(1));
-    let top = if sample.is_empty() {
-        1.0
-    } else {
-        *sample.select_nth_unstable_by(k, |a, b| a.total_cmp(b)).1
-    };
-    let scale = if top > 1e-6 { 1.0 / top } else { 1.0 };
-    let mut own: Vec<f32> = values
-        .iter()
-        .step_by(stride.max(3))
-        .filter(|&&v| bin(v) == b)
-        .map(|&v| (v - level).abs() * scale)
-        .collect();
-    let own_level = if own.is_empty() {
-        0.0
-    } else {
-        let k = (own.len() * 9 / 10).min(own.len() - 1);
-        *own.select_nth_unstable_by(k, |a, b| a.total_cmp(b)).1 as f64
-    };
-    let distance = values
-        .par_iter()
-        .map(|&v| ((v - level).abs() * scale).min(1.5))
-        .collect();
+    let distance = values.par_iter().map(|&v| levels.at(v)).collect();
     let (w, h) = gray.dimensions();
     (
         FloatImage::from_raw(w, h, distance).expect("same dimensions"),
-        level,
-        count[b] as f64 / seen.max(1) as f64,
-        own_level,
+        levels.level,
+        levels.fraction,
+        levels.own_level,
     )
+}
+
+/// How [`gray_distance`] maps a gray picture's pixels, so that the distance
+/// can be read pixel by pixel (e.g. shrunk) without a picture of its own.
+pub(crate) struct GrayDistance {
+    /// The background level.
+    pub level: f32,
+    scale: f32,
+    /// The fraction of pixels in the background's bin.
+    pub fraction: f64,
+    /// The background's own level in the distance.
+    pub own_level: f64,
+}
+
+impl GrayDistance {
+    pub fn of(gray: &FloatImage) -> Self {
+        const LEVELS: usize = 16;
+        let values = gray.as_raw();
+        let bin = |v: f32| ((v.clamp(0.0, 1.0) * LEVELS as f32) as usize).min(LEVELS - 1);
+        let stride = if values.len() > 4_000_000 { 7 } else { 1 };
+        let mut count = [0usize; LEVELS];
+        let mut sum = [0.0f64; LEVELS];
+        for &v in values.iter().step_by(stride) {
+            count[bin(v)] += 1;
+            sum[bin(v)] += v as f64;
+        }
+        let bin_luma: Vec<f64> = (0..LEVELS)
+            .map(|b| sum[b] / count[b].max(1) as f64)
+            .collect();
+        let sample: Vec<f64> = values
+            .iter()
+            .step_by(stride.max(3))
+            .map(|&v| v as f64)
+            .collect();
+        let b = background_bin(&count, &bin_luma, sample, 1.0 / LEVELS as f64);
+        let level = bin_luma[b] as f32;
+        let seen: usize = count.iter().sum();
+        let mut sample: Vec<f32> = values
+            .iter()
+            .step_by(stride.max(3))
+            .map(|&v| (v - level).abs())
+            .collect();
+        let k = (sample.len() * 99 / 100).min(sample.len().saturating_sub(1));
+        let top = if sample.is_empty() {
+            1.0
+        } else {
+            *sample.select_nth_unstable_by(k, |a, b| a.total_cmp(b)).1
+        };
+        let scale = if top > 1e-6 { 1.0 / top } else { 1.0 };
+        let mut own: Vec<f32> = values
+            .iter()
+            .step_by(stride.max(3))
+            .filter(|&&v| bin(v) == b)
+            .map(|&v| (v - level).abs() * scale)
+            .collect();
+        let own_level = if own.is_empty() {
+            0.0
+        } else {
+            let k = (own.len() * 9 / 10).min(own.len() - 1);
+            *own.select_nth_unstable_by(k, |a, b| a.total_cmp(b)).1 as f64
+        };
+        GrayDistance {
+            level,
+            scale,
+            fraction: count[b] as f64 / seen.max(1) as f64,
+            own_level,
+        }
+    }
+
+    /// The distance of a pixel of value `v`.
+    pub fn at(&self, v: f32) -> f32 {
+        ((v - self.level).abs() * self.scale).min(1.5)
+    }
 }
 
 /// The spread of each channel (1st to 99th percentile of a sample of every

@@ -310,6 +310,19 @@ fn colour_search(
     detect: &DetectOptions,
     background_level: f64,
 ) -> Result<Vec<Disk>> {
+    let (w, h) = (search.width() as usize, search.height() as usize);
+    let pixels = search.as_raw();
+    colour_search_from((w, h), |k| pixels[k], detect, background_level)
+}
+
+/// [`colour_search`] in a picture given pixel by pixel (see
+/// [`detect::detect_disks_shrunk_from`]).
+fn colour_search_from(
+    size: (usize, usize),
+    value: impl Fn(usize) -> f32 + Sync,
+    detect: &DetectOptions,
+    background_level: f64,
+) -> Result<Vec<Disk>> {
     // Disks are bright regions without dark rims in the colour distance.
     let mut o = detect.clone();
     o.polarity = Polarity::Bright;
@@ -334,7 +347,7 @@ fn colour_search(
         .min_fill
         .max(COLOUR_FILL[0] * background_level)
         .max(COLOUR_FILL[1]);
-    detect::detect_disks_shrunk(search, &o, colour_search_factor(&o))
+    detect::detect_disks_shrunk_from(size, value, &o, colour_search_factor(&o))
 }
 
 /// The outline evidence of a search: the support (the fraction of rays that
@@ -355,8 +368,13 @@ fn gray_distance_instead(
     detect: &DetectOptions,
     as_is: &[Disk],
 ) -> Result<Option<(Vec<Disk>, ChannelChoice)>> {
-    let (distance, level, fraction, own_level) = io::gray_distance(gray);
-    let found = colour_search(&distance, detect, own_level)?;
+    // Read pixel by pixel from the gray picture: a big one is searched
+    // shrunk, and a whole distance picture would be its size again in memory.
+    let distance = io::GrayDistance::of(gray);
+    let (level, fraction, own_level) = (distance.level, distance.fraction, distance.own_level);
+    let (w, h) = (gray.width() as usize, gray.height() as usize);
+    let pixels = gray.as_raw();
+    let found = colour_search_from((w, h), |k| distance.at(pixels[k]), detect, own_level)?;
     let (ours, theirs) = (outline_evidence(&found), outline_evidence(as_is));
     if ours <= (1.0 + SINGLE_CHANNEL_MARGIN) * theirs {
         return Ok(None);
@@ -531,52 +549,55 @@ pub fn detect_images(
     for (k, path) in paths.iter().enumerate() {
         let mut laps = detect::profile::Laps::start();
         let polarity = settings.detect.polarity.name();
-        let DetectionImage {
+        // `signal` is `None` where it is the searched picture itself.
+        let (picture, signal) = io::read_search_picture(path, settings.channel, polarity)?;
+        let io::SearchPicture {
             search,
-            signal,
             choice,
             background_level,
-        } = read_for_detection(path, settings.channel, polarity)?;
+        } = picture;
         laps.lap("read: decode and channel choice");
         let mut choice = choice;
         let mut by_colour = choice.background.is_some();
-        let image = signal;
         match &first {
-            Some(f) => io::check_same_size(f, &paths[0], &image, path)?,
+            Some(f) => io::check_same_size(f, &paths[0], &search, path)?,
             None => {
                 let frame = match settings.frame {
-                    Some(f) if (f.width, f.height) != image.dimensions() => {
+                    Some(f) if (f.width, f.height) != search.dimensions() => {
                         return Err(Error::data(
                             path,
                             None,
                             None,
                             format!(
                                 "the image is {}×{} px but its pixel frame says {}×{}",
-                                image.width(),
-                                image.height(),
+                                search.width(),
+                                search.height(),
                                 f.width,
                                 f.height
                             ),
                         ))
                     }
                     Some(f) => f,
-                    None => PixelFrame::at_origin(settings.px_per_m, image.width(), image.height()),
+                    None => {
+                        PixelFrame::at_origin(settings.px_per_m, search.width(), search.height())
+                    }
                 };
                 frame.validate()?;
                 pixel_frame = Some(frame);
                 walls = match &settings.walls {
                     WallSource::None => Vec::new(),
                     WallSource::Lines(lines) => lines.clone(),
-                    WallSource::ImageEdges => contacts::edge_walls(image.width(), image.height()),
+                    WallSource::ImageEdges => contacts::edge_walls(search.width(), search.height()),
                     // Set once the first frame's disks are known.
                     WallSource::PackingBox => Vec::new(),
                 };
                 // Only its size is needed for the checks that follow.
-                first = Some(FloatImage::new(image.width(), image.height()));
+                first = Some(FloatImage::new(search.width(), search.height()));
             }
         }
         let frame = pixel_frame.expect("set with the first image");
-        let disks = if by_colour {
+        let (disks, image) = if by_colour {
+            let image = signal.unwrap_or_else(|| search.clone());
             let by_distance = colour_search(&search, &settings.detect, background_level)?;
             // Not needed again: freed before a second search fills its own buffers.
             drop(search);
@@ -591,14 +612,15 @@ pub fn detect_images(
                 None
             };
             laps.lap("signal-channel search");
-            match instead {
+            let disks = match instead {
                 Some((single, picked)) => {
                     by_colour = false;
                     choice = picked;
                     single
                 }
                 None => by_distance,
-            }
+            };
+            (disks, image)
         } else {
             // At the defaults a big gray picture is searched shrunk as the
             // colour distance is (its rim rules were made for radii of
@@ -618,16 +640,17 @@ pub fn detect_images(
             } else {
                 None
             };
-            drop(search);
             laps.lap("gray search");
-            match instead {
+            let disks = match instead {
                 Some((found, picked)) => {
                     by_colour = true;
                     choice = picked;
                     found
                 }
                 None => disks,
-            }
+            };
+            // The searched picture is the signal one here (one copy in memory).
+            (disks, signal.unwrap_or(search))
         };
         // A circle on an opaque object (a clamp beside the packing) is no
         // photoelastic disk: it blocks the backlight the disks pass.

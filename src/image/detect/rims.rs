@@ -1,7 +1,7 @@
 //! Dim disks: the regions that dark rims enclose, found whatever the disks'
 //! interior intensity.
 
-use super::detect_disks;
+use super::detect_disks_in_mask;
 use super::filters::{gaussian_blur_map, median, noise_level};
 use super::options::{DetectOptions, Disk};
 use super::pyramid::{downsample, refine_scaled, shrunk_options};
@@ -41,7 +41,7 @@ pub(crate) fn add_rim_enclosed_coarse(
     let enclosed = rim_enclosed(image, noise);
     laps.lap("rims: mark and flood (full resolution)");
     let filled = downsample(w, h, factor, |k| if enclosed[k] { 1.0 } else { 0.0 });
-    let Ok(coarse) = detect_disks(&filled, &shrunk_options(o, f)) else {
+    let Ok(coarse) = detect_disks_in_mask(&filled, &shrunk_options(o, f)) else {
         return found;
     };
     drop(filled);
@@ -79,7 +79,7 @@ pub(crate) fn add_rim_enclosed(
     drop(enclosed);
     let mut search = o.clone();
     search.find_by_rims = false;
-    let Ok(enclosed) = detect_disks(&filled, &search) else {
+    let Ok(enclosed) = detect_disks_in_mask(&filled, &search) else {
         return found;
     };
     with_rim_disks(found, enclosed, o)
