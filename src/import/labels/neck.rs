@@ -51,8 +51,8 @@ const CALIBRATION_ZONES: usize = 48;
 const TUKEY: f64 = 4.685;
 /// A fit stops when its step is below this [voxels].
 const STEP_TOLERANCE: f64 = 1e-4;
-/// Golden-section steps of the blur's search (σ to ±6 %; ±10 % of σ moves
-/// the zones' gaps relative to their median by under 0.01 voxel).
+/// Golden-section steps of the blur's search (σ to ±6 %; in a numpy
+/// prototype on the test scans, σ fixed 20 % off kept the same zones).
 const SIGMA_STEPS: usize = 7;
 
 impl Neck {
