@@ -80,6 +80,12 @@ fn main() -> grainforce::Result<()> {
                                 .and_then(|v| v.parse().ok())
                                 .unwrap_or(3.0)
                         }),
+                        // TOMO_MISFIT: the neck fit's misfit (over the
+                        // zones' median) above which the grey gap drops nothing.
+                        grey_gap_max_misfit: std::env::var("TOMO_MISFIT")
+                            .ok()
+                            .and_then(|v| v.parse().ok())
+                            .unwrap_or(Options::default().grey_gap_max_misfit),
                         fit: fit_settings(),
                         ..Options::default()
                     };
@@ -175,7 +181,7 @@ fn debug_zones(
             continue;
         };
         eprintln!(
-            "    {} {}-{} apart {apart:.3} faces {} gap {:.3} grey {:.3} grey_gap {:.4} (−median {:.3}) sd {:.4} kept {} {}",
+            "    {} {}-{} apart {apart:.3} faces {} gap {:.3} grey {:.3} grey_gap {:.4} (−median {:.3}) sd {:.4} misfit {:.3} kept {} {}",
             if t { "TRUE " } else { "FALSE" },
             c.a,
             b,
@@ -185,6 +191,7 @@ fn debug_zones(
             g,
             g - median,
             vox(c.grey_gap_sd),
+            c.grey_fit_misfit.unwrap_or(f64::NAN),
             c.kept as u8,
             c.method
         );

@@ -191,6 +191,14 @@ pub struct Options {
     /// to the zones' own spread so that it follows the image's blur and
     /// noise rather than a number of voxels tuned to one volume.
     pub grey_gap_spread: Option<f64>,
+    /// The grey gap drops a contact only where the neck's two-sphere model
+    /// holds: the fit's rms residual at most this many times the median of
+    /// all zones'. Where it is more (a flat cut, a satellite or a third
+    /// grain the two spheres do not describe) the gap says little and the
+    /// contact is kept, its misfit in `contacts_quality.csv`
+    /// (`grey_fit_misfit`): a dropped true contact breaks the balance of
+    /// forces, a kept near miss only adds an unknown.
+    pub grey_gap_max_misfit: f64,
     /// A grain touches a plane wall when its voxels come within this many
     /// voxels of it.
     pub wall_tolerance: f64,
@@ -209,6 +217,7 @@ impl Default for Options {
             max_gap: None,
             min_grey: 0.5,
             grey_gap_spread: Some(3.0),
+            grey_gap_max_misfit: 1.1,
             wall_tolerance: 1.0,
         }
     }
@@ -253,6 +262,9 @@ pub struct DetectedContact {
     /// the two fits' residuals [m].
     pub grey_gap: Option<f64>,
     pub grey_gap_sd: Option<f64>,
+    /// The grey gap fit's rms residual in units of the scan's rms misfit
+    /// (high where two blurred spheres do not explain the neck's greys).
+    pub grey_fit_misfit: Option<f64>,
     /// Rms distance of each side's surface faces from its fitted sphere [m]
     /// (a confidence in that side's fit: about a third of a voxel on a
     /// sphere, more where a flat face or another lobe came into the fit).
@@ -1326,7 +1338,7 @@ fn contacts_of(
     zones: &[Zone],
     geometry: &[Geometry],
     fits: &Fits,
-    grey_gaps: &[Option<(f64, f64)>],
+    grey_gaps: &[Option<(f64, f64, f64)>],
     plane_hits: &[(usize, usize, bool)],
     options: &Options,
 ) -> Vec<DetectedContact> {
@@ -1366,6 +1378,7 @@ fn contacts_of(
             grey: z.grey,
             grey_gap: grey_gap.map(|g| g.0 * s),
             grey_gap_sd: grey_gap.map(|g| g.1 * s),
+            grey_fit_misfit: grey_gap.map(|g| g.2),
             fit_rms,
             kept,
         });
@@ -1387,9 +1400,13 @@ fn contacts_of(
             let median = synth::quantile(&gaps, 0.5);
             let deviations: Vec<f64> = gaps.iter().map(|g| (g - median).abs()).collect();
             let spread = 1.4826 * synth::quantile(&deviations, 0.5);
+            let misfits: Vec<f64> = out.iter().filter_map(|c| c.grey_fit_misfit).collect();
+            let usual = synth::quantile(&misfits, 0.5);
             for c in &mut out {
-                if let (Some(g), Some(sd)) = (c.grey_gap, c.grey_gap_sd) {
-                    c.kept &= g <= median + k * spread.max(sd);
+                if let (Some(g), Some(sd), Some(m)) = (c.grey_gap, c.grey_gap_sd, c.grey_fit_misfit)
+                {
+                    let model_holds = m <= options.grey_gap_max_misfit * usual;
+                    c.kept &= !model_holds || g <= median + k * spread.max(sd);
                 }
             }
         }
@@ -1419,6 +1436,7 @@ fn contacts_of(
             grey: None,
             grey_gap: None,
             grey_gap_sd: None,
+            grey_fit_misfit: None,
             fit_rms: [None, None],
             kept: true,
         });
@@ -1564,7 +1582,7 @@ impl LabelScene {
     /// The text of `contacts_quality.csv`.
     pub fn quality_csv(&self) -> String {
         let mut text = String::from(
-            "contact,a,b,zone,kept,method,faces,area,gap,grey,x,y,z,n_x,n_y,n_z,pca_x,pca_y,pca_z,pca_n_x,pca_n_y,pca_n_z,fit_rms_a,fit_rms_b,grey_gap,grey_gap_sd\n",
+            "contact,a,b,zone,kept,method,faces,area,gap,grey,x,y,z,n_x,n_y,n_z,pca_x,pca_y,pca_z,pca_n_x,pca_n_y,pca_n_z,fit_rms_a,fit_rms_b,grey_gap,grey_gap_sd,grey_fit_misfit\n",
         );
         let wall_name = |w: usize| -> String {
             self.scene
@@ -1580,7 +1598,7 @@ impl LabelScene {
             };
             let id = if c.kept { i.to_string() } else { String::new() };
             text.push_str(&format!(
-                "{id},{},{b},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
+                "{id},{},{b},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
                 c.a,
                 c.zone,
                 c.kept as u8,
@@ -1605,6 +1623,7 @@ impl LabelScene {
                 opt(c.fit_rms[1]),
                 opt(c.grey_gap),
                 opt(c.grey_gap_sd),
+                opt(c.grey_fit_misfit),
             ));
         }
         text

@@ -181,6 +181,10 @@ struct NeckFit {
     gap: f64,
     sd: f64,
     sse: f64,
+    /// The rms residual of the voxels that count, in units of the scan's rms
+    /// misfit (`robust` / [`TUKEY`]): high where the two balls do not
+    /// explain the neck (a cut, a satellite, a third grain inside the cut).
+    misfit: f64,
     /// Σ over voxels of the blurred union (f) and f², f·grey, for the levels.
     sums: [f64; 5],
 }
@@ -313,6 +317,7 @@ fn fit(
         gap: x[1],
         sd: variance.max(0.0).sqrt(),
         sse,
+        misfit: (scatter / dof).sqrt() * TUKEY / robust,
         sums,
     })
 }
@@ -379,14 +384,15 @@ fn collect(
 }
 
 /// Per zone (`None`: not a grain pair, or no neck): the gap fitted to the
-/// grey at its neck and its standard deviation [voxels], with the scan's
+/// grey at its neck, its standard deviation [voxels] and the fit's misfit
+/// (rms residual over the scan's), with the scan's
 /// model measured on the image (`levels`: the mean void and solid greys of
 /// the labels, the start).
 pub(super) fn gaps(
     grey: &mut dyn SliceSource,
     necks: &[Option<Neck>],
     levels: (f64, f64),
-) -> Result<Vec<Option<(f64, f64)>>> {
+) -> Result<Vec<Option<(f64, f64, f64)>>> {
     let shape = grey.shape();
     let all: Vec<usize> = (0..necks.len()).filter(|&k| necks[k].is_some()).collect();
     if all.is_empty() {
@@ -416,7 +422,7 @@ pub(super) fn gaps(
         .collect();
     let mut out = vec![None; necks.len()];
     for (i, f) in fitted.into_iter().enumerate() {
-        out[all[i]] = f.map(|f| (f.gap, f.sd));
+        out[all[i]] = f.map(|f| (f.gap, f.sd, f.misfit));
     }
     Ok(out)
 }
