@@ -80,6 +80,12 @@ fn main() -> grainforce::Result<()> {
                                 .and_then(|v| v.parse().ok())
                                 .unwrap_or(3.0)
                         }),
+                        // TOMO_MISFIT: the neck fit's misfit (over the
+                        // zones' median) above which the grey gap drops nothing.
+                        grey_gap_max_misfit: std::env::var("TOMO_MISFIT")
+                            .ok()
+                            .and_then(|v| v.parse().ok())
+                            .unwrap_or(Options::default().grey_gap_max_misfit),
                         fit: fit_settings(),
                         ..Options::default()
                     };
@@ -109,42 +115,184 @@ fn main() -> grainforce::Result<()> {
                         worst(&imported, &truth, voxel, &grains);
                     }
                     if std::env::var("TOMO_DEBUG").is_ok() && method.contains("grey") {
-                        let true_pairs: std::collections::HashSet<(usize, usize)> = truth
-                            .iter()
-                            .map(|t| (t.a.min(t.b) + 1, t.a.max(t.b) + 1))
-                            .collect();
-                        for c in &imported.detected {
-                            if let labels::Other::Grain(b) = c.b {
-                                let t = true_pairs.contains(&(c.a as usize, b as usize));
-                                // The bodies' true separation (main spheres), voxels.
-                                let (ga, gb) = (&grains[c.a as usize - 1], &grains[b as usize - 1]);
-                                let apart =
-                                    (scene::norm(scene::sub(ga.spheres[0].0, gb.spheres[0].0))
-                                        - ga.spheres[0].1
-                                        - gb.spheres[0].1)
-                                        / voxel;
-                                let vox = |g: Option<f64>| g.map_or(f64::NAN, |g| g / voxel);
-                                eprintln!(
-                                    "    {} {}-{} apart {apart:.3} faces {} gap {:.3} grey {:.3} grey_gap {:.4} sd {:.4} kept {} {}",
-                                    if t { "TRUE " } else { "FALSE" },
-                                    c.a,
-                                    b,
-                                    c.faces,
-                                    vox(c.gap),
-                                    c.grey.unwrap_or(f64::NAN),
-                                    vox(c.grey_gap),
-                                    vox(c.grey_gap_sd),
-                                    c.kept as u8,
-                                    c.method
-                                );
-                            }
-                        }
+                        debug_zones(&imported, &truth, voxel, &grains);
+                    }
+                    if let (Ok(dir), Some(g)) = (std::env::var("TOMO_DUMP"), grey) {
+                        dump(
+                            Path::new(&dir),
+                            &format!("{shape}{res}"),
+                            lab,
+                            g,
+                            &grid,
+                            &imported,
+                            &grains,
+                        );
                     }
                 }
             }
         }
     }
     Ok(())
+}
+
+/// Every grain–grain zone with the bodies' true separation (main spheres),
+/// its grey evidence and whether it was kept; then the grey-gap rule's
+/// threshold and the estimate's error on the true contacts (TOMO_DEBUG=1).
+fn debug_zones(
+    imported: &labels::LabelScene,
+    truth: &[synth::TrueContact],
+    voxel: f64,
+    grains: &[synth::SynthGrain],
+) {
+    let true_pairs: std::collections::HashSet<(usize, usize)> = truth
+        .iter()
+        .map(|t| (t.a.min(t.b) + 1, t.a.max(t.b) + 1))
+        .collect();
+    let vox = |g: Option<f64>| g.map_or(f64::NAN, |g| g / voxel);
+    let gaps: Vec<f64> = imported
+        .detected
+        .iter()
+        .filter_map(|c| c.grey_gap.map(|g| g / voxel))
+        .collect();
+    let median = synth::quantile(&gaps, 0.5);
+    let deviations: Vec<f64> = gaps.iter().map(|g| (g - median).abs()).collect();
+    let spread = 1.4826 * synth::quantile(&deviations, 0.5);
+    let mut errors = Vec::new();
+    let mut rows = Vec::new();
+    for c in &imported.detected {
+        let labels::Other::Grain(b) = c.b else {
+            continue;
+        };
+        let t = true_pairs.contains(&(c.a as usize, b as usize));
+        let (ga, gb) = (&grains[c.a as usize - 1], &grains[b as usize - 1]);
+        let apart = (scene::norm(scene::sub(ga.spheres[0].0, gb.spheres[0].0))
+            - ga.spheres[0].1
+            - gb.spheres[0].1)
+            / voxel;
+        let g = vox(c.grey_gap);
+        if t {
+            errors.push(g - median - apart);
+        }
+        rows.push((apart, t, c, g));
+    }
+    rows.sort_by(|x, y| x.0.total_cmp(&y.0));
+    for (apart, t, c, g) in rows {
+        let labels::Other::Grain(b) = c.b else {
+            continue;
+        };
+        eprintln!(
+            "    {} {}-{} apart {apart:.3} faces {} gap {:.3} grey {:.3} grey_gap {:.4} (−median {:.3}) sd {:.4} misfit {:.3} kept {} {}",
+            if t { "TRUE " } else { "FALSE" },
+            c.a,
+            b,
+            c.faces,
+            vox(c.gap),
+            c.grey.unwrap_or(f64::NAN),
+            g,
+            g - median,
+            vox(c.grey_gap_sd),
+            c.grey_fit_misfit.unwrap_or(f64::NAN),
+            c.kept as u8,
+            c.method
+        );
+    }
+    // Pairs that do not touch in the DEM but are closer than 0.1 voxel: no
+    // image at this resolution tells them from contacts.
+    let mut close = 0;
+    for i in 0..grains.len() {
+        for j in i + 1..grains.len() {
+            let (a, b) = (grains[i].spheres[0], grains[j].spheres[0]);
+            let apart = (scene::norm(scene::sub(a.0, b.0)) - a.1 - b.1) / voxel;
+            close += usize::from(apart < 0.1 && !true_pairs.contains(&(i + 1, j + 1)));
+        }
+    }
+    eprintln!("    near misses under 0.1 voxel apart: {close}");
+    let rms = (errors.iter().map(|e| e * e).sum::<f64>() / errors.len().max(1) as f64).sqrt();
+    eprintln!(
+        "    grey gap: median {median:.3}, robust sd {spread:.3} voxel; contacts' error (grey gap − median − true) 5/50/95 % {:.3} / {:.3} / {:.3}, min {:.3} max {:.3}, rms {rms:.3}",
+        synth::quantile(&errors, 0.05),
+        synth::quantile(&errors, 0.5),
+        synth::quantile(&errors, 0.95),
+        synth::quantile(&errors, 0.0),
+        synth::quantile(&errors, 1.0),
+    );
+}
+
+/// Writes the labels, the grey image (`.npy`) and every grain–grain zone
+/// with the truth (csv, voxel units) for prototyping outside (TOMO_DUMP=DIR).
+fn dump(
+    dir: &Path,
+    name: &str,
+    labels_volume: &[u32],
+    grey: &[f32],
+    grid: &synth::Grid,
+    imported: &labels::LabelScene,
+    grains: &[synth::SynthGrain],
+) {
+    use std::io::Write;
+    let npy = |path: &Path, descr: &str, bytes: &[u8]| {
+        let [nz, ny, nx] = grid.shape;
+        let mut header = format!(
+            "{{'descr': '{descr}', 'fortran_order': False, 'shape': ({nz}, {ny}, {nx}), }}"
+        );
+        while (header.len() + 11) % 64 != 0 {
+            header.push(' ');
+        }
+        header.push('\n');
+        let mut f = std::fs::File::create(path).expect("dump file");
+        f.write_all(b"\x93NUMPY\x01\x00").unwrap();
+        f.write_all(&(header.len() as u16).to_le_bytes()).unwrap();
+        f.write_all(header.as_bytes()).unwrap();
+        f.write_all(bytes).unwrap();
+    };
+    std::fs::create_dir_all(dir).expect("dump folder");
+    let lb: Vec<u8> = labels_volume.iter().flat_map(|v| v.to_le_bytes()).collect();
+    npy(&dir.join(format!("{name}_labels.npy")), "<u4", &lb);
+    let gb: Vec<u8> = grey.iter().flat_map(|v| v.to_le_bytes()).collect();
+    npy(&dir.join(format!("{name}_grey.npy")), "<f4", &gb);
+    let v = grid.voxel;
+    let mut csv =
+        String::from("a,b,apart,px,py,pz,nx,ny,nz,gap,grey,grey_gap,grey_gap_sd,kept,faces\n");
+    for c in &imported.detected {
+        let labels::Other::Grain(b) = c.b else {
+            continue;
+        };
+        let (ga, gb) = (&grains[c.a as usize - 1], &grains[b as usize - 1]);
+        let apart = (scene::norm(scene::sub(ga.spheres[0].0, gb.spheres[0].0))
+            - ga.spheres[0].1
+            - gb.spheres[0].1)
+            / v;
+        let p: Vec<f64> = (0..3).map(|k| (c.point[k] - grid.origin[k]) / v).collect();
+        csv += &format!(
+            "{},{b},{apart},{},{},{},{},{},{},{},{},{},{},{},{}\n",
+            c.a,
+            p[0],
+            p[1],
+            p[2],
+            c.normal[0],
+            c.normal[1],
+            c.normal[2],
+            c.gap.map_or(f64::NAN, |g| g / v),
+            c.grey.unwrap_or(f64::NAN),
+            c.grey_gap.map_or(f64::NAN, |g| g / v),
+            c.grey_gap_sd.map_or(f64::NAN, |g| g / v),
+            c.kept as u8,
+            c.faces
+        );
+    }
+    std::fs::write(dir.join(format!("{name}_zones.csv")), csv).expect("zones");
+    let mut truth = String::from("x,y,z,r\n");
+    for g in grains {
+        let (c, r) = g.spheres[0];
+        truth += &format!(
+            "{},{},{},{}\n",
+            (c[0] - grid.origin[0]) / v,
+            (c[1] - grid.origin[1]) / v,
+            (c[2] - grid.origin[2]) / v,
+            r / v
+        );
+    }
+    std::fs::write(dir.join(format!("{name}_spheres.csv")), truth).expect("spheres");
 }
 
 /// The simulated segmentation, with TOMO_BLUR / TOMO_NOISE / TOMO_SEED
@@ -198,9 +346,6 @@ fn fit_settings() -> labels::FitSettings {
     }
     if let Some(v) = var("TOMO_EXCL") {
         fit.exclusion = v;
-    }
-    if let Some(v) = var("TOMO_GREY_PRIOR") {
-        fit.grey_radius_prior = v;
     }
     fit
 }

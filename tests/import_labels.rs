@@ -375,10 +375,21 @@ fn import_with_grey(
     d: f64,
     spread: Option<f64>,
 ) -> labels::LabelScene {
+    import_with_scan(grains, res, d, spread, &Default::default())
+}
+
+/// As [`import_with_grey`], with the scan's blur and noise given.
+fn import_with_scan(
+    grains: &[synth::SynthGrain],
+    res: f64,
+    d: f64,
+    spread: Option<f64>,
+    scan: &synth::Segmentation,
+) -> labels::LabelScene {
     let voxel = d / res;
     let grid = synth::Grid::around(grains, voxel, 3.0);
     let (_, fraction) = synth::voxelise(grains, &grid);
-    let (volume, grey) = synth::segment(grains, &grid, &fraction, &Default::default());
+    let (volume, grey) = synth::segment(grains, &grid, &fraction, scan);
     let options = Options {
         voxel_size: voxel,
         origin: grid.origin,
@@ -389,8 +400,7 @@ fn import_with_grey(
     labels::import_array(&volume, grid.shape, Some(&grey), &options).unwrap()
 }
 
-/// The grey gap (surfaces fitted to sub-voxel points of the grey image) of
-/// the DEM's contacts and its near misses at 30 voxels per diameter:
+/// The grey gap (fitted to the grey at each neck) of the DEM's contacts and its near misses at 30 voxels per diameter:
 /// contacts within a few hundredths of a voxel of one another, near misses
 /// 0.1 voxel apart and more told from them, and the precision that the
 /// neck's grey alone did not reach.
@@ -405,9 +415,11 @@ fn the_grey_gap_tells_near_misses_from_contacts_at_30_voxels() {
         s.recall(),
         s.precision()
     );
-    // Measured 1.000 / 0.974 (neck grey alone: 0.949).
+    // Measured 1.000 / 0.982: the two false pairs left are 0.002 and 0.026
+    // voxel apart (neck grey alone: 0.949; round 8's gap from the grey
+    // surfaces: 0.974).
     assert!(s.recall() >= 0.99, "recall {}", s.recall());
-    assert!(s.precision() >= 0.95, "precision {}", s.precision());
+    assert!(s.precision() >= 0.98, "precision {}", s.precision());
     let true_pairs: std::collections::HashSet<(u32, u32)> = truth
         .iter()
         .map(|t| (t.a.min(t.b) as u32 + 1, t.a.max(t.b) as u32 + 1))
@@ -432,12 +444,19 @@ fn the_grey_gap_tells_near_misses_from_contacts_at_30_voxels() {
     }
     let median = synth::quantile(&contacts, 0.5);
     let spread: Vec<f64> = contacts.iter().map(|g| (g - median).abs()).collect();
-    // Measured: 90 % of the contacts within 0.05 voxel of their median,
-    // every one within 0.11.
-    assert!(synth::quantile(&spread, 0.9) < 0.06, "{spread:?}");
-    assert!(synth::quantile(&spread, 1.0) < 0.15, "{spread:?}");
+    // Measured: 90 % of the contacts within 0.04 voxel of their median,
+    // every one within 0.07 (round 8's grey surfaces: 0.05, 0.11).
+    eprintln!(
+        "contacts' grey gaps off their median: 90 % within {:.3}, all within {:.3} voxel",
+        synth::quantile(&spread, 0.9),
+        synth::quantile(&spread, 1.0)
+    );
+    assert!(synth::quantile(&spread, 0.9) < 0.05, "{spread:?}");
+    assert!(synth::quantile(&spread, 1.0) < 0.1, "{spread:?}");
     for &(apart, g, kept) in &misses {
-        if apart > 0.3 {
+        // Every near miss 0.1 voxel apart or more is dropped (the closest
+        // such is 0.108).
+        if apart > 0.1 {
             assert!(!kept, "a near miss {apart:.2} voxel apart kept");
         }
         if apart > 0.3 && apart < 1.0 {
@@ -454,17 +473,21 @@ fn the_grey_gap_tells_near_misses_from_contacts_at_30_voxels() {
     );
 }
 
-/// At 15 voxels per diameter the grey gap keeps every contact, on spheres
-/// and on clumps; on spheres six near misses are closer than 0.09 voxel (no
-/// rule can tell them), so precision stays at the neck test's 0.918.
+/// At 15 voxels per diameter the gap fitted at the neck keeps every
+/// contact, on spheres and on clumps, and on spheres drops every near miss
+/// 0.1 voxel apart or more: the false pairs left are the six closer than
+/// 0.1 voxel (0.001–0.086), which no image at this resolution tells from
+/// contacts (precision 112 / 118 = 0.949, the most any rule can reach here).
 #[test]
-fn the_grey_gap_keeps_every_contact_at_15_voxels() {
+fn the_neck_gap_drops_near_misses_at_15_voxels() {
     let (scene, _, spheres, truth, d) = packing();
+    let voxel = d / 15.0;
     let points = synth::contact_points(&scene);
-    let clumps = synth::clumps_of(&spheres, &points, 0.75, 2.0 * d / 15.0);
-    for (name, grains, least_precision) in [("spheres", &spheres, 0.91), ("clumps", &clumps, 0.99)]
+    let clumps = synth::clumps_of(&spheres, &points, 0.75, 2.0 * voxel);
+    for (name, grains, least_precision) in [("spheres", &spheres, 0.94), ("clumps", &clumps, 0.99)]
     {
-        let s = synth::score(&import_with_grey(grains, 15.0, d, Some(3.0)), &truth, false);
+        let imported = import_with_grey(grains, 15.0, d, Some(3.0));
+        let s = synth::score(&imported, &truth, false);
         eprintln!(
             "15 vox/d {name} with grey: recall {:.3} precision {:.3}",
             s.recall(),
@@ -476,7 +499,75 @@ fn the_grey_gap_keeps_every_contact_at_15_voxels() {
             "{name}: precision {}",
             s.precision()
         );
+        let true_pairs: std::collections::HashSet<(u32, u32)> = truth
+            .iter()
+            .map(|t| (t.a.min(t.b) as u32 + 1, t.a.max(t.b) as u32 + 1))
+            .collect();
+        for c in imported.detected.iter().filter(|c| c.kept) {
+            let Other::Grain(b) = c.b else { continue };
+            if true_pairs.contains(&(c.a, b)) {
+                continue;
+            }
+            let (ga, gb) = (&grains[c.a as usize - 1], &grains[b as usize - 1]);
+            let apart = (scene::norm(scene::sub(ga.spheres[0].0, gb.spheres[0].0))
+                - ga.spheres[0].1
+                - gb.spheres[0].1)
+                / voxel;
+            assert!(
+                apart < 0.1,
+                "{name}: a near miss {apart:.3} voxel apart kept"
+            );
+        }
     }
+}
+
+/// On a sharper, noisier scan (σ 0.7 voxel, noise 0.15) some clump contacts
+/// have a flat cut or a satellite at the neck that two spheres do not
+/// describe; their grey gap reads 0.2–0.4 voxel high. The rule drops
+/// nothing where the neck fit's rms residual is over 1.1 times the zones'
+/// median (theirs: 1.24, 1.30), so the clumps keep every contact (measured
+/// 1.000; 0.982 when the rule ignored the misfit).
+#[test]
+fn the_neck_gap_keeps_clump_contacts_it_cannot_model() {
+    let (scene, _, spheres, truth, d) = packing();
+    let points = synth::contact_points(&scene);
+    let clumps = synth::clumps_of(&spheres, &points, 0.75, 2.0 * d / 15.0);
+    let scan = synth::Segmentation {
+        blur: 0.7,
+        noise: 0.15,
+        ..Default::default()
+    };
+    let imported = import_with_scan(&clumps, 15.0, d, Some(3.0), &scan);
+    let s = synth::score(&imported, &truth, false);
+    eprintln!(
+        "15 vox/d clumps, σ 0.7 noise 0.15: recall {:.3} precision {:.3}",
+        s.recall(),
+        s.precision()
+    );
+    assert!(s.recall() >= 0.99, "recall {}", s.recall());
+    assert!(s.precision() >= 0.95, "precision {}", s.precision());
+    // The contacts kept over the gap's threshold are those the two spheres
+    // did not explain: their misfit says so in contacts_quality.csv.
+    let pairs: Vec<_> = imported
+        .detected
+        .iter()
+        .filter(|c| matches!(c.b, Other::Grain(_)))
+        .collect();
+    let median = |v: Vec<f64>| synth::quantile(&v, 0.5);
+    let gaps: Vec<f64> = pairs.iter().filter_map(|c| c.grey_gap).collect();
+    let gap = median(gaps.clone());
+    let spread = 1.4826 * median(gaps.iter().map(|g| (g - gap).abs()).collect());
+    let misfit = median(pairs.iter().filter_map(|c| c.grey_fit_misfit).collect());
+    let mut high = 0;
+    for c in pairs.iter().filter(|c| c.kept) {
+        let sd = c.grey_gap_sd.expect("a deviation");
+        if c.grey_gap.expect("a grey gap") > gap + 3.0 * spread.max(sd) {
+            high += 1;
+            let m = c.grey_fit_misfit.expect("a misfit");
+            assert!(m > 1.1 * misfit, "{m} vs the median {misfit}");
+        }
+    }
+    assert!(high > 0, "no contact whose gap reads high");
 }
 
 /// Segmented clumps (flat cuts and satellites) at `res` voxels per

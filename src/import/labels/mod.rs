@@ -16,7 +16,7 @@
 //! Voxel `[z][y][x]` has its centre at `origin + voxel_size · (x, y, z)`.
 
 mod first_pass;
-mod grey_gap;
+mod neck;
 pub mod synth;
 pub mod volume;
 
@@ -138,9 +138,6 @@ pub struct FitSettings {
     pub robust_samples: usize,
     /// The gate of the robust restarts' score and refit, in voxels.
     pub robust_gate: f64,
-    /// With a grey image: the radius prior's weight per point of the
-    /// spheres fitted to the sub-voxel surface points (the grey gap).
-    pub grey_radius_prior: f64,
 }
 
 impl Default for FitSettings {
@@ -159,7 +156,6 @@ impl Default for FitSettings {
             max_apart: 1.0,
             robust_samples: 200,
             robust_gate: 0.7,
-            grey_radius_prior: 1.0,
         }
     }
 }
@@ -195,6 +191,14 @@ pub struct Options {
     /// to the zones' own spread so that it follows the image's blur and
     /// noise rather than a number of voxels tuned to one volume.
     pub grey_gap_spread: Option<f64>,
+    /// The grey gap drops a contact only where the neck's two-sphere model
+    /// holds: the fit's rms residual at most this many times the median of
+    /// all zones'. Where it is more (a flat cut, a satellite or a third
+    /// grain the two spheres do not describe) the gap says little and the
+    /// contact is kept, its misfit in `contacts_quality.csv`
+    /// (`grey_fit_misfit`): a dropped true contact breaks the balance of
+    /// forces, a kept near miss only adds an unknown.
+    pub grey_gap_max_misfit: f64,
     /// A grain touches a plane wall when its voxels come within this many
     /// voxels of it.
     pub wall_tolerance: f64,
@@ -213,6 +217,7 @@ impl Default for Options {
             max_gap: None,
             min_grey: 0.5,
             grey_gap_spread: Some(3.0),
+            grey_gap_max_misfit: 1.1,
             wall_tolerance: 1.0,
         }
     }
@@ -257,6 +262,9 @@ pub struct DetectedContact {
     /// the two fits' residuals [m].
     pub grey_gap: Option<f64>,
     pub grey_gap_sd: Option<f64>,
+    /// The grey gap fit's rms residual in units of the scan's rms misfit
+    /// (high where two blurred spheres do not explain the neck's greys).
+    pub grey_fit_misfit: Option<f64>,
     /// Rms distance of each side's surface faces from its fitted sphere [m]
     /// (a confidence in that side's fit: about a third of a voxel on a
     /// sphere, more where a flat face or another lobe came into the fit).
@@ -456,27 +464,39 @@ pub fn import_source(
     // refits, on the faces pass 2 kept.
     let mut fits = surface_pass(labels, &scan, &grains, &zones, &plane_hits, options)?;
     refit(&mut fits, &options.fit, &zones, &grains);
-    // With the grey image: one more pass over it for the sub-voxel gaps.
+    // With the grey image: one more pass over it for the gaps at the necks.
+    fits.faces = Vec::new();
+    let geometry: Vec<Geometry> = zones
+        .iter()
+        .enumerate()
+        .map(|(k, z)| zone_geometry(z, &fits.solved[k], &grains, options))
+        .collect();
     let grey_gaps = match (grey, grey_scale) {
-        (Some(g), Some((void, solid))) if !fits.faces.is_empty() => {
-            let level = (0.5 * (void + solid)) as f32;
-            let offsets = grey_gap::crossings(g, &fits.faces, &zones, level)?;
-            grey_gap::gaps(
-                &fits.faces,
-                &offsets,
-                &fits.solved,
-                &zones,
-                &grains,
-                &options.fit,
-            )
+        (Some(g), Some(levels)) => {
+            let necks: Vec<Option<neck::Neck>> = zones
+                .iter()
+                .zip(&geometry)
+                .map(|(z, geo)| {
+                    let Side::Grain(b) = z.b else { return None };
+                    let radii = geo.radii.unwrap_or([
+                        grains[z.a as usize].radius_voxels,
+                        grains[b as usize].radius_voxels,
+                    ]);
+                    Some(neck::Neck {
+                        point: geo.point,
+                        normal: geo.normal,
+                        radii,
+                    })
+                })
+                .collect();
+            neck::gaps(g, &necks, levels)?
         }
         _ => Vec::new(),
     };
-    fits.faces = Vec::new();
     let detected = contacts_of(
         &scan,
-        &grains,
         &zones,
+        &geometry,
         &fits,
         &grey_gaps,
         &plane_hits,
@@ -1231,12 +1251,94 @@ fn to_metres(p: [f64; 3], options: &Options) -> Vec3 {
     ]
 }
 
+/// Where a zone's contact is and which way it points (voxel units), as the
+/// normal method and the fits give it.
+struct Geometry {
+    point: [f64; 3],
+    normal: [f64; 3],
+    method: &'static str,
+    /// The fitted surfaces' gap along the normal [voxels].
+    gap: Option<f64>,
+    /// The two fitted spheres' radii, when they give the normal.
+    radii: Option<[f64; 2]>,
+}
+
+fn zone_geometry(
+    z: &Zone,
+    solved: &[Option<Sphere>; 2],
+    grains: &[GrainGeometry],
+    options: &Options,
+) -> Geometry {
+    // A fit far from the grain's size is of something else (a flat face,
+    // a neck): not trusted.
+    let sane = |f: Option<([f64; 3], f64, f64)>, g: usize| {
+        f.filter(|(_, r, _)| {
+            let rg = grains[g].radius_voxels;
+            *r > 0.25 * rg && *r < 4.0 * rg
+        })
+        .map(|(c, r, _)| (c, r))
+    };
+    let mut out = Geometry {
+        point: z.centre,
+        normal: z.pca_normal,
+        method: "pca",
+        gap: None,
+        radii: None,
+    };
+    if options.normals != NormalMethod::SurfaceFit {
+        return out;
+    }
+    let fa = sane(solved[0], z.a as usize);
+    let fb = match z.b {
+        Side::Grain(b) => sane(solved[1], b as usize),
+        Side::Container => None,
+    };
+    let close = |n: [f64; 3]| scene::dot(n, z.pca_normal) > 0.5_f64.sqrt();
+    match (fa, fb) {
+        (Some((ca, ra)), Some((cb, rb))) => {
+            let d = scene::sub(cb, ca);
+            let dist = scene::norm(d);
+            let overlap = ra + rb - dist;
+            let neck = (2.0 * overlap.max(0.0) * ra * rb / (ra + rb)).sqrt();
+            let fits_neck = (options.fit.max_neck <= 0.0
+                || neck <= options.fit.max_neck * z.radius)
+                && (options.fit.max_apart <= 0.0 || -overlap <= options.fit.max_apart);
+            let n = unit(d).filter(|n| close(*n));
+            if n.is_some() {
+                // Kept when the normal falls back: `--max-gap` needs it.
+                out.gap = Some(-overlap);
+            }
+            if let Some(n) = n.filter(|_| fits_neck) {
+                let arm = ra - 0.5 * overlap;
+                out.point = [ca[0] + arm * n[0], ca[1] + arm * n[1], ca[2] + arm * n[2]];
+                out.normal = n;
+                out.method = "fit";
+                out.radii = Some([ra, rb]);
+            }
+        }
+        (Some((ca, _)), None) => {
+            if let Some(n) = unit(scene::sub(z.centre, ca)).filter(|n| close(*n)) {
+                out.normal = n;
+                out.method = "fit-a";
+            }
+        }
+        (None, Some((cb, _))) => {
+            if let Some(n) = unit(scene::sub(cb, z.centre)).filter(|n| close(*n)) {
+                out.normal = n;
+                out.method = "fit-b";
+            }
+        }
+        (None, None) => {}
+    }
+    out
+}
+
 fn contacts_of(
     scan: &Scan,
-    grains: &[GrainGeometry],
     zones: &[Zone],
+    geometry: &[Geometry],
     fits: &Fits,
-    grey_gaps: &[Option<(f64, f64)>],
+    grey_gaps: &[Option<(f64, f64, f64)>],
     plane_hits: &[(usize, usize, bool)],
     options: &Options,
 ) -> Vec<DetectedContact> {
@@ -1245,59 +1347,14 @@ fn contacts_of(
     for (k, z) in zones.iter().enumerate() {
         let [fa, fb] = fits.solved[k];
         let fit_rms = [fa.map(|f| f.2 * s), fb.map(|f| f.2 * s)];
-        // A fit far from the grain's size is of something else (a flat face,
-        // a neck): not trusted.
-        let sane = |f: Option<([f64; 3], f64, f64)>, g: usize| {
-            f.filter(|(_, r, _)| {
-                let rg = grains[g].radius_voxels;
-                *r > 0.25 * rg && *r < 4.0 * rg
-            })
-            .map(|(c, r, _)| (c, r))
-        };
-        let fa = sane(fa, z.a as usize);
-        let (mut point, mut normal, mut method, mut gap) = (z.centre, z.pca_normal, "pca", None);
-        if options.normals == NormalMethod::SurfaceFit {
-            let fb = match z.b {
-                Side::Grain(b) => sane(fb, b as usize),
-                Side::Container => None,
-            };
-            let close = |n: [f64; 3]| scene::dot(n, z.pca_normal) > 0.5_f64.sqrt();
-            match (fa, fb) {
-                (Some((ca, ra)), Some((cb, rb))) => {
-                    let d = scene::sub(cb, ca);
-                    let dist = scene::norm(d);
-                    let overlap = ra + rb - dist;
-                    let neck = (2.0 * overlap.max(0.0) * ra * rb / (ra + rb)).sqrt();
-                    let fits_neck = (options.fit.max_neck <= 0.0
-                        || neck <= options.fit.max_neck * z.radius)
-                        && (options.fit.max_apart <= 0.0 || -overlap <= options.fit.max_apart);
-                    let n = unit(d).filter(|n| close(*n));
-                    if n.is_some() {
-                        // Kept when the normal falls back: `--max-gap` needs it.
-                        gap = Some(-overlap * s);
-                    }
-                    if let Some(n) = n.filter(|_| fits_neck) {
-                        let arm = ra - 0.5 * overlap;
-                        point = [ca[0] + arm * n[0], ca[1] + arm * n[1], ca[2] + arm * n[2]];
-                        normal = n;
-                        method = "fit";
-                    }
-                }
-                (Some((ca, _)), None) => {
-                    if let Some(n) = unit(scene::sub(z.centre, ca)).filter(|n| close(*n)) {
-                        normal = n;
-                        method = "fit-a";
-                    }
-                }
-                (None, Some((cb, _))) => {
-                    if let Some(n) = unit(scene::sub(cb, z.centre)).filter(|n| close(*n)) {
-                        normal = n;
-                        method = "fit-b";
-                    }
-                }
-                (None, None) => {}
-            }
-        }
+        let Geometry {
+            point,
+            normal,
+            method,
+            gap,
+            ..
+        } = geometry[k];
+        let gap = gap.map(|g| g * s);
         let mut kept = true;
         if let Some(g) = z.grey {
             kept &= g >= options.min_grey;
@@ -1321,6 +1378,7 @@ fn contacts_of(
             grey: z.grey,
             grey_gap: grey_gap.map(|g| g.0 * s),
             grey_gap_sd: grey_gap.map(|g| g.1 * s),
+            grey_fit_misfit: grey_gap.map(|g| g.2),
             fit_rms,
             kept,
         });
@@ -1342,9 +1400,13 @@ fn contacts_of(
             let median = synth::quantile(&gaps, 0.5);
             let deviations: Vec<f64> = gaps.iter().map(|g| (g - median).abs()).collect();
             let spread = 1.4826 * synth::quantile(&deviations, 0.5);
+            let misfits: Vec<f64> = out.iter().filter_map(|c| c.grey_fit_misfit).collect();
+            let usual = synth::quantile(&misfits, 0.5);
             for c in &mut out {
-                if let (Some(g), Some(sd)) = (c.grey_gap, c.grey_gap_sd) {
-                    c.kept &= g <= median + k * spread.max(sd);
+                if let (Some(g), Some(sd), Some(m)) = (c.grey_gap, c.grey_gap_sd, c.grey_fit_misfit)
+                {
+                    let model_holds = m <= options.grey_gap_max_misfit * usual;
+                    c.kept &= !model_holds || g <= median + k * spread.max(sd);
                 }
             }
         }
@@ -1374,6 +1436,7 @@ fn contacts_of(
             grey: None,
             grey_gap: None,
             grey_gap_sd: None,
+            grey_fit_misfit: None,
             fit_rms: [None, None],
             kept: true,
         });
@@ -1519,7 +1582,7 @@ impl LabelScene {
     /// The text of `contacts_quality.csv`.
     pub fn quality_csv(&self) -> String {
         let mut text = String::from(
-            "contact,a,b,zone,kept,method,faces,area,gap,grey,x,y,z,n_x,n_y,n_z,pca_x,pca_y,pca_z,pca_n_x,pca_n_y,pca_n_z,fit_rms_a,fit_rms_b,grey_gap,grey_gap_sd\n",
+            "contact,a,b,zone,kept,method,faces,area,gap,grey,x,y,z,n_x,n_y,n_z,pca_x,pca_y,pca_z,pca_n_x,pca_n_y,pca_n_z,fit_rms_a,fit_rms_b,grey_gap,grey_gap_sd,grey_fit_misfit\n",
         );
         let wall_name = |w: usize| -> String {
             self.scene
@@ -1535,7 +1598,7 @@ impl LabelScene {
             };
             let id = if c.kept { i.to_string() } else { String::new() };
             text.push_str(&format!(
-                "{id},{},{b},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
+                "{id},{},{b},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
                 c.a,
                 c.zone,
                 c.kept as u8,
@@ -1560,6 +1623,7 @@ impl LabelScene {
                 opt(c.fit_rms[1]),
                 opt(c.grey_gap),
                 opt(c.grey_gap_sd),
+                opt(c.grey_fit_misfit),
             ));
         }
         text
