@@ -572,9 +572,10 @@ def import_labels(
     volume: a 3D integer array indexed (z, y, x), each voxel its grain's
     label, 0 = void. Voxel [z, y, x] is centred at origin + voxel_size·(x, y, z)
     (metres). grey: the CT it was segmented from (same shape): grey-level
-    evidence and a sub-voxel gap per contact (``grey_gap``, ``grey_gap_sd``);
-    necks darker than ``min_grey`` and zones whose grey gap lies more than 3
-    robust deviations above the median are dropped. walls:
+    evidence and a sub-voxel gap per contact (``grey_gap``, ``grey_gap_sd``,
+    the neck fit's ``grey_fit_misfit``); necks darker than ``min_grey`` and
+    zones whose grey gap lies more than 3 robust deviations above the median
+    (where the neck model fits them) are dropped. walls:
     plane walls, ``{"bottom": ("z", 0.0)}`` or ``["bottom:z=0"]``.
     container: the label that is the container. density: kg/m³, gives masses
     and inertia tensors. normals: ``"fit"`` (local surface fits) or ``"pca"``

@@ -23,8 +23,9 @@ pub struct LabelArgs {
     container: Option<u32>,
     /// labels: the grey CT the labels were segmented from (same shape and format):
     /// grey-level evidence per contact and a sub-voxel gap (grey_gap, grey_gap_sd
-    /// in contacts_quality.csv); dropped are necks darker than --min-grey and
-    /// zones whose grey gap lies more than 3 robust deviations above the median.
+    /// and the neck fit's grey_fit_misfit in contacts_quality.csv); dropped are
+    /// necks darker than --min-grey and zones whose grey gap lies more than 3
+    /// robust deviations above the median, unless the neck model misfits them.
     #[arg(long)]
     grey: Option<PathBuf>,
     /// labels: a raw volume's shape NZ,NY,NX (C order, x fastest).
