@@ -101,22 +101,34 @@ impl Neck {
     fn offsets(&self, shape: [usize; 3]) -> Vec<[f64; 3]> {
         let mut out = Vec::new();
         if let Some((lo, hi)) = self.bounds(shape) {
-            for z in lo[2]..=hi[2] {
-                for y in lo[1]..=hi[1] {
-                    for x in lo[0]..=hi[0] {
-                        let d = [
-                            x as f64 - self.point[0],
-                            y as f64 - self.point[1],
-                            z as f64 - self.point[2],
-                        ];
-                        if self.sees(d) {
-                            out.push(d);
-                        }
+            self.for_each_seen(lo, hi, |_, d| out.push(d));
+        }
+        out
+    }
+
+    /// Calls `visit` with the voxel [x, y, z] and its offset from the contact
+    /// point for every voxel of the box `lo..=hi` that the neck uses, in the
+    /// order its greys are stored (z, y, x).
+    fn for_each_seen(
+        &self,
+        lo: [usize; 3],
+        hi: [usize; 3],
+        mut visit: impl FnMut([usize; 3], [f64; 3]),
+    ) {
+        for z in lo[2]..=hi[2] {
+            for y in lo[1]..=hi[1] {
+                for x in lo[0]..=hi[0] {
+                    let d = [
+                        x as f64 - self.point[0],
+                        y as f64 - self.point[1],
+                        z as f64 - self.point[2],
+                    ];
+                    if self.sees(d) {
+                        visit([x, y, z], d);
                     }
                 }
             }
         }
-        out
     }
 }
 
@@ -361,21 +373,9 @@ fn collect(
             }
             let neck = necks[wanted[i]].expect("a neck");
             let mut greys = Vec::new();
-            for zz in lo[2]..=hi[2] {
-                let slice = &ring[zz % depth];
-                for y in lo[1]..=hi[1] {
-                    for x in lo[0]..=hi[0] {
-                        let d = [
-                            x as f64 - neck.point[0],
-                            y as f64 - neck.point[1],
-                            zz as f64 - neck.point[2],
-                        ];
-                        if neck.sees(d) {
-                            greys.push(slice[y * nx + x]);
-                        }
-                    }
-                }
-            }
+            neck.for_each_seen(lo, hi, |[x, y, zz], _| {
+                greys.push(ring[zz % depth][y * nx + x]);
+            });
             out[i] = greys;
             next += 1;
         }
