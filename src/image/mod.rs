@@ -310,19 +310,13 @@ fn colour_search(
     detect: &DetectOptions,
     background_level: f64,
 ) -> Result<Vec<Disk>> {
-    let (w, h) = (search.width() as usize, search.height() as usize);
-    let pixels = search.as_raw();
-    colour_search_from((w, h), |k| pixels[k], detect, background_level)
+    let o = colour_search_options(detect, background_level);
+    detect::detect_disks_shrunk(search, &o, colour_search_factor(&o))
 }
 
-/// [`colour_search`] in a picture given pixel by pixel (see
-/// [`detect::detect_disks_shrunk_from`]).
-fn colour_search_from(
-    size: (usize, usize),
-    value: impl Fn(usize) -> f32 + Sync,
-    detect: &DetectOptions,
-    background_level: f64,
-) -> Result<Vec<Disk>> {
+/// The settings of a [`colour_search`] (bright disks without dark rims, the
+/// smoothing of the shrunk picture, looser support, a filled interior).
+fn colour_search_options(detect: &DetectOptions, background_level: f64) -> DetectOptions {
     // Disks are bright regions without dark rims in the colour distance.
     let mut o = detect.clone();
     o.polarity = Polarity::Bright;
@@ -347,7 +341,7 @@ fn colour_search_from(
         .min_fill
         .max(COLOUR_FILL[0] * background_level)
         .max(COLOUR_FILL[1]);
-    detect::detect_disks_shrunk_from(size, value, &o, colour_search_factor(&o))
+    o
 }
 
 /// The outline evidence of a search: the support (the fraction of rays that
@@ -374,7 +368,9 @@ fn gray_distance_instead(
     let (level, fraction, own_level) = (distance.level, distance.fraction, distance.own_level);
     let (w, h) = (gray.width() as usize, gray.height() as usize);
     let pixels = gray.as_raw();
-    let found = colour_search_from((w, h), |k| distance.at(pixels[k]), detect, own_level)?;
+    let o = colour_search_options(detect, own_level);
+    let value = |k: usize| distance.at(pixels[k]);
+    let found = detect::detect_disks_shrunk_from((w, h), value, &o, colour_search_factor(&o))?;
     let (ours, theirs) = (outline_evidence(&found), outline_evidence(as_is));
     if ours <= (1.0 + SINGLE_CHANNEL_MARGIN) * theirs {
         return Ok(None);
