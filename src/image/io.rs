@@ -275,14 +275,7 @@ fn colour_distance<T: Copy + Into<f32> + Sync>(
             (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt()
         })
         .collect();
-    let mut sample: Vec<f32> = distance.iter().step_by(stride.max(3)).copied().collect();
-    let k = (sample.len() * 99 / 100).min(sample.len().saturating_sub(1));
-    let top = if sample.is_empty() {
-        1.0
-    } else {
-        *sample.select_nth_unstable_by(k, |a, b| a.total_cmp(b)).1
-    };
-    let scale = if top > 1e-6 { 1.0 / top } else { 1.0 };
+    let scale = distance_scale(distance.iter().step_by(stride.max(3)).copied().collect());
     // The background bin's own distances (noise, shading), sampled.
     let mut own: Vec<f32> = raw
         .chunks_exact(3)
@@ -291,12 +284,7 @@ fn colour_distance<T: Copy + Into<f32> + Sync>(
         .filter(|(p, _)| bin(p) == fullest)
         .map(|(_, &d)| d * scale)
         .collect();
-    let background_level = if own.is_empty() {
-        0.0
-    } else {
-        let k = (own.len() * 9 / 10).min(own.len() - 1);
-        *own.select_nth_unstable_by(k, |a, b| a.total_cmp(b)).1 as f64
-    };
+    let background_level = percentile(&mut own, 90).unwrap_or(0.0) as f64;
     let search = FloatImage::from_raw(
         width,
         height,
@@ -315,6 +303,24 @@ fn colour_distance<T: Copy + Into<f32> + Sync>(
         n as f64 / seen.max(1) as f64,
         background_level,
     )
+}
+
+/// The `per_cent`th percentile of `v` (reordered in place); None when `v`
+/// is empty.
+fn percentile(v: &mut [f32], per_cent: usize) -> Option<f32> {
+    let k = (v.len() * per_cent / 100).min(v.len().checked_sub(1)?);
+    Some(*v.select_nth_unstable_by(k, f32::total_cmp).1)
+}
+
+/// The scale of a distance picture: the reciprocal of a sample's 99th
+/// percentile, which it brings to 1 (1 when the sample is empty or flat).
+fn distance_scale(mut sample: Vec<f32>) -> f32 {
+    let top = percentile(&mut sample, 99).unwrap_or(1.0);
+    if top > 1e-6 {
+        1.0 / top
+    } else {
+        1.0
+    }
 }
 
 /// Histogram bins per channel for [`histogram_background`].
@@ -375,13 +381,7 @@ fn channel_tops<T: Copy + Into<f32>>(raw: &[T], stride: usize, full_scale: f32) 
             .step_by(stride)
             .map(|p| p[c].into())
             .collect();
-        if v.is_empty() {
-            return full_scale;
-        }
-        let k = (v.len() * 99 / 100).min(v.len() - 1);
-        v.select_nth_unstable_by(k, f32::total_cmp)
-            .1
-            .max(full_scale / 255.0)
+        percentile(&mut v, 99).map_or(full_scale, |top| top.max(full_scale / 255.0))
     })
 }
 
@@ -516,30 +516,20 @@ impl GrayDistance {
         let b = background_bin(&count, &bin_luma, sample, 1.0 / LEVELS as f64);
         let level = bin_luma[b] as f32;
         let seen: usize = count.iter().sum();
-        let mut sample: Vec<f32> = values
-            .iter()
-            .step_by(stride.max(3))
-            .map(|&v| (v - level).abs())
-            .collect();
-        let k = (sample.len() * 99 / 100).min(sample.len().saturating_sub(1));
-        let top = if sample.is_empty() {
-            1.0
-        } else {
-            *sample.select_nth_unstable_by(k, |a, b| a.total_cmp(b)).1
-        };
-        let scale = if top > 1e-6 { 1.0 / top } else { 1.0 };
+        let scale = distance_scale(
+            values
+                .iter()
+                .step_by(stride.max(3))
+                .map(|&v| (v - level).abs())
+                .collect(),
+        );
         let mut own: Vec<f32> = values
             .iter()
             .step_by(stride.max(3))
             .filter(|&&v| bin(v) == b)
             .map(|&v| (v - level).abs() * scale)
             .collect();
-        let own_level = if own.is_empty() {
-            0.0
-        } else {
-            let k = (own.len() * 9 / 10).min(own.len() - 1);
-            *own.select_nth_unstable_by(k, |a, b| a.total_cmp(b)).1 as f64
-        };
+        let own_level = percentile(&mut own, 90).unwrap_or(0.0) as f64;
         GrayDistance {
             level,
             scale,
