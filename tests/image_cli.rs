@@ -140,36 +140,48 @@ fn verbs_report_bad_input_clearly() {
     assert!(!ok && err.contains("Poisson"), "{err}");
 }
 
+/// The bundled photoelastic photograph (fixtures/photoelastic) and its
+/// pixel frame.
+const BUNDLED_PHOTO: &str = "fixtures/photoelastic/photo.jpg";
+const BUNDLED_FRAME: &str = "fixtures/photoelastic/scene/image-frame.json";
+
+/// The bundled photograph's scale [px/m].
+fn bundled_px_per_m() -> f64 {
+    grainforce::image::PixelFrame::read(Path::new(BUNDLED_FRAME))
+        .unwrap()
+        .px_per_m
+}
+
+/// `detect` on the bundled photograph into `out`, with its frame, radii of
+/// 2.2–4.2 mm and the `extra` arguments.
+fn detect_bundled_photo(out: &Path, extra: &[&str]) -> (bool, String) {
+    let px = bundled_px_per_m();
+    let radius = format!("{}..{}", 2.2e-3 * px, 4.2e-3 * px);
+    let mut args = vec![
+        "detect",
+        BUNDLED_PHOTO,
+        "-o",
+        p(out),
+        "--radius",
+        &radius,
+        "--frame",
+        BUNDLED_FRAME,
+    ];
+    args.extend(extra);
+    common::run(&args)
+}
+
 /// `detect --settle-edges` reaches the detector: on the bundled photoelastic
 /// photograph the two circles caught on fringe edges (4 px off, see
 /// docs/photoelastic.md) creep out to their outlines, so the grains differ.
 #[test]
 fn settle_edges_reaches_the_detector() {
     let dir = tempfile::tempdir().unwrap();
-    let fixture = Path::new("fixtures/photoelastic");
-    let frame = fixture.join("scene/image-frame.json");
-    let px: f64 =
-        serde_json::from_str::<serde_json::Value>(&std::fs::read_to_string(&frame).unwrap())
-            .unwrap()["px_per_m"]
-            .as_f64()
-            .unwrap();
-    let radius = format!("{}..{}", 2.2e-3 * px, 4.2e-3 * px);
+    let px = bundled_px_per_m();
     let mut grains = Vec::new();
-    for (name, extra) in [("two-passes", None), ("settled", Some("--settle-edges"))] {
+    for (name, extra) in [("two-passes", &[][..]), ("settled", &["--settle-edges"])] {
         let out = dir.path().join(name);
-        let photo = fixture.join("photo.jpg");
-        let mut args = vec![
-            "detect",
-            p(&photo),
-            "-o",
-            p(&out),
-            "--radius",
-            &radius,
-            "--frame",
-            p(&frame),
-        ];
-        args.extend(extra);
-        let (ok, err) = common::run(&args);
+        let (ok, err) = detect_bundled_photo(&out, extra);
         assert!(ok, "{err}");
         grains.push(read_scene(&out).unwrap().grains);
     }
@@ -192,30 +204,9 @@ fn settle_edges_reaches_the_detector() {
 #[test]
 fn box_walls_find_the_packings_wall_contacts() {
     let dir = tempfile::tempdir().unwrap();
-    let fixture = Path::new("fixtures/photoelastic");
-    let frame = fixture.join("scene/image-frame.json");
-    let truth = read_scene(&fixture.join("scene")).unwrap();
-    let radius = {
-        let px = grainforce::image::PixelFrame::read(&frame)
-            .unwrap()
-            .px_per_m;
-        format!("{}..{}", 2.2e-3 * px, 4.2e-3 * px)
-    };
+    let truth = read_scene(Path::new("fixtures/photoelastic/scene")).unwrap();
     let out = dir.path().join("box");
-    let photo = fixture.join("photo.jpg");
-    let args = [
-        "detect",
-        p(&photo),
-        "-o",
-        p(&out),
-        "--radius",
-        &radius,
-        "--frame",
-        p(&frame),
-        "--walls",
-        "box",
-    ];
-    let (ok, err) = common::run(&args);
+    let (ok, err) = detect_bundled_photo(&out, &["--walls", "box"]);
     assert!(ok, "{err}");
     let found = read_scene(&out).unwrap();
     let names: Vec<&str> = found.walls.iter().map(|w| w.name.as_str()).collect();
@@ -261,16 +252,6 @@ fn box_walls_find_the_packings_wall_contacts() {
         "{} box-wall contacts",
         ours.len()
     );
-    let (ok, err) = common::run(&[
-        "detect",
-        p(&photo),
-        "-o",
-        p(&dir.path().join("both")),
-        "--radius",
-        &radius,
-        "--walls",
-        "box",
-        "edges",
-    ]);
+    let (ok, err) = detect_bundled_photo(&dir.path().join("both"), &["--walls", "box", "edges"]);
     assert!(!ok && err.contains("cannot be combined"), "{err}");
 }
