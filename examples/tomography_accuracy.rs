@@ -144,10 +144,7 @@ fn debug_zones(
     voxel: f64,
     grains: &[synth::SynthGrain],
 ) {
-    let true_pairs: std::collections::HashSet<(usize, usize)> = truth
-        .iter()
-        .map(|t| (t.a.min(t.b) + 1, t.a.max(t.b) + 1))
-        .collect();
+    let true_pairs = synth::true_pairs(truth);
     let vox = |g: Option<f64>| g.map_or(f64::NAN, |g| g / voxel);
     let gaps: Vec<f64> = imported
         .detected
@@ -163,12 +160,8 @@ fn debug_zones(
         let labels::Other::Grain(b) = c.b else {
             continue;
         };
-        let t = true_pairs.contains(&(c.a as usize, b as usize));
-        let (ga, gb) = (&grains[c.a as usize - 1], &grains[b as usize - 1]);
-        let apart = (scene::norm(scene::sub(ga.spheres[0].0, gb.spheres[0].0))
-            - ga.spheres[0].1
-            - gb.spheres[0].1)
-            / voxel;
+        let t = true_pairs.contains(&(c.a, b));
+        let apart = synth::apart(&grains[c.a as usize - 1], &grains[b as usize - 1]) / voxel;
         let g = vox(c.grey_gap);
         if t {
             errors.push(g - median - apart);
@@ -201,9 +194,9 @@ fn debug_zones(
     let mut close = 0;
     for i in 0..grains.len() {
         for j in i + 1..grains.len() {
-            let (a, b) = (grains[i].spheres[0], grains[j].spheres[0]);
-            let apart = (scene::norm(scene::sub(a.0, b.0)) - a.1 - b.1) / voxel;
-            close += usize::from(apart < 0.1 && !true_pairs.contains(&(i + 1, j + 1)));
+            let apart = synth::apart(&grains[i], &grains[j]) / voxel;
+            let pair = (i as u32 + 1, j as u32 + 1);
+            close += usize::from(apart < 0.1 && !true_pairs.contains(&pair));
         }
     }
     eprintln!("    near misses under 0.1 voxel apart: {close}");
@@ -257,11 +250,7 @@ fn dump(
         let labels::Other::Grain(b) = c.b else {
             continue;
         };
-        let (ga, gb) = (&grains[c.a as usize - 1], &grains[b as usize - 1]);
-        let apart = (scene::norm(scene::sub(ga.spheres[0].0, gb.spheres[0].0))
-            - ga.spheres[0].1
-            - gb.spheres[0].1)
-            / v;
+        let apart = synth::apart(&grains[c.a as usize - 1], &grains[b as usize - 1]) / v;
         let p: Vec<f64> = (0..3).map(|k| (c.point[k] - grid.origin[k]) / v).collect();
         csv += &format!(
             "{},{b},{apart},{},{},{},{},{},{},{},{},{},{},{},{}\n",
