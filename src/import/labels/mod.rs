@@ -183,8 +183,8 @@ pub struct Options {
     /// With a grey image: drop contacts whose neck is darker than this
     /// fraction of the way from void to solid grey.
     pub min_grey: f64,
-    /// With a grey image: drop grain–grain contacts whose grey gap (the
-    /// surfaces fitted to sub-voxel points from the grey image) exceeds the
+    /// With a grey image: drop grain–grain contacts whose grey gap (two
+    /// blurred spheres fitted to the grey at the neck) exceeds the
     /// median grey gap of all zones by more than this many robust standard
     /// deviations of the zones' grey gaps (1.4826 × their median absolute
     /// deviation; at least the contact's own standard deviation). Relative
@@ -256,10 +256,10 @@ pub struct DetectedContact {
     pub gap: Option<f64>,
     /// Grey-level evidence of solid at the neck, 0 = void grey, 1 = solid grey.
     pub grey: Option<f64>,
-    /// With a grey image, grain pairs: the gap between the two surfaces
-    /// fitted to sub-voxel points where the grey crosses half-way from void
-    /// to solid [m] (negative: overlap), and its standard deviation from
-    /// the two fits' residuals [m].
+    /// With a grey image, grain pairs: the gap between the grains' local
+    /// spheres fitted, blurred, to the grey of the voxels at the neck [m]
+    /// (see `neck.rs`), and its standard deviation from that fit's
+    /// residuals [m].
     pub grey_gap: Option<f64>,
     pub grey_gap_sd: Option<f64>,
     /// The grey gap fit's rms residual in units of the scan's rms misfit
