@@ -126,7 +126,7 @@ fn main() -> grainforce::Result<()> {
                             &grid,
                             &imported,
                             &grains,
-                        );
+                        )?;
                     }
                 }
             }
@@ -221,28 +221,11 @@ fn dump(
     grid: &synth::Grid,
     imported: &labels::LabelScene,
     grains: &[synth::SynthGrain],
-) {
-    use std::io::Write;
-    let npy = |path: &Path, descr: &str, bytes: &[u8]| {
-        let [nz, ny, nx] = grid.shape;
-        let mut header = format!(
-            "{{'descr': '{descr}', 'fortran_order': False, 'shape': ({nz}, {ny}, {nx}), }}"
-        );
-        while (header.len() + 11) % 64 != 0 {
-            header.push(' ');
-        }
-        header.push('\n');
-        let mut f = std::fs::File::create(path).expect("dump file");
-        f.write_all(b"\x93NUMPY\x01\x00").unwrap();
-        f.write_all(&(header.len() as u16).to_le_bytes()).unwrap();
-        f.write_all(header.as_bytes()).unwrap();
-        f.write_all(bytes).unwrap();
-    };
-    std::fs::create_dir_all(dir).expect("dump folder");
-    let lb: Vec<u8> = labels_volume.iter().flat_map(|v| v.to_le_bytes()).collect();
-    npy(&dir.join(format!("{name}_labels.npy")), "<u4", &lb);
-    let gb: Vec<u8> = grey.iter().flat_map(|v| v.to_le_bytes()).collect();
-    npy(&dir.join(format!("{name}_grey.npy")), "<f4", &gb);
+) -> grainforce::Result<()> {
+    std::fs::create_dir_all(dir).map_err(|e| grainforce::Error::io(dir, e))?;
+    let npy = |suffix: &str| dir.join(format!("{name}_{suffix}.npy"));
+    labels::volume::write_npy(&npy("labels"), labels_volume, grid.shape)?;
+    labels::volume::write_npy(&npy("grey"), grey, grid.shape)?;
     let v = grid.voxel;
     let mut csv =
         String::from("a,b,apart,px,py,pz,nx,ny,nz,gap,grey,grey_gap,grey_gap_sd,kept,faces\n");
@@ -269,7 +252,7 @@ fn dump(
             c.faces
         );
     }
-    std::fs::write(dir.join(format!("{name}_zones.csv")), csv).expect("zones");
+    scene::write_file_atomically(&dir.join(format!("{name}_zones.csv")), csv.as_bytes())?;
     let mut truth = String::from("x,y,z,r\n");
     for g in grains {
         let (c, r) = g.spheres[0];
@@ -281,7 +264,7 @@ fn dump(
             r / v
         );
     }
-    std::fs::write(dir.join(format!("{name}_spheres.csv")), truth).expect("spheres");
+    scene::write_file_atomically(&dir.join(format!("{name}_spheres.csv")), truth.as_bytes())
 }
 
 /// The simulated segmentation, with TOMO_BLUR / TOMO_NOISE / TOMO_SEED
