@@ -126,7 +126,7 @@ fn main() -> grainforce::Result<()> {
                             &grid,
                             &imported,
                             &grains,
-                        );
+                        )?;
                     }
                 }
             }
@@ -144,10 +144,7 @@ fn debug_zones(
     voxel: f64,
     grains: &[synth::SynthGrain],
 ) {
-    let true_pairs: std::collections::HashSet<(usize, usize)> = truth
-        .iter()
-        .map(|t| (t.a.min(t.b) + 1, t.a.max(t.b) + 1))
-        .collect();
+    let true_pairs = synth::true_pairs(truth);
     let vox = |g: Option<f64>| g.map_or(f64::NAN, |g| g / voxel);
     let gaps: Vec<f64> = imported
         .detected
@@ -163,12 +160,8 @@ fn debug_zones(
         let labels::Other::Grain(b) = c.b else {
             continue;
         };
-        let t = true_pairs.contains(&(c.a as usize, b as usize));
-        let (ga, gb) = (&grains[c.a as usize - 1], &grains[b as usize - 1]);
-        let apart = (scene::norm(scene::sub(ga.spheres[0].0, gb.spheres[0].0))
-            - ga.spheres[0].1
-            - gb.spheres[0].1)
-            / voxel;
+        let t = true_pairs.contains(&(c.a, b));
+        let apart = synth::apart(&grains[c.a as usize - 1], &grains[b as usize - 1]) / voxel;
         let g = vox(c.grey_gap);
         if t {
             errors.push(g - median - apart);
@@ -201,9 +194,9 @@ fn debug_zones(
     let mut close = 0;
     for i in 0..grains.len() {
         for j in i + 1..grains.len() {
-            let (a, b) = (grains[i].spheres[0], grains[j].spheres[0]);
-            let apart = (scene::norm(scene::sub(a.0, b.0)) - a.1 - b.1) / voxel;
-            close += usize::from(apart < 0.1 && !true_pairs.contains(&(i + 1, j + 1)));
+            let apart = synth::apart(&grains[i], &grains[j]) / voxel;
+            let pair = (i as u32 + 1, j as u32 + 1);
+            close += usize::from(apart < 0.1 && !true_pairs.contains(&pair));
         }
     }
     eprintln!("    near misses under 0.1 voxel apart: {close}");
@@ -228,28 +221,11 @@ fn dump(
     grid: &synth::Grid,
     imported: &labels::LabelScene,
     grains: &[synth::SynthGrain],
-) {
-    use std::io::Write;
-    let npy = |path: &Path, descr: &str, bytes: &[u8]| {
-        let [nz, ny, nx] = grid.shape;
-        let mut header = format!(
-            "{{'descr': '{descr}', 'fortran_order': False, 'shape': ({nz}, {ny}, {nx}), }}"
-        );
-        while (header.len() + 11) % 64 != 0 {
-            header.push(' ');
-        }
-        header.push('\n');
-        let mut f = std::fs::File::create(path).expect("dump file");
-        f.write_all(b"\x93NUMPY\x01\x00").unwrap();
-        f.write_all(&(header.len() as u16).to_le_bytes()).unwrap();
-        f.write_all(header.as_bytes()).unwrap();
-        f.write_all(bytes).unwrap();
-    };
-    std::fs::create_dir_all(dir).expect("dump folder");
-    let lb: Vec<u8> = labels_volume.iter().flat_map(|v| v.to_le_bytes()).collect();
-    npy(&dir.join(format!("{name}_labels.npy")), "<u4", &lb);
-    let gb: Vec<u8> = grey.iter().flat_map(|v| v.to_le_bytes()).collect();
-    npy(&dir.join(format!("{name}_grey.npy")), "<f4", &gb);
+) -> grainforce::Result<()> {
+    std::fs::create_dir_all(dir).map_err(|e| grainforce::Error::io(dir, e))?;
+    let npy = |suffix: &str| dir.join(format!("{name}_{suffix}.npy"));
+    labels::volume::write_npy(&npy("labels"), labels_volume, grid.shape)?;
+    labels::volume::write_npy(&npy("grey"), grey, grid.shape)?;
     let v = grid.voxel;
     let mut csv =
         String::from("a,b,apart,px,py,pz,nx,ny,nz,gap,grey,grey_gap,grey_gap_sd,kept,faces\n");
@@ -257,11 +233,7 @@ fn dump(
         let labels::Other::Grain(b) = c.b else {
             continue;
         };
-        let (ga, gb) = (&grains[c.a as usize - 1], &grains[b as usize - 1]);
-        let apart = (scene::norm(scene::sub(ga.spheres[0].0, gb.spheres[0].0))
-            - ga.spheres[0].1
-            - gb.spheres[0].1)
-            / v;
+        let apart = synth::apart(&grains[c.a as usize - 1], &grains[b as usize - 1]) / v;
         let p: Vec<f64> = (0..3).map(|k| (c.point[k] - grid.origin[k]) / v).collect();
         csv += &format!(
             "{},{b},{apart},{},{},{},{},{},{},{},{},{},{},{},{}\n",
@@ -280,7 +252,7 @@ fn dump(
             c.faces
         );
     }
-    std::fs::write(dir.join(format!("{name}_zones.csv")), csv).expect("zones");
+    scene::write_file_atomically(&dir.join(format!("{name}_zones.csv")), csv.as_bytes())?;
     let mut truth = String::from("x,y,z,r\n");
     for g in grains {
         let (c, r) = g.spheres[0];
@@ -292,7 +264,7 @@ fn dump(
             r / v
         );
     }
-    std::fs::write(dir.join(format!("{name}_spheres.csv")), truth).expect("spheres");
+    scene::write_file_atomically(&dir.join(format!("{name}_spheres.csv")), truth.as_bytes())
 }
 
 /// The simulated segmentation, with TOMO_BLUR / TOMO_NOISE / TOMO_SEED

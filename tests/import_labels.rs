@@ -420,10 +420,7 @@ fn the_grey_gap_tells_near_misses_from_contacts_at_30_voxels() {
     // surfaces: 0.974).
     assert!(s.recall() >= 0.99, "recall {}", s.recall());
     assert!(s.precision() >= 0.98, "precision {}", s.precision());
-    let true_pairs: std::collections::HashSet<(u32, u32)> = truth
-        .iter()
-        .map(|t| (t.a.min(t.b) as u32 + 1, t.a.max(t.b) as u32 + 1))
-        .collect();
+    let true_pairs = synth::true_pairs(&truth);
     let mut contacts = Vec::new();
     let mut misses = Vec::new();
     for c in &imported.detected {
@@ -431,11 +428,7 @@ fn the_grey_gap_tells_near_misses_from_contacts_at_30_voxels() {
         let g = c.grey_gap.expect("every zone has a grey gap") / voxel;
         let sd = c.grey_gap_sd.expect("and its deviation") / voxel;
         assert!(sd > 0.0 && sd < 0.1, "sd {sd} voxel");
-        let (ga, gb) = (&grains[c.a as usize - 1], &grains[b as usize - 1]);
-        let apart = (scene::norm(scene::sub(ga.spheres[0].0, gb.spheres[0].0))
-            - ga.spheres[0].1
-            - gb.spheres[0].1)
-            / voxel;
+        let apart = synth::apart(&grains[c.a as usize - 1], &grains[b as usize - 1]) / voxel;
         if true_pairs.contains(&(c.a, b)) {
             contacts.push(g);
         } else {
@@ -484,6 +477,7 @@ fn the_neck_gap_drops_near_misses_at_15_voxels() {
     let voxel = d / 15.0;
     let points = synth::contact_points(&scene);
     let clumps = synth::clumps_of(&spheres, &points, 0.75, 2.0 * voxel);
+    let true_pairs = synth::true_pairs(&truth);
     for (name, grains, least_precision) in [("spheres", &spheres, 0.94), ("clumps", &clumps, 0.99)]
     {
         let imported = import_with_grey(grains, 15.0, d, Some(3.0));
@@ -499,20 +493,12 @@ fn the_neck_gap_drops_near_misses_at_15_voxels() {
             "{name}: precision {}",
             s.precision()
         );
-        let true_pairs: std::collections::HashSet<(u32, u32)> = truth
-            .iter()
-            .map(|t| (t.a.min(t.b) as u32 + 1, t.a.max(t.b) as u32 + 1))
-            .collect();
         for c in imported.detected.iter().filter(|c| c.kept) {
             let Other::Grain(b) = c.b else { continue };
             if true_pairs.contains(&(c.a, b)) {
                 continue;
             }
-            let (ga, gb) = (&grains[c.a as usize - 1], &grains[b as usize - 1]);
-            let apart = (scene::norm(scene::sub(ga.spheres[0].0, gb.spheres[0].0))
-                - ga.spheres[0].1
-                - gb.spheres[0].1)
-                / voxel;
+            let apart = synth::apart(&grains[c.a as usize - 1], &grains[b as usize - 1]) / voxel;
             assert!(
                 apart < 0.1,
                 "{name}: a near miss {apart:.3} voxel apart kept"

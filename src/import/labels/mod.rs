@@ -183,8 +183,8 @@ pub struct Options {
     /// With a grey image: drop contacts whose neck is darker than this
     /// fraction of the way from void to solid grey.
     pub min_grey: f64,
-    /// With a grey image: drop grain–grain contacts whose grey gap (the
-    /// surfaces fitted to sub-voxel points from the grey image) exceeds the
+    /// With a grey image: drop grain–grain contacts whose grey gap (two
+    /// blurred spheres fitted to the grey at the neck) exceeds the
     /// median grey gap of all zones by more than this many robust standard
     /// deviations of the zones' grey gaps (1.4826 × their median absolute
     /// deviation; at least the contact's own standard deviation). Relative
@@ -256,10 +256,10 @@ pub struct DetectedContact {
     pub gap: Option<f64>,
     /// Grey-level evidence of solid at the neck, 0 = void grey, 1 = solid grey.
     pub grey: Option<f64>,
-    /// With a grey image, grain pairs: the gap between the two surfaces
-    /// fitted to sub-voxel points where the grey crosses half-way from void
-    /// to solid [m] (negative: overlap), and its standard deviation from
-    /// the two fits' residuals [m].
+    /// With a grey image, grain pairs: the gap between the grains' local
+    /// spheres fitted, blurred, to the grey of the voxels at the neck [m]
+    /// (see `neck.rs`), and its standard deviation from that fit's
+    /// residuals [m].
     pub grey_gap: Option<f64>,
     pub grey_gap_sd: Option<f64>,
     /// The grey gap fit's rms residual in units of the scan's rms misfit
@@ -1153,57 +1153,22 @@ const REFINED: usize = 3;
 /// 1000³ volume).
 const SETTLED_OUTSIDE: f64 = 0.1;
 
-/// A point a sphere is fitted to: a voxel face (doubled coordinates) or a
-/// sub-voxel surface point.
-trait SurfacePoint: Copy {
-    fn at(self) -> [f64; 3];
-}
-
-impl SurfacePoint for [u16; 3] {
-    #[inline]
-    fn at(self) -> [f64; 3] {
-        self.map(|v| 0.5 * f64::from(v))
-    }
-}
-
-impl SurfacePoint for [f64; 3] {
-    #[inline]
-    fn at(self) -> [f64; 3] {
-        self
-    }
-}
-
 /// Gauss–Newton on Σ (|f − c| − r)² over the faces within `gate` of the
 /// current sphere, plus weight·n·(r − r₀)²; `None` when too few faces stay.
 fn geometric_fit(
     faces: &[[u16; 3]],
     start: Sphere,
-    prior: (f64, f64),
-    settings: &FitSettings,
-) -> Option<Sphere> {
-    gauss_newton(faces, start, prior, settings).map(|(s, _)| s)
-}
-
-/// [`geometric_fit`] on any points, with the covariance of (centre, radius)
-/// (the residuals' variance times the inverse normal matrix, prior
-/// included).
-fn gauss_newton<P: SurfacePoint>(
-    faces: &[P],
-    start: Sphere,
     (r0, weight): (f64, f64),
     settings: &FitSettings,
-) -> Option<(Sphere, nalgebra::Matrix4<f64>)> {
+) -> Option<Sphere> {
     let (mut c, mut r, _) = start;
     let mut rms = 0.0;
-    let mut normal = nalgebra::Matrix4::<f64>::zeros();
-    let mut used = 0;
     for _ in 0..settings.geometric_refits.max(1) {
         let mut a = nalgebra::Matrix4::<f64>::zeros();
         let mut b = nalgebra::Vector4::<f64>::zeros();
         let (mut n, mut sse) = (0usize, 0.0);
         for f in faces {
-            let f = f.at();
-            let d = scene::sub(f, c);
+            let d = scene::sub(f.map(|v| 0.5 * f64::from(v)), c);
             let dist = scene::norm(d);
             let e = dist - r;
             if e.abs() > settings.gate || dist == 0.0 {
@@ -1222,7 +1187,6 @@ fn gauss_newton<P: SurfacePoint>(
         let w = weight * n as f64;
         a[(3, 3)] += w;
         b[3] -= w * (r - r0);
-        (normal, used) = (a, n);
         let step = a.cholesky()?.solve(&b);
         c = [c[0] + step[0], c[1] + step[1], c[2] + step[2]];
         r += step[3];
@@ -1234,9 +1198,7 @@ fn gauss_newton<P: SurfacePoint>(
             break;
         }
     }
-    let variance = rms * rms * used as f64 / (used as f64 - 4.0).max(1.0);
-    let cov = normal.try_inverse()? * variance;
-    Some(((c, r, rms), cov))
+    Some((c, r, rms))
 }
 
 /// Slices per slab of the parallel surface passes.

@@ -15,6 +15,7 @@
 
 use super::volume::SliceSource;
 use crate::error::Result;
+use crate::scene::dot;
 use rayon::prelude::*;
 
 /// One zone's neck in voxel units: the contact point, the unit normal from
@@ -130,10 +131,6 @@ impl Neck {
             }
         }
     }
-}
-
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
 /// erfc(x), fractional error below 1.2·10⁻⁷ (Numerical Recipes' erfcc, a

@@ -553,6 +553,22 @@ pub fn quantile(values: &[f64], q: f64) -> f64 {
     v[i]
 }
 
+/// The true contacts as pairs of labels (index + 1), the lower first: the
+/// key of a detected grain–grain contact (`a`, `Other::Grain(b)`).
+pub fn true_pairs(truth: &[TrueContact]) -> std::collections::HashSet<(u32, u32)> {
+    truth
+        .iter()
+        .map(|t| (t.a.min(t.b) as u32 + 1, t.a.max(t.b) as u32 + 1))
+        .collect()
+}
+
+/// How far apart two grains' main spheres are, surface to surface [m]
+/// (negative where they overlap): a DEM pair's true separation.
+pub fn apart(a: &SynthGrain, b: &SynthGrain) -> f64 {
+    let ((ca, ra), (cb, rb)) = (a.spheres[0], b.spheres[0]);
+    scene::norm(scene::sub(ca, cb)) - ra - rb
+}
+
 /// Scores the grain–grain contacts of an import (all zones when `all`,
 /// else the kept ones) against the truth. Labels are grain index + 1.
 pub fn score(imported: &LabelScene, truth: &[TrueContact], all: bool) -> Score {
