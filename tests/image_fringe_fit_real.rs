@@ -689,6 +689,7 @@ fn figures_of(judged: &[Judged], ours: &Ours) -> (Figures, Vec<f64>) {
         pegs_lit: median(&pegs_lit),
         ours_imbalance: median(&ours_imb),
         pegs_imbalance: median(&pegs_imb),
+        warned: false,
     };
     (figures, ours_imb)
 }
@@ -779,6 +780,9 @@ struct Figures {
     pegs_lit: f64,
     ours_imbalance: f64,
     pegs_imbalance: f64,
+    /// The run warned that no fitted contact touches a wall (the product's
+    /// path only).
+    warned: bool,
 }
 
 fn fit_settings() -> FringeFitSettings {
@@ -919,8 +923,7 @@ fn against_pegs(folder: &str, image: &str, solved: &str) -> Option<Figures> {
     settings.polariscope = lit_by(fit.report.bright_field);
     let seconds = started.elapsed().as_secs_f64();
     let judged = judge(&photo, &disks);
-    let (ours, _, _) =
-        judge_fit(&photo, &frame, &scene, &fit, &settings, &judged, &disks);
+    let (ours, _, _) = judge_fit(&photo, &frame, &scene, &fit, &settings, &judged, &disks);
     let (figures, ours_imb) = figures_of(&judged, &ours);
     eprintln!(
         "{folder}: {} disks PeGS fitted; residual/std median: ours as drawn {:.3}, ours affine {:.3}, ours lit {:.3}, PeGS affine {:.3}, PeGS lit {:.3}; ours at least as close: as drawn {:.2}, affine {:.2}, lit {:.2}; imbalance median ours {:.2e}, PeGS {:.2}; objective {:.1}, {} steps, {seconds:.1} s",
@@ -1359,7 +1362,8 @@ fn detected_against_pegs(
         &disks,
     );
     let pegs_lit: Vec<f64> = judged.iter().map(|j| j.pegs_lit).collect();
-    let (figures, ours_imb) = figures_of(&judged, &ours);
+    let (mut figures, ours_imb) = figures_of(&judged, &ours);
+    figures.warned = !run.warnings().is_empty();
     let ring_share = judged.iter().map(|j| j.pixels.len()).sum::<usize>() as f64
         / (all.iter())
             .filter(|a| judged.iter().any(|j| j.disk == a.disk))
@@ -1436,6 +1440,8 @@ fn detected(folder: &str, image: &str, solved: &str, radius: (f64, f64), closer:
         return;
     };
     let walls = detected_against_pegs(folder, image, solved, radius, WALLS_AS_PEGS).unwrap();
+    // Without walls the run says why its field is (nearly) zero; with them not.
+    assert!(plain.warned && !walls.warned);
     assert!(
         plain.closer_lit >= closer[0],
         "defaults: at least as close on {:.2}",
