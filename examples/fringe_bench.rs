@@ -40,7 +40,10 @@ fn main() -> grainforce::Result<()> {
         .and_then(|v| v.parse().ok())
         .unwrap_or(1);
     let dir = match args.iter().position(|a| a == "--scene") {
-        Some(k) => std::path::PathBuf::from(&args[k + 1]),
+        Some(k) => std::path::PathBuf::from(
+            args.get(k + 1)
+                .ok_or_else(|| grainforce::Error::Invalid("--scene needs a scene folder".into()))?,
+        ),
         None => Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/oedometer"),
     };
     let scene = read_scene(&dir)?;
@@ -92,23 +95,17 @@ fn main() -> grainforce::Result<()> {
         s.max_iterations = steps as usize;
     }
     s.extrapolate = args.iter().any(|a| a == "--extrapolate");
-    // As `grainforce photoelastic` on a scene from `detect`: candidates and
-    // the walls-frictionless-first path beside the other.
-    if detect {
-        s.candidate_gap = Some(grainforce::image::fringe_fit::DEFAULT_CANDIDATE_GAP);
-        s.smooth_walls_first = true;
-    }
+    // As `grainforce photoelastic` sets them for a scene from `detect` (or not).
+    grainforce::image::fringe_run::set_for_scene(&mut s, detect, value("--candidates"));
     // The walls' friction from the start only (round 8's fit).
     if args.iter().any(|a| a == "--walls-last") {
         s.smooth_walls_first = false;
     }
-    if let Some(gap) = value("--candidates") {
-        s.candidate_gap = (gap > 0.0).then_some(gap);
-    }
     s.support_prune = value("--prune");
-    // Disk–wall pairs within the candidate gap as candidates too, as on a
-    // scene from `detect` (round 10); off: round 9's fit.
-    s.wall_candidates = detect && !args.iter().any(|a| a == "--no-wall-candidates");
+    // No disk–wall candidates: round 9's fit.
+    if args.iter().any(|a| a == "--no-wall-candidates") {
+        s.wall_candidates = false;
+    }
     let detail = args.iter().any(|a| a == "--detail");
     let found = if detect {
         let px = frame.px_per_m;
@@ -157,7 +154,10 @@ fn main() -> grainforce::Result<()> {
             }
         }
         if let Some(k) = args.iter().position(|a| a == "--dump") {
-            let out = Path::new(&args[k + 1]);
+            let out = Path::new(
+                args.get(k + 1)
+                    .ok_or_else(|| grainforce::Error::Invalid("--dump needs a folder".into()))?,
+            );
             grainforce::scene::write_scene(out, &found.scene)?;
             frame.write(&out.join("image-frame.json"))?;
             std::fs::copy(&path, out.join("photo.jpg"))

@@ -641,6 +641,59 @@ struct Ours {
     imbalance: Vec<Option<f64>>,
 }
 
+/// `fit` drawn as it was fitted (its blur and polariscope, its candidate
+/// contacts with their loads: the drawing must show them) and judged on
+/// `judged`'s pixels; the drawn scene and forces beside.
+fn judge_fit(
+    photo: &FloatImage,
+    frame: &PixelFrame,
+    scene: &Scene,
+    fit: &FringeFit,
+    settings: &FringeFitSettings,
+    judged: &[Judged],
+    disks: &[PegsDisk],
+) -> (Ours, Scene, Vec<[f64; 2]>) {
+    let mut drawn = settings.clone();
+    drawn.blur_px = fit.report.blur_px;
+    drawn.polariscope = lit_by(fit.report.bright_field);
+    drawn.candidate_gap = None;
+    let (drawn_scene, drawn_forces) = fit.with_candidates(scene);
+    let ours = judge_ours(
+        photo,
+        frame,
+        &drawn_scene,
+        &drawn,
+        &drawn_forces,
+        judged,
+        disks,
+    );
+    (ours, drawn_scene, drawn_forces)
+}
+
+/// Both fits' figures on the judged disks, and our imbalance per disk with
+/// two or more loads (those whose balance the fit left out included).
+fn figures_of(judged: &[Judged], ours: &Ours) -> (Figures, Vec<f64>) {
+    let pegs_affine: Vec<f64> = judged.iter().map(|j| j.pegs_affine).collect();
+    let pegs_lit: Vec<f64> = judged.iter().map(|j| j.pegs_lit).collect();
+    let ours_imb: Vec<f64> = ours.imbalance.iter().flatten().copied().collect();
+    let pegs_imb: Vec<f64> = judged.iter().filter_map(|j| j.pegs_imbalance).collect();
+    let figures = Figures {
+        disks: judged.len(),
+        ours_overlay: median(&ours.overlay),
+        ours_affine: median(&ours.affine),
+        pegs_affine: median(&pegs_affine),
+        closer_overlay: share_closer(&ours.overlay, &pegs_affine),
+        closer_affine: share_closer(&ours.affine, &pegs_affine),
+        closer_lit: share_closer(&ours.lit, &pegs_lit),
+        ours_lit: median(&ours.lit),
+        pegs_lit: median(&pegs_lit),
+        ours_imbalance: median(&ours_imb),
+        pegs_imbalance: median(&pegs_imb),
+        warned: false,
+    };
+    (figures, ours_imb)
+}
+
 fn judge_ours(
     photo: &FloatImage,
     frame: &PixelFrame,
@@ -727,6 +780,9 @@ struct Figures {
     pegs_lit: f64,
     ours_imbalance: f64,
     pegs_imbalance: f64,
+    /// The run warned that no fitted contact touches a wall (the product's
+    /// path only).
+    warned: bool,
 }
 
 fn fit_settings() -> FringeFitSettings {
@@ -867,44 +923,16 @@ fn against_pegs(folder: &str, image: &str, solved: &str) -> Option<Figures> {
     settings.polariscope = lit_by(fit.report.bright_field);
     let seconds = started.elapsed().as_secs_f64();
     let judged = judge(&photo, &disks);
-    // Candidate contacts (when fitted) carry loads the drawing must show.
-    let (drawn_scene, drawn_forces) = fit.with_candidates(&scene);
-    let mut drawn_settings = settings.clone();
-    drawn_settings.candidate_gap = None;
-    let ours = judge_ours(
-        &photo,
-        &frame,
-        &drawn_scene,
-        &drawn_settings,
-        &drawn_forces,
-        &judged,
-        &disks,
-    );
-    let pegs_affine: Vec<f64> = judged.iter().map(|j| j.pegs_affine).collect();
-    let pegs_lit: Vec<f64> = judged.iter().map(|j| j.pegs_lit).collect();
-    let ours_imb: Vec<f64> = ours.imbalance.iter().flatten().copied().collect();
-    let pegs_imb: Vec<f64> = judged.iter().filter_map(|j| j.pegs_imbalance).collect();
-    let figures = Figures {
-        disks: judged.len(),
-        ours_overlay: median(&ours.overlay),
-        ours_affine: median(&ours.affine),
-        pegs_affine: median(&pegs_affine),
-        closer_overlay: share_closer(&ours.overlay, &pegs_affine),
-        closer_affine: share_closer(&ours.affine, &pegs_affine),
-        closer_lit: share_closer(&ours.lit, &pegs_lit),
-        ours_lit: median(&ours.lit),
-        pegs_lit: median(&pegs_lit),
-        ours_imbalance: median(&ours_imb),
-        pegs_imbalance: median(&pegs_imb),
-    };
+    let (ours, _, _) = judge_fit(&photo, &frame, &scene, &fit, &settings, &judged, &disks);
+    let (figures, ours_imb) = figures_of(&judged, &ours);
     eprintln!(
         "{folder}: {} disks PeGS fitted; residual/std median: ours as drawn {:.3}, ours affine {:.3}, ours lit {:.3}, PeGS affine {:.3}, PeGS lit {:.3}; ours at least as close: as drawn {:.2}, affine {:.2}, lit {:.2}; imbalance median ours {:.2e}, PeGS {:.2}; objective {:.1}, {} steps, {seconds:.1} s",
         figures.disks,
         figures.ours_overlay,
         figures.ours_affine,
-        median(&ours.lit),
+        figures.ours_lit,
         figures.pegs_affine,
-        median(&pegs_lit),
+        figures.pegs_lit,
         figures.closer_overlay,
         figures.closer_affine,
         figures.closer_lit,
@@ -1324,44 +1352,23 @@ fn detected_against_pegs(
         ((col as f64 - c[0]).hypot(row as f64 - c[1]) < r - 3.0).then_some(g)
     };
     let judged = judge_within(&run.image, &disks, &ring);
-    let mut settings = run.settings.clone();
-    settings.blur_px = run.fit.report.blur_px;
-    settings.polariscope = lit_by(run.fit.report.bright_field);
-    settings.candidate_gap = None;
-    let (drawn_scene, drawn_forces) = run.fit.with_candidates(&run.scene);
-    let ours = judge_ours(
+    let (ours, drawn_scene, drawn_forces) = judge_fit(
         &run.image,
         &run.frame,
-        &drawn_scene,
-        &settings,
-        &drawn_forces,
+        &run.scene,
+        &run.fit,
+        &run.settings,
         &judged,
         &disks,
     );
     let pegs_lit: Vec<f64> = judged.iter().map(|j| j.pegs_lit).collect();
-    let pegs_affine: Vec<f64> = judged.iter().map(|j| j.pegs_affine).collect();
-    // Balance over our disks with two or more loads, those whose balance the
-    // fit left out included.
-    let ours_imb: Vec<f64> = ours.imbalance.iter().flatten().copied().collect();
-    let pegs_imb: Vec<f64> = judged.iter().filter_map(|j| j.pegs_imbalance).collect();
+    let (mut figures, ours_imb) = figures_of(&judged, &ours);
+    figures.warned = !run.warnings().is_empty();
     let ring_share = judged.iter().map(|j| j.pixels.len()).sum::<usize>() as f64
         / (all.iter())
             .filter(|a| judged.iter().any(|j| j.disk == a.disk))
             .map(|a| a.pixels.len())
             .sum::<usize>() as f64;
-    let figures = Figures {
-        disks: judged.len(),
-        ours_overlay: f64::NAN,
-        ours_affine: median(&ours.affine),
-        pegs_affine: median(&pegs_affine),
-        closer_overlay: f64::NAN,
-        closer_affine: share_closer(&ours.affine, &pegs_affine),
-        closer_lit: share_closer(&ours.lit, &pegs_lit),
-        ours_lit: median(&ours.lit),
-        pegs_lit: median(&pegs_lit),
-        ours_imbalance: median(&ours_imb),
-        pegs_imbalance: median(&pegs_imb),
-    };
     let closer = ours
         .lit
         .iter()
@@ -1433,6 +1440,8 @@ fn detected(folder: &str, image: &str, solved: &str, radius: (f64, f64), closer:
         return;
     };
     let walls = detected_against_pegs(folder, image, solved, radius, WALLS_AS_PEGS).unwrap();
+    // Without walls the run says why its field is (nearly) zero; with them not.
+    assert!(plain.warned && !walls.warned);
     assert!(
         plain.closer_lit >= closer[0],
         "defaults: at least as close on {:.2}",
@@ -1515,6 +1524,8 @@ fn photoelastic_warns_without_a_wall_contact() {
             .arg(scene)
             .arg("-o")
             .arg(dir.join("forces.csv"))
+            .arg("--report")
+            .arg(dir.join("report.json"))
             .args([
                 "--fsigma",
                 "200",
@@ -1526,7 +1537,15 @@ fn photoelastic_warns_without_a_wall_contact() {
             .output()
             .unwrap();
         assert!(out.status.success());
-        String::from_utf8_lossy(&out.stderr).contains("no fitted contact touches a wall")
+        let printed =
+            String::from_utf8_lossy(&out.stderr).contains("no fitted contact touches a wall");
+        // The library's warning, in the report too (what Python reads).
+        let report: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap())
+                .unwrap();
+        let reported = !report["warnings"].as_array().unwrap().is_empty();
+        assert_eq!(printed, reported);
+        printed
     };
     assert!(warned(&dir));
     assert!(!warned(&fixture.join("scene")));

@@ -4,7 +4,6 @@
 use grainforce::image::fringe_fit::Polariscope;
 use grainforce::image::fringe_run::{self, ContactChoice, PhotoelasticConfig};
 use grainforce::image::Channel;
-use grainforce::scene::Body;
 use grainforce::{Error, Result};
 use std::path::PathBuf;
 
@@ -147,26 +146,10 @@ pub fn run(args: Args) -> Result<()> {
             r.balance_left_out.join(", ")
         );
     }
-    if config.balance_weight.is_none() && !holds_a_wall(&done) {
-        eprintln!("{}", NO_WALL_WARNING);
+    for warning in done.warnings() {
+        eprintln!("warning: {warning}");
     }
     Ok(())
-}
-
-/// Without an external load, balance on every disk leaves compressive
-/// contacts only the zero field (the trace of Σ branch ⊗ force vanishes,
-/// and each compressive contact adds −r f_n to it): docs/photoelastic.md.
-const NO_WALL_WARNING: &str = "warning: no fitted contact touches a wall, and a balanced field of \
-compressive forces without an external load is zero: only disks whose balance is left out carry \
-load. Give the walls that hold the packing (`detect --walls`; `--walls box` for \
-the packing's bounding box), or --balance-weight";
-
-/// Whether a fitted contact of the run is with a wall.
-fn holds_a_wall(run: &fringe_run::PhotoelasticRun) -> bool {
-    run.scene
-        .contacts
-        .iter()
-        .any(|c| matches!(c.b, Body::Wall(_)) && !run.left_out.contains(&c.id))
 }
 
 /// The library's `field` names as this verb's flags.

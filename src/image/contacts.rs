@@ -204,33 +204,45 @@ pub fn find_contacts(disks: &[Disk], walls: &[WallLine], gap_px: f64) -> Vec<Pix
     out
 }
 
+/// Wall `w`'s line read from its listed contacts in `scene`: their mean
+/// point and their mean normal, made a unit vector (scene axes). None
+/// without contacts, or where their normals cancel.
+pub fn wall_line_of_contacts(
+    scene: &crate::scene::Scene,
+    w: usize,
+) -> Option<([f64; 2], [f64; 2])> {
+    use crate::scene::Body;
+    let (mut point, mut normal, mut n) = ([0.0; 2], [0.0; 2], 0usize);
+    for c in scene.contacts.iter().filter(|c| c.b == Body::Wall(w)) {
+        for k in 0..2 {
+            point[k] += c.point[k];
+            normal[k] += c.normal[k];
+        }
+        n += 1;
+    }
+    let length = normal[0].hypot(normal[1]);
+    if n == 0 || !(length.is_finite() && length > 0.0) {
+        return None;
+    }
+    Some((
+        [point[0] / n as f64, point[1] / n as f64],
+        [normal[0] / length, normal[1] / length],
+    ))
+}
+
 /// The wall lines implied by a scene's wall contacts (e.g. a DEM's): for each
-/// wall, the line through its mean contact point, perpendicular to its mean
-/// normal, in the pixels of `frame`. Walls without contacts are skipped.
+/// wall, [`wall_line_of_contacts`] in the pixels of `frame`. Walls without
+/// contacts are skipped.
 pub fn walls_from_scene_contacts(
     scene: &crate::scene::Scene,
     frame: &super::PixelFrame,
 ) -> Vec<WallLine> {
-    use crate::scene::Body;
     let mut out = Vec::new();
     for (w, wall) in scene.walls.iter().enumerate() {
-        let (mut point, mut normal, mut n) = ([0.0; 2], [0.0; 2], 0usize);
-        for c in scene.contacts.iter().filter(|c| c.b == Body::Wall(w)) {
-            for k in 0..2 {
-                point[k] += c.point[k];
-                normal[k] += c.normal[k];
-            }
-            n += 1;
-        }
-        if n == 0 {
+        let Some((point, normal)) = wall_line_of_contacts(scene, w) else {
             continue;
-        }
-        let point = [point[0] / n as f64, point[1] / n as f64];
-        let length = normal[0].hypot(normal[1]);
-        if length == 0.0 {
-            continue;
-        }
-        let tangent = [-normal[1] / length, normal[0] / length];
+        };
+        let tangent = [-normal[1], normal[0]];
         let p0 = [point[0] - tangent[0], point[1] - tangent[1]];
         let p1 = [point[0] + tangent[0], point[1] + tangent[1]];
         if let Ok(line) = WallLine::from_scene(wall.name.clone(), p0, p1, frame) {

@@ -2391,31 +2391,22 @@ fn with_wall_candidates(
 /// Appends to `scene` every disk–wall pair closer than `gap` × the disk's
 /// radius and not already in contact (normal the wall's, point on its
 /// line), and returns each added pair's gap over the radius. A wall's line
-/// is its listed contacts' mean point and normal (as
-/// `walls_from_scene_contacts` reads it); a disk must face the wall from
-/// the side its contacts do.
+/// is its listed contacts' mean point and normal
+/// ([`super::contacts::wall_line_of_contacts`]); a disk must face the wall
+/// from the side its contacts do.
 fn add_wall_candidates(scene: &mut Scene, gap: f64) -> Vec<f64> {
     let mut gaps = Vec::new();
     for w in 0..scene.walls.len() {
-        let (mut point, mut normal, mut n) = ([0.0; 2], [0.0; 2], 0usize);
-        let mut listed = std::collections::HashSet::new();
-        for c in scene.contacts.iter().filter(|c| c.b == Body::Wall(w)) {
-            for k in 0..2 {
-                point[k] += c.point[k];
-                normal[k] += c.normal[k];
-            }
-            n += 1;
-            listed.insert(c.a);
-        }
-        let length = normal[0].hypot(normal[1]);
-        if n == 0 || !(length.is_finite() && length > 0.0) {
+        let Some((point, normal)) = super::contacts::wall_line_of_contacts(scene, w) else {
             continue;
-        }
-        let point = [point[0] / n as f64, point[1] / n as f64];
-        let normal = [normal[0] / length, normal[1] / length];
+        };
         if !is_straight(scene, w, point, normal) {
             continue;
         }
+        let listed: std::collections::HashSet<usize> = (scene.contacts.iter())
+            .filter(|c| c.b == Body::Wall(w))
+            .map(|c| c.a)
+            .collect();
         for (a, grain) in scene.grains.iter().enumerate() {
             let r = grain.equivalent_radius(2);
             // The disk's centre to the wall, along the wall's normal.

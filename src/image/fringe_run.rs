@@ -12,7 +12,7 @@ use super::fringe_fit::{
 };
 use super::{load_channel, Channel, FloatImage, PixelFrame, FRAME_FILE};
 use crate::error::{Error, Result};
-use crate::scene::{read_scene, write_file_atomically, write_forces, Forces, Scene};
+use crate::scene::{read_scene, write_file_atomically, write_forces, Body, Forces, Scene};
 use std::path::Path;
 
 /// Which of the scene's contacts are fitted.
@@ -118,11 +118,29 @@ impl PhotoelasticRun {
         Forces::from_scene(&self.scene, &forces)
     }
 
+    /// What the user should know about the answer (in the report as
+    /// `warnings`; the CLI prints them): under exact balance, a fit in which
+    /// no contact touches a wall. Without an external load, balance on every
+    /// disk leaves compressive contacts only the zero field (the trace of
+    /// Σ branch ⊗ force vanishes and each compressive contact adds −r f_n to
+    /// it; docs/photoelastic.md), so only disks whose balance is left out
+    /// carry load.
+    pub fn warnings(&self) -> Vec<String> {
+        let holds_a_wall = (self.scene.contacts.iter())
+            .any(|c| matches!(c.b, Body::Wall(_)) && !self.left_out.contains(&c.id));
+        let mut out = Vec::new();
+        if self.settings.balance == Balance::Hard && !holds_a_wall {
+            out.push(NO_WALL_WARNING.to_string());
+        }
+        out
+    }
+
     /// The report as the CLI writes it.
     pub fn report_json(&self) -> serde_json::Value {
         let mut value = serde_json::to_value(&self.fit.report).expect("the report serialises");
         value["contacts"] = serde_json::json!(self.contacts);
         value["left_out"] = serde_json::json!(self.left_out);
+        value["warnings"] = serde_json::json!(self.warnings());
         if let Some((f, assumed)) = self.fsigma_fitted {
             value["fsigma_fitted_to_walls"] = serde_json::json!(f);
             value["fsigma_thickness_assumed"] = serde_json::json!(assumed);
@@ -229,6 +247,27 @@ pub fn force_bearing_contacts(scene_dir: &Path) -> Result<Option<Vec<String>>> {
 
 const EVIDENCE_FILE: &str = "contacts-evidence.csv";
 
+/// [`PhotoelasticRun::warnings`] without a wall contact.
+const NO_WALL_WARNING: &str = "no fitted contact touches a wall, and a balanced field of \
+compressive forces without an external load is zero: only disks whose balance is left out carry \
+load. Give the walls that hold the packing (`detect --walls`; `--walls box` for the packing's \
+bounding box), or a balance penalty (--balance-weight)";
+
+/// The settings that depend on where the scene came from, as a run sets
+/// them: `detected` for a scene from `detect` (its contacts-evidence.csv
+/// present), `asked` the candidate gap asked for. A detected scene's contact
+/// list misses the contacts of circles found small, and it knows nothing of
+/// its walls' friction: candidates, and the walls-frictionless-first path
+/// beside the other (round 9); its circles found small stop short of walls
+/// too, so disk–wall candidates (round 10: the bundled render's disk 3 – top
+/// wall, 0.047 of its 0.085 relerr alone). Scenes that list their own
+/// contacts (a DEM's, PeGS's) are fitted as given.
+pub fn set_for_scene(settings: &mut FringeFitSettings, detected: bool, asked: Option<f64>) {
+    settings.candidate_gap = candidate_gap(asked, detected);
+    settings.smooth_walls_first = detected;
+    settings.wall_candidates = detected;
+}
+
 /// The candidate gap a run uses: the one asked for (0: none), else the
 /// default on a scene from `detect` and none on others.
 fn candidate_gap(asked: Option<f64>, detected: bool) -> Option<f64> {
@@ -306,16 +345,8 @@ pub fn run(image: &Path, scene_dir: &Path, config: &PhotoelasticConfig) -> Resul
     settings.blur_px = config.blur;
     settings.edge_px = config.edge;
     settings.max_iterations = config.iterations;
-    // A detected scene's contact list misses the contacts of circles found
-    // small, and it knows nothing of its walls' friction: candidates, and the
-    // walls-frictionless-first path beside the other (round 9). Scenes that
-    // list their own contacts (a DEM's, PeGS's) are fitted as given.
     let detected = scene_dir.join(EVIDENCE_FILE).is_file();
-    settings.candidate_gap = candidate_gap(config.candidate_gap, detected);
-    settings.smooth_walls_first = detected;
-    // Its circles found small stop short of walls too (round 10: the bundled
-    // render's disk 3 – top wall, 0.047 of its 0.085 relerr alone).
-    settings.wall_candidates = detected;
+    set_for_scene(&mut settings, detected, config.candidate_gap);
     settings.sparsity = config.sparsity;
     settings.polariscope = config.polariscope;
     settings.lighting = config.lighting;
