@@ -45,7 +45,7 @@ use super::FloatImage;
 use crate::error::{Error, Result};
 use filters::{edge_smoothing_for_noise, median};
 use polish::{polish, ModelFit};
-use pyramid::{coarse_candidates, downsample, pyramid_factor};
+use pyramid::{big_picture_factor, coarse_candidates, downsample, pyramid_factor};
 use rayon::prelude::*;
 use refine::refine;
 use rims::{add_rim_enclosed, add_rim_enclosed_coarse};
@@ -115,7 +115,8 @@ fn search(image: &FloatImage, options: &DetectOptions, mask: bool) -> Result<Vec
         Polarity::Either => &[1.0, -1.0],
     };
     let mut laps = profile::Laps::start();
-    let factor = pyramid_factor(o);
+    let pixels = w as f64 * h as f64;
+    let factor = pyramid_factor(o, pixels, mask);
     let pyramid = factor > 1 && w as usize >= 8 * factor && h as usize >= 8 * factor;
     // The noise is measured once (on big images it costs a pass and a buffer).
     let mut noise = None;
@@ -206,8 +207,13 @@ fn search(image: &FloatImage, options: &DetectOptions, mask: bool) -> Result<Vec
     let kept = without_overlaps(kept, o.overlap);
     laps.lap("search: model fit (polish)");
     if o.find_by_rims && o.polarity == Polarity::Bright {
-        let with_rims = if pyramid {
-            add_rim_enclosed_coarse(image, o, kept, factor, noise_of(image))
+        let mask_factor = if pyramid {
+            factor
+        } else {
+            big_picture_factor(o, pixels, mask)
+        };
+        let with_rims = if mask_factor > 1 {
+            add_rim_enclosed_coarse(image, o, kept, mask_factor, noise_of(image))
         } else {
             add_rim_enclosed(image, o, kept)
         };

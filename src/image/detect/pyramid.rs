@@ -15,10 +15,50 @@ use rayon::prelude::*;
 pub(crate) const COARSE_RADIUS: f64 = 50.0;
 
 /// By how much the image is shrunk for the candidate search: 1 (not at all)
-/// unless the smallest disks are at least twice [`COARSE_RADIUS`].
-pub(crate) fn pyramid_factor(o: &DetectOptions) -> usize {
-    (o.radius_min / COARSE_RADIUS).floor().max(1.0) as usize
+/// unless the smallest disks are at least twice [`COARSE_RADIUS`]; with
+/// [`COARSE_BIG_PICTURES`] set, a big picture's by [`big_picture_factor`].
+pub(crate) fn pyramid_factor(o: &DetectOptions, pixels: f64, mask: bool) -> usize {
+    let factor = (o.radius_min / COARSE_RADIUS).floor().max(1.0) as usize;
+    if factor == 1 && std::env::var_os(COARSE_BIG_PICTURES).is_some() {
+        big_picture_factor(o, pixels, mask)
+    } else {
+        factor
+    }
 }
+
+/// Off by default: set, a big picture's candidates are also found at half
+/// size. On `wc-slope-a` up-sampled to 21 MP it takes CPU 7.7 → 3.5 s and
+/// peak memory 300 → 159 MB, but 4 disks fewer are matched (389 → 385 of
+/// 392): disks whose support sits near the threshold (0.30–0.36 against
+/// 0.35), fitted from a slightly different start, fall under it
+/// (docs/image.md, "Big photographs").
+pub(crate) const COARSE_BIG_PICTURES: &str = "GRAINFORCE_COARSE_BIG_PICTURES";
+
+/// By how much a big picture's rim mask (and, with [`COARSE_BIG_PICTURES`],
+/// its candidate search) is shrunk when its disks are under twice
+/// [`COARSE_RADIUS`]: by 2 when it has more than [`BIG_PICTURE_PIXELS`] and
+/// its disks stay at least [`BIG_PICTURE_COARSE_RADIUS`] once shrunk; 1
+/// otherwise, and for a mask (`mask`: its search has a gate of its own).
+pub(crate) fn big_picture_factor(o: &DetectOptions, pixels: f64, mask: bool) -> usize {
+    let big = !mask && pixels > BIG_PICTURE_PIXELS;
+    if big && o.radius_min >= 2.0 * BIG_PICTURE_COARSE_RADIUS {
+        2
+    } else {
+        1
+    }
+}
+
+/// Pictures bigger than this [pixels] are big: a 21-megapixel photograph of
+/// disks under ~96 px, searched shrunk to radii of 32–64 px, is still
+/// 5 megapixels, where the rim mask's search alone took 1.2 s of CPU
+/// (`wc-slope-a`; docs/image.md, "Big photographs"). The time
+/// targets: 2 s under 4 megapixels, 5 s at 21.
+pub(crate) const BIG_PICTURE_PIXELS: f64 = 4.0e6;
+
+/// The smallest radius [px] a big picture's mask is searched at: about the
+/// radius the monochrome dark field `wc-slope-a` is searched at in its own
+/// 1-megapixel photograph (15–29 px), where its disks are found.
+pub(crate) const BIG_PICTURE_COARSE_RADIUS: f64 = 16.0;
 
 /// Candidates for big disks (a 21-megapixel photograph): the voting and the
 /// background split run on the image shrunk by `factor` (block means), where
