@@ -16,8 +16,9 @@
 //!    fraction of a pixel; disks outlined by a dark rim whatever their
 //!    interior (dim photoelastic disks) are added.
 //!
-//! Big disks (radius ≥ 100 px) are searched (steps 1–3) in the image shrunk
-//! by an integer factor and refined at full resolution.
+//! Big disks (radius ≥ 100 px), and disks of radius ≥ 32 px in a picture of
+//! over 4 megapixels, are searched (steps 1–3) in the image shrunk by an
+//! integer factor and refined at full resolution.
 //!
 //! Files: `options` what to look for and what is found; `voting` steps 1–3;
 //! `pyramid` the search in the shrunk image; `refine` step 4–5 along rays,
@@ -45,7 +46,7 @@ use super::FloatImage;
 use crate::error::{Error, Result};
 use filters::{edge_smoothing_for_noise, median};
 use polish::{polish, ModelFit};
-use pyramid::{big_picture_factor, coarse_candidates, downsample, pyramid_factor};
+use pyramid::{coarse_candidates, downsample, pyramid_factor, COARSE_RADIUS};
 use rayon::prelude::*;
 use refine::refine;
 use rims::{add_rim_enclosed, add_rim_enclosed_coarse};
@@ -147,11 +148,22 @@ fn search(image: &FloatImage, options: &DetectOptions, mask: bool) -> Result<Vec
     let edge_image = gaussian_blur(image, edge_sigma);
     laps.lap("search: edge smoothing (full resolution)");
     let plane = Plane::whole(&edge_image);
+    // A big picture's candidates come from its half-size copy, up to a
+    // pixel of it off: a disk judged short of confident is refined again
+    // from its own circle, so that its judgement does not hang on the start.
+    let restart = pyramid && o.radius_min < 2.0 * COARSE_RADIUS;
     let refine_candidate = |&(cx, cy, hint): &Candidate| {
         let plane = &plane;
         signs
             .iter()
-            .filter_map(move |&s| refine(plane, [cx, cy], hint, s, edge_sigma, o))
+            .filter_map(move |&s| {
+                let disk = refine(plane, [cx, cy], hint, s, edge_sigma, o)?;
+                if !restart || disk.support >= o.min_support {
+                    return Some(disk);
+                }
+                let again = refine(plane, [disk.x, disk.y], disk.r, s, edge_sigma, o);
+                Some(again.filter(|a| a.support > disk.support).unwrap_or(disk))
+            })
             .collect::<Vec<_>>()
     };
     let mut found: Vec<Disk> = if pyramid {
@@ -207,13 +219,8 @@ fn search(image: &FloatImage, options: &DetectOptions, mask: bool) -> Result<Vec
     let kept = without_overlaps(kept, o.overlap);
     laps.lap("search: model fit (polish)");
     if o.find_by_rims && o.polarity == Polarity::Bright {
-        let mask_factor = if pyramid {
-            factor
-        } else {
-            big_picture_factor(o, pixels, mask)
-        };
-        let with_rims = if mask_factor > 1 {
-            add_rim_enclosed_coarse(image, o, kept, mask_factor, noise_of(image))
+        let with_rims = if pyramid {
+            add_rim_enclosed_coarse(image, o, kept, factor, noise_of(image))
         } else {
             add_rim_enclosed(image, o, kept)
         };

@@ -15,27 +15,19 @@ use rayon::prelude::*;
 pub(crate) const COARSE_RADIUS: f64 = 50.0;
 
 /// By how much the image is shrunk for the candidate search: 1 (not at all)
-/// unless the smallest disks are at least twice [`COARSE_RADIUS`]; with
-/// [`COARSE_BIG_PICTURES`] set, a big picture's by [`big_picture_factor`].
+/// unless the smallest disks are at least twice [`COARSE_RADIUS`], or the
+/// picture is big (see [`big_picture_factor`]).
 pub(crate) fn pyramid_factor(o: &DetectOptions, pixels: f64, mask: bool) -> usize {
     let factor = (o.radius_min / COARSE_RADIUS).floor().max(1.0) as usize;
-    if factor == 1 && std::env::var_os(COARSE_BIG_PICTURES).is_some() {
+    if factor == 1 {
         big_picture_factor(o, pixels, mask)
     } else {
         factor
     }
 }
 
-/// Off by default: set, a big picture's candidates are also found at half
-/// size. On `wc-slope-a` up-sampled to 21 MP it takes CPU 7.7 → 3.5 s and
-/// peak memory 300 → 159 MB, but 4 disks fewer are matched (389 → 385 of
-/// 392): disks whose support sits near the threshold (0.30–0.36 against
-/// 0.35), fitted from a slightly different start, fall under it
-/// (docs/image.md, "Big photographs").
-pub(crate) const COARSE_BIG_PICTURES: &str = "GRAINFORCE_COARSE_BIG_PICTURES";
-
-/// By how much a big picture's rim mask (and, with [`COARSE_BIG_PICTURES`],
-/// its candidate search) is shrunk when its disks are under twice
+/// By how much a big picture's candidate search and rim mask are shrunk
+/// when its disks are under twice
 /// [`COARSE_RADIUS`]: by 2 when it has more than [`BIG_PICTURE_PIXELS`] and
 /// its disks stay at least [`BIG_PICTURE_COARSE_RADIUS`] once shrunk; 1
 /// otherwise, and for a mask (`mask`: its search has a gate of its own).
@@ -50,12 +42,13 @@ pub(crate) fn big_picture_factor(o: &DetectOptions, pixels: f64, mask: bool) -> 
 
 /// Pictures bigger than this [pixels] are big: a 21-megapixel photograph of
 /// disks under ~96 px, searched shrunk to radii of 32–64 px, is still
-/// 5 megapixels, where the rim mask's search alone took 1.2 s of CPU
-/// (`wc-slope-a`; docs/image.md, "Big photographs"). The issue's time
-/// targets: 2 s under 4 megapixels, 5 s at 21.
+/// 5 megapixels, where voting, refining every candidate and searching the
+/// rim mask took 6 of its 7.7 s of CPU (`wc-slope-a`; docs/image.md, "Big
+/// photographs"). The issue's time targets: 2 s under 4 megapixels, 5 s at
+/// 21.
 pub(crate) const BIG_PICTURE_PIXELS: f64 = 4.0e6;
 
-/// The smallest radius [px] a big picture's mask is searched at: about the
+/// The smallest radius [px] a big picture is searched at: about the
 /// radius the monochrome dark field `wc-slope-a` is searched at in its own
 /// 1-megapixel photograph (15–29 px), where its disks are found.
 pub(crate) const BIG_PICTURE_COARSE_RADIUS: f64 = 16.0;
@@ -225,5 +218,27 @@ impl SmoothedWindow {
             h: self.h,
             origin: self.origin,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Only a big picture of disks that stay 16 px or more once shrunk is
+    /// searched at half size; smaller pictures, smaller disks and rim masks
+    /// are searched as before, and big disks by their own rule.
+    #[test]
+    fn big_pictures_are_searched_at_half_size() {
+        let (half_of_21_mp, under_4_mp) = (2292.0 * 2292.0, 1999.0 * 1999.0);
+        let small_disks = DetectOptions::new(34.0, 67.0);
+        assert_eq!(pyramid_factor(&small_disks, half_of_21_mp, false), 2);
+        assert_eq!(pyramid_factor(&small_disks, under_4_mp, false), 1);
+        assert_eq!(pyramid_factor(&small_disks, half_of_21_mp, true), 1);
+        let smaller = DetectOptions::new(30.0, 60.0);
+        assert_eq!(pyramid_factor(&smaller, half_of_21_mp, false), 1);
+        let big_disks = DetectOptions::new(110.0, 135.0);
+        assert_eq!(pyramid_factor(&big_disks, 21.0e6, false), 2);
+        assert_eq!(pyramid_factor(&big_disks, under_4_mp, true), 2);
     }
 }
