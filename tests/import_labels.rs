@@ -94,6 +94,61 @@ fn one_contact_from_below_with_a_normal_along_z() {
 }
 
 #[test]
+fn a_container_label_is_a_wall_and_a_free_grain_a_rattler() {
+    // Label 9 is the container's floor (z = 0, 1); a ball (3) rests on it
+    // and a cube (5) floats free.
+    let shape = [12, 16, 20];
+    let mut v = vec![0u16; 12 * 16 * 20];
+    let at = |x: usize, y: usize, z: usize| (z * 16 + y) * 20 + x;
+    for y in 0..16 {
+        for x in 0..20 {
+            v[at(x, y, 0)] = 9;
+            v[at(x, y, 1)] = 9;
+        }
+    }
+    for z in 2..8 {
+        for y in 4..13 {
+            for x in 6..15 {
+                let d2 =
+                    (x as f64 - 10.0).powi(2) + (y as f64 - 8.0).powi(2) + (z as f64 - 4.8).powi(2);
+                if d2 <= 9.0 {
+                    v[at(x, y, z)] = 3;
+                }
+            }
+        }
+    }
+    for z in 8..10 {
+        for y in 1..3 {
+            for x in 1..3 {
+                v[at(x, y, z)] = 5;
+            }
+        }
+    }
+    let options = Options {
+        container: Some(9),
+        ..Options::default()
+    };
+    let out = labels::import_array(&v, shape, None, &options).unwrap();
+    // The container is a wall, not a grain.
+    assert_eq!(out.labels, vec![3, 5]);
+    assert_eq!(out.scene.walls.last().unwrap().name, "container");
+    assert_eq!(out.scene.contacts.len(), 1, "{:?}", out.detected);
+    let c = &out.scene.contacts[0];
+    assert_eq!(out.scene.grains[c.a].id, "3");
+    assert_eq!(c.b, Body::Wall(out.scene.walls.len() - 1));
+    // From the ball down to the floor, on the face between z = 1 and 2.
+    assert!(c.normal[2] < -0.999, "{:?}", c.normal);
+    assert!((c.point[2] - 1.5).abs() < 1e-12, "{:?}", c.point);
+    assert_eq!(out.rattlers, vec!["5".to_string()]);
+    // 0 is void, never the container.
+    let void = Options {
+        container: Some(0),
+        ..Options::default()
+    };
+    assert!(labels::import_array(&v, shape, None, &void).is_err());
+}
+
+#[test]
 fn a_u_shaped_grain_touches_a_bar_at_two_zones() {
     // U (label 1): two posts joined at the bottom; a bar (label 2) lies across
     // the posts' tops — one pair, two touching zones far apart.
