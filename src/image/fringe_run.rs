@@ -568,19 +568,31 @@ fn second_start(
     }
     let started = fit_fringes(image, frame, scene, &first_settings)?;
     let exact = FringeFitSettings {
-        start: Some(started.forces),
+        start: Some(started.forces.clone()),
         polariscope,
         ..settings.clone()
     };
     let mut second = fit_fringes(image, frame, scene, &exact)?;
-    let seconds = clock.elapsed().as_secs_f64();
+    let steps = started.report.iterations + second.report.iterations;
     // Refitted from a start the balance pins, the exact fit leaves out the
     // balance of the disks that pin it (release_forced_zeros): fewer
     // constraints, so a lower objective alone would favour it (round 11: a
     // penalty start at μ 0.5 left 11 of fixed48's disks out). Only the same
     // disks' balance may be out.
-    let same_balance =
-        (second.report.balance_left_out.iter()).all(|g| best.report.balance_left_out.contains(g));
+    let balanced_as = |fit: &FringeFit| {
+        (fit.report.balance_left_out.iter()).all(|g| best.report.balance_left_out.contains(g))
+    };
+    // A narrow start's own answer is admissible under the run's wider
+    // wedges: where it balances the disks `best` balances and the refit,
+    // whose smoothed stages start over from it, ends higher, the answer
+    // itself is the better one found.
+    let lower = started.report.objective < second.report.objective;
+    if matches!(first, FirstFit::Narrow(_)) && lower && balanced_as(&started) {
+        second = started;
+        second.report.mu = settings.mu;
+    }
+    let seconds = clock.elapsed().as_secs_f64();
+    let same_balance = balanced_as(&second);
     let record = SecondStart {
         first,
         compared_objective: best.report.objective,
@@ -589,10 +601,9 @@ fn second_start(
         kept: same_balance && second.report.objective < best.report.objective,
         seconds,
     };
-    let steps = started.report.iterations + second.report.iterations;
     let mut kept = if record.kept {
         second.report.objective_start = best.report.objective_start;
-        second.report.iterations += best.report.iterations + started.report.iterations;
+        second.report.iterations = best.report.iterations + steps;
         second
     } else {
         let mut best = best;
