@@ -314,6 +314,8 @@ fn the_defaults_give_a_detected_packing_its_load() {
             p(&report),
             "--fsigma",
             "200",
+            "--thickness",
+            "0.005",
             "--iterations",
             "2",
             "--polariscope",
@@ -342,18 +344,20 @@ fn the_defaults_give_a_detected_packing_its_load() {
             .map(|(r, _)| r.force[0].hypot(r.force[1]))
             .sum();
         let total: f64 = rows.iter().map(|r| r.force[0].hypot(r.force[1])).sum();
+        eprintln!(
+            "walls {walls:?}: Σ|F| on walls {on_walls:.2} N/m, all {total:.2} N/m, warned {warned}"
+        );
         (warned, on_walls, total)
     };
     let (warned, on_walls, total) = fitted(&[]);
     assert!(!warned);
-    // The walls hold the packing: a few N/m on the rendered packing's walls
-    // (its contacts carry up to ~150 N/m), where the zero field gives none.
-    assert!(
-        on_walls > 1.0 && total > 10.0,
-        "walls {on_walls}, all {total}"
-    );
-    let (warned, on_walls, _) = fitted(&["--walls", "none"]);
-    assert!(warned && on_walls == 0.0);
+    let (warned_bare, on_no_walls, total_bare) = fitted(&["--walls", "none"]);
+    assert!(warned_bare && on_no_walls == 0.0);
+    // The walls hold the packing and carry a share of its load (measured
+    // after two steps: 4280 of 16942 N/m); without them only the disks
+    // whose balance is left out carry any (55 N/m).
+    assert!(on_walls > 0.1 * total, "walls {on_walls}, all {total}");
+    assert!(total > 20.0 * total_bare, "{total} against {total_bare}");
     let (ok, err) = common::run(&[
         "photoelastic",
         BUNDLED_PHOTO,
@@ -363,6 +367,8 @@ fn the_defaults_give_a_detected_packing_its_load() {
         p(&dir.path().join("never.csv")),
         "--fsigma",
         "200",
+        "--thickness",
+        "0.005",
         "--penalty-start=-1",
     ]);
     assert!(!ok && err.contains("--penalty-start"), "{err}");
