@@ -30,7 +30,9 @@ pub struct Args {
     /// The channel of a colour photograph that is fitted.
     #[arg(long, default_value = "green", value_parser = |s: &str| Channel::parse(s).map_err(|e| e.to_string()))]
     channel: Channel,
-    /// Friction coefficient where a contact and the scene give none.
+    /// Friction coefficient where a contact and the scene give none (1: a
+    /// polymer disk's friction, ~0.6, plus the detected contact normal's
+    /// error; docs/photoelastic.md, round 11).
     #[arg(long, default_value_t = fringe_run::DEFAULT_MU)]
     mu: f64,
     /// Friction coefficient of the contacts with walls (default: --mu);
