@@ -5,10 +5,12 @@
 //!         [--candidates GAP] [--prune FLOOR] [--wall-mu MU] [--settle-edges] [--detail]
 //!         [--fsigma-scale F] [--iterations N] [--extrapolate]
 //!         [--scene DIR] [--seed N] [--dump DIR] [--circles] [--walls-last]
-//!         [--no-wall-candidates]
+//!         [--no-wall-candidates] [--mu MU] [--penalty-start W]
+//!         [--narrow-start MU] [--box-walls]
 //!
 //! Without flags the disks and contacts are the DEM's; `--detect` finds them
-//! in the photograph (`detect`, walls at the DEM's lines) and scores the fit
+//! in the photograph (`detect`, walls at the DEM's lines, or with
+//! `--box-walls` at its default box) and scores the fit
 //! against the DEM contacts matched by disk pair (a missed contact counts as
 //! zero force). Prints relerr ‖f − f_true‖/‖f_true‖, the imbalance and the
 //! fit's time (wall and CPU). `--scene` takes another DEM folder with its
@@ -17,6 +19,7 @@
 //! default is not judged on one picture alone.
 
 use grainforce::image::fringe_fit::{fit_fringes, fit_fringes_per_disk, FringeFitSettings};
+use grainforce::image::fringe_run::{with_second_starts, FirstFit};
 use grainforce::image::photoelastic::{render_photoelastic, save_jpeg, PhotoelasticOptions};
 use grainforce::image::synthetic::match_disks;
 use grainforce::image::{detect_images, load_channel, Channel, DetectSettings, WallSource};
@@ -95,6 +98,10 @@ fn main() -> grainforce::Result<()> {
         s.max_iterations = steps as usize;
     }
     s.extrapolate = args.iter().any(|a| a == "--extrapolate");
+    // μ where the scene gives none (a detected scene: the DEM's is 0.5).
+    if let Some(mu) = value("--mu") {
+        s.mu = mu;
+    }
     // As `grainforce photoelastic` sets them for a scene from `detect` (or not).
     grainforce::image::fringe_run::set_for_scene(&mut s, detect, value("--candidates"));
     // The walls' friction from the start only (round 8's fit).
@@ -115,6 +122,10 @@ fn main() -> grainforce::Result<()> {
         settings.walls = WallSource::Lines(grainforce::image::contacts::walls_from_scene_contacts(
             &scene, &frame,
         ));
+        // `detect`'s default walls instead of the DEM's lines.
+        if args.iter().any(|a| a == "--box-walls") {
+            settings.walls = WallSource::PackingBox;
+        }
         let detection =
             detect_images(std::slice::from_ref(&path), &settings, &mut |_, _, _, _| {
                 Ok(())
@@ -182,7 +193,29 @@ fn main() -> grainforce::Result<()> {
         let fit = if per_disk {
             fit_fringes_per_disk(&image, &frame, fit_scene, &s)?
         } else {
-            fit_fringes(&image, &frame, fit_scene, &s)?
+            let plain = fit_fringes(&image, &frame, fit_scene, &s)?;
+            // The run's second starts where disks are left flagged
+            // (`photoelastic --penalty-start W --narrow-start MU`; off here
+            // unless asked).
+            let mut firsts = Vec::new();
+            if let Some(w) = value("--penalty-start") {
+                firsts.push(FirstFit::Penalty(w));
+            }
+            if let Some(mu) = value("--narrow-start") {
+                firsts.push(FirstFit::Narrow(mu));
+            }
+            let (fit, tried) = with_second_starts(&image, &frame, fit_scene, &s, plain, &firsts)?;
+            for t in &tried {
+                println!(
+                    "  second start {:?}: objective {:.2} against {:.2}, balance left out on {}, {}",
+                    t.first,
+                    t.objective,
+                    t.compared_objective,
+                    t.balance_left_out,
+                    if t.kept { "kept" } else { "not kept" }
+                );
+            }
+            fit
         };
         let (wall, cpu) = (wall.elapsed().as_secs_f64(), cpu_seconds() - cpu);
         let e = if let Some(found) = &found {

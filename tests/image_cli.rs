@@ -83,7 +83,12 @@ fn render_detect_strain_recovers_the_stresses() {
 
     let scene = read_scene(&found).unwrap();
     assert_eq!(scene.grains.len(), truth.grains.len());
-    assert_eq!(scene.contacts.len(), truth.contacts.len());
+    // The disk pairs are the truth's; the default box walls add the disks
+    // on the packing's sides.
+    let pairs = scene.contacts.iter();
+    let pairs = pairs.filter(|c| matches!(c.b, Body::Grain(_))).count();
+    assert_eq!(pairs, truth.contacts.len());
+    assert_eq!(scene.walls.len(), 4);
     assert_eq!(scene.settings.thickness, Some(0.01));
     let scale = 5.5e6 * 5e-3;
     for t in &truth.grains {
@@ -110,9 +115,13 @@ fn render_detect_strain_recovers_the_stresses() {
             );
         }
     }
-    for c in &scene.contacts {
-        assert!(matches!(c.b, Body::Grain(_)));
-    }
+    // `infer` on the detected scene, its box walls included: every contact
+    // gets a force row.
+    let forces = dir.path().join("forces.csv");
+    let (ok, err) = common::run(&["infer", p(&found), "-o", p(&forces)]);
+    assert!(ok, "{err}");
+    let rows = grainforce::scene::read_forces(&forces).unwrap().rows;
+    assert_eq!(rows.len(), scene.contacts.len());
 }
 
 #[test]
@@ -196,18 +205,31 @@ fn settle_edges_reaches_the_detector() {
     assert!(moved >= 2, "{moved} disks moved by more than a pixel");
 }
 
-/// `detect --walls box`: walls along the bounding box of the disks found. On
-/// the bundled photograph of a DEM packing held by four walls, every disk the
-/// DEM's walls touch but one gets a contact with the box wall of the same
-/// side (the one missed is a circle found a few pixels small: issue 42's
-/// disk 3, docs/photoelastic.md).
+/// The `walls` key `detect` writes into image-frame.json.
+fn frame_walls(scene_dir: &Path) -> String {
+    let text = std::fs::read_to_string(scene_dir.join("image-frame.json")).unwrap();
+    let json: serde_json::Value = serde_json::from_str(&text).unwrap();
+    json["walls"].as_str().unwrap_or("").to_string()
+}
+
+/// `detect`'s default walls, `--walls box`: along the bounding box of the
+/// disks found. On the bundled photograph of a DEM packing held by four
+/// walls, every disk the DEM's walls touch but one gets a contact with the
+/// box wall of the same side (the one missed is a circle found a few pixels
+/// small: issue 42's disk 3, docs/photoelastic.md). `--walls none` writes
+/// none.
 #[test]
 fn box_walls_find_the_packings_wall_contacts() {
     let dir = tempfile::tempdir().unwrap();
     let truth = read_scene(Path::new("fixtures/photoelastic/scene")).unwrap();
     let out = dir.path().join("box");
-    let (ok, err) = detect_bundled_photo(&out, &["--walls", "box"]);
+    let (ok, err) = detect_bundled_photo(&out, &[]);
     assert!(ok, "{err}");
+    assert!(
+        err.contains("4 walls along the packing's bounding box"),
+        "{err}"
+    );
+    assert_eq!(frame_walls(&out), "box");
     let found = read_scene(&out).unwrap();
     let names: Vec<&str> = found.walls.iter().map(|w| w.name.as_str()).collect();
     assert_eq!(names.len(), 4, "{names:?}");
@@ -254,4 +276,101 @@ fn box_walls_find_the_packings_wall_contacts() {
     );
     let (ok, err) = detect_bundled_photo(&dir.path().join("both"), &["--walls", "box", "edges"]);
     assert!(!ok && err.contains("cannot be combined"), "{err}");
+    let (ok, err) = detect_bundled_photo(&dir.path().join("both"), &["--walls", "none", "box"]);
+    assert!(!ok && err.contains("cannot be combined"), "{err}");
+    let bare = dir.path().join("none");
+    let (ok, err) = detect_bundled_photo(&bare, &["--walls", "none"]);
+    assert!(ok, "{err}");
+    assert_eq!(frame_walls(&bare), "none");
+    let bare = read_scene(&bare).unwrap();
+    assert!(bare.walls.is_empty());
+    assert!(bare.contacts.iter().all(|c| matches!(c.b, Body::Grain(_))));
+    assert_eq!(bare.grains.len(), found.grains.len());
+}
+
+/// A user's path at the defaults, `detect --radius` then `photoelastic
+/// --fsigma`: the scene carries an external load (the default box walls), so
+/// the balanced fit is not pinned to zero and the run does not warn; with
+/// `--walls none` it warns. Two steps of the fit are enough to see the load.
+#[test]
+fn the_defaults_give_a_detected_packing_its_load() {
+    let dir = tempfile::tempdir().unwrap();
+    let fitted = |walls: &[&str]| {
+        let scene = dir.path().join(format!("scene{}", walls.len()));
+        let (ok, err) = detect_bundled_photo(&scene, walls);
+        assert!(ok, "{err}");
+        let (forces, report) = (
+            dir.path().join("forces.csv"),
+            dir.path().join("report.json"),
+        );
+        let (ok, err) = common::run(&[
+            "photoelastic",
+            BUNDLED_PHOTO,
+            "--scene",
+            p(&scene),
+            "-o",
+            p(&forces),
+            "--report",
+            p(&report),
+            "--fsigma",
+            "200",
+            "--thickness",
+            "0.005",
+            "--iterations",
+            "2",
+            "--polariscope",
+            "dark",
+        ]);
+        assert!(ok, "{err}");
+        let report: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&report).unwrap()).unwrap();
+        let warned = !report["warnings"].as_array().unwrap().is_empty();
+        assert_eq!(
+            warned,
+            err.contains("warning: no fitted contact touches a wall")
+        );
+        // Second starts are fitted where the fit leaves disks flagged, and
+        // only there: unless one is kept, the fit is the plain one.
+        let tried = report["second_starts"].as_array().unwrap();
+        let flagged = !report["flagged"].as_array().unwrap().is_empty();
+        if !tried.iter().any(|t| t["kept"].as_bool().unwrap()) {
+            assert_eq!(tried.len(), if flagged { 2 } else { 0 });
+        }
+        let scene = read_scene(&scene).unwrap();
+        let rows = grainforce::scene::read_forces(&forces).unwrap().rows;
+        assert_eq!(rows.len(), scene.contacts.len());
+        let on_walls: f64 = (rows.iter().zip(&scene.contacts))
+            .filter(|(_, c)| matches!(c.b, Body::Wall(_)))
+            .map(|(r, _)| r.force[0].hypot(r.force[1]))
+            .sum();
+        let total: f64 = rows.iter().map(|r| r.force[0].hypot(r.force[1])).sum();
+        eprintln!(
+            "walls {walls:?}: Σ|F| on walls {on_walls:.2} N/m, all {total:.2} N/m, warned {warned}"
+        );
+        (warned, on_walls, total)
+    };
+    let (warned, on_walls, total) = fitted(&[]);
+    assert!(!warned);
+    let (warned_bare, on_no_walls, total_bare) = fitted(&["--walls", "none"]);
+    assert!(warned_bare && on_no_walls == 0.0);
+    // The walls hold the packing and carry a share of its load (measured
+    // after two steps: 4280 of 16942 N/m); without them only the disks
+    // whose balance is left out carry any (55 N/m).
+    assert!(on_walls > 0.1 * total, "walls {on_walls}, all {total}");
+    assert!(total > 20.0 * total_bare, "{total} against {total_bare}");
+    let (ok, err) = common::run(&[
+        "photoelastic",
+        BUNDLED_PHOTO,
+        "--scene",
+        p(&dir.path().join("scene0")),
+        "-o",
+        p(&dir.path().join("never.csv")),
+        "--fsigma",
+        "200",
+        "--thickness",
+        "0.005",
+        "--penalty-start=-1",
+    ]);
+    assert!(!ok && err.contains("--penalty-start"), "{err}");
+    assert!(!dir.path().join("never.csv").exists());
 }

@@ -747,6 +747,8 @@ def photoelastic(
     wall_mu: Optional[float] = None,
     polariscope: Optional[str] = None,
     lighting: bool = False,
+    penalty_start: Optional[float] = None,
+    narrow_start: Optional[float] = None,
 ) -> Photoelastic:
     """Contact forces fitted to a photoelastic photograph's fringes, all
     disks at once under balance and friction (``grainforce photoelastic``,
@@ -757,7 +759,7 @@ def photoelastic(
     image-frame.json). fsigma: the fringe constant f_σ [N/m]; without it f_σ
     is fitted to the walls' load cells (walls.csv). thickness [m] and scale
     [px/m] default to the scene's. Every keyword left None keeps the CLI's
-    default: channel green, mu 0.5, exact balance (balance_weight makes it a
+    default: channel green, mu 1 (where the scene gives none), exact balance (balance_weight makes it a
     penalty), blur 1 px, edge 6 px, 60 iterations, contacts "all" (or "evidence": only those
     ``detect`` judged force-bearing), candidates 0.2 on a scene from
     ``detect`` and off on others (near-miss pairs with a gap below this
@@ -770,6 +772,10 @@ def photoelastic(
     "bright" (dark fringes on bright disks) or "auto" (the default: read from
     the photograph; ``report["bright_field"]`` says which). lighting: fit
     each disk's background as a plane (light falling off across it).
+    penalty_start (10) and narrow_start (0.5): where the fit leaves disks
+    flagged, it is fitted again from a fit with balance as a penalty of this
+    weight, then from one with every wedge at this μ, and the lower residual
+    kept (``report["second_starts"]``; 0 turns one off).
     """
     opt = lambda v: None if v is None else float(v)
     return Photoelastic(
@@ -792,6 +798,8 @@ def photoelastic(
             opt(wall_mu),
             polariscope,
             bool(lighting),
+            opt(penalty_start),
+            opt(narrow_start),
         )
     )
 

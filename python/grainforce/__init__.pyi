@@ -242,5 +242,14 @@ def photoelastic(
     candidates: Optional[float] = None,
     sparsity: Optional[float] = None,
     wall_mu: Optional[float] = None,
+    polariscope: Optional[Literal["dark", "bright", "auto"]] = None,
+    lighting: bool = False,
+    penalty_start: Optional[float] = None,
+    narrow_start: Optional[float] = None,
 ) -> Photoelastic:
-    """Contact forces fitted to a photoelastic photograph's fringes (`grainforce photoelastic`)."""
+    """Contact forces fitted to a photoelastic photograph's fringes (`grainforce photoelastic`).
+
+    `None` keeps the CLI's default: `mu` 1 where the scene gives none; where
+    disks are left flagged, second starts (`penalty_start` 10, `narrow_start`
+    0.5; 0 turns one off), the lower residual kept (report `second_starts`).
+    """

@@ -125,4 +125,8 @@ def photoelastic(
     candidates: Optional[float] = None,
     sparsity: Optional[float] = None,
     wall_mu: Optional[float] = None,
+    polariscope: Optional[str] = None,
+    lighting: bool = False,
+    penalty_start: Optional[float] = None,
+    narrow_start: Optional[float] = None,
 ) -> Photoelastic: ...

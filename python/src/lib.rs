@@ -781,7 +781,7 @@ impl Photoelastic {
 /// at once under balance and friction (`grainforce photoelastic`). `None`
 /// keeps the CLI's default.
 #[pyfunction]
-#[pyo3(signature = (image, scene, fsigma=None, thickness=None, scale=None, channel=None, mu=None, balance_weight=None, blur=None, edge=None, iterations=None, per_disk=false, contacts=None, candidates=None, sparsity=None, wall_mu=None, polariscope=None, lighting=false))]
+#[pyo3(signature = (image, scene, fsigma=None, thickness=None, scale=None, channel=None, mu=None, balance_weight=None, blur=None, edge=None, iterations=None, per_disk=false, contacts=None, candidates=None, sparsity=None, wall_mu=None, polariscope=None, lighting=false, penalty_start=None, narrow_start=None))]
 #[allow(clippy::too_many_arguments)]
 fn photoelastic(
     py: Python<'_>,
@@ -803,6 +803,8 @@ fn photoelastic(
     wall_mu: Option<f64>,
     polariscope: Option<&str>,
     lighting: bool,
+    penalty_start: Option<f64>,
+    narrow_start: Option<f64>,
 ) -> PyResult<Photoelastic> {
     use grainforce::image::fringe_run::{self, ContactChoice, PhotoelasticConfig};
     // Fields a caller leaves out keep the library's defaults (the CLI's).
@@ -838,6 +840,8 @@ fn photoelastic(
     config.edge = edge.unwrap_or(config.edge);
     config.iterations = iterations.unwrap_or(config.iterations);
     config.sparsity = sparsity.unwrap_or(config.sparsity);
+    config.penalty_start = penalty_start.unwrap_or(config.penalty_start);
+    config.narrow_start = narrow_start.unwrap_or(config.narrow_start);
     let run = py
         .detach(|| fringe_run::run(&image, &scene, &config))
         .map_err(to_py)?;

@@ -84,6 +84,10 @@ def test_bad_input_raises(tmp_path):
         gf.photoelastic(PHOTO, SCENE, fsigma=FSIGMA, contacts="some")
     with pytest.raises(ValueError, match="fsigma"):
         gf.photoelastic(PHOTO, SCENE, fsigma=-1.0)
+    with pytest.raises(ValueError, match="penalty_start"):
+        gf.photoelastic(PHOTO, SCENE, fsigma=FSIGMA, penalty_start=-1.0)
+    with pytest.raises(ValueError, match="narrow_start"):
+        gf.photoelastic(PHOTO, SCENE, fsigma=FSIGMA, narrow_start=float("nan"))
 
 
 def test_the_experimental_switches_match_the_cli(tmp_path):

@@ -31,10 +31,13 @@ pub struct Args {
     /// Out-of-plane thickness of the disks [m] (recorded in scene.json).
     #[arg(long)]
     thickness: Option<f64>,
-    /// Walls: `edges` for the image borders, `box` along the bounding box of
-    /// the disks found (what holds a packing whose walls the picture does not
-    /// show; the fringe fit needs some external load), or NAME=x0,y0,x1,y1
-    /// lines in pixels.
+    /// Walls: `box` (the default) along the bounding box of the disks found,
+    /// what holds a packing whose walls the picture does not show (the disks
+    /// on the box's sides touch it; without any wall a balanced field of
+    /// compressive forces carries no load and `photoelastic` fits zero);
+    /// `none` for no walls (a packing free on every side); `edges` for the
+    /// image borders; or NAME=x0,y0,x1,y1 lines in pixels. The choice is
+    /// printed and recorded in image-frame.json (`walls`).
     #[arg(long, num_args = 1..)]
     walls: Vec<String>,
     /// A fixed contact rule: the largest gap [px] between fitted circles that
@@ -162,15 +165,17 @@ fn write_evidence(path: &Path, detection: &Detection, keep_doubtful: bool) -> Re
     std::fs::write(path, text).map_err(|e| Error::io(path, e))
 }
 
-/// image-frame.json: the pixel frame, and what the disks were searched in
-/// (the first image's choice; extra keys that frame readers ignore).
-fn write_frame(path: &Path, detection: &Detection) -> Result<()> {
+/// image-frame.json: the pixel frame, what the disks were searched in (the
+/// first image's choice) and where the walls came from (extra keys that
+/// frame readers ignore).
+fn write_frame(path: &Path, detection: &Detection, walls: &WallSource) -> Result<()> {
     let mut json = serde_json::to_value(detection.frame).expect("a frame always serialises");
     if let (Some(map), Some(first)) = (json.as_object_mut(), detection.frames.first()) {
         map.insert(
             "search".into(),
             serde_json::to_value(&first.choice).expect("a choice always serialises"),
         );
+        map.insert("walls".into(), wall_word(walls).into());
     }
     let text = serde_json::to_string_pretty(&json).expect("JSON always prints");
     grainforce::scene::write_file_atomically(path, (text + "\n").as_bytes())
@@ -180,13 +185,17 @@ fn parse_channel(s: &str) -> std::result::Result<Channel, String> {
     Channel::parse(s).map_err(|e| e.to_string())
 }
 
+/// The walls asked for; the packing's box when none are named (a detected
+/// packing needs an external load for the fringe fit: docs/photoelastic.md,
+/// round 11).
 fn walls(specs: &[String]) -> Result<WallSource> {
     if specs.is_empty() {
-        return Ok(WallSource::None);
+        return Ok(WallSource::PackingBox);
     }
     for (word, source) in [
         ("edges", WallSource::ImageEdges),
         ("box", WallSource::PackingBox),
+        ("none", WallSource::None),
     ] {
         if specs.iter().any(|s| s == word) {
             if specs.len() > 1 {
@@ -203,6 +212,29 @@ fn walls(specs: &[String]) -> Result<WallSource> {
             .map(|s| WallLine::parse(s))
             .collect::<Result<_>>()?,
     ))
+}
+
+/// The walls written, for the run summary.
+fn describe_walls(source: &WallSource, walls: &[WallLine]) -> String {
+    match source {
+        WallSource::PackingBox => format!(
+            "{} walls along the packing's bounding box (--walls box, the default; --walls none for none)",
+            walls.len()
+        ),
+        WallSource::None => "no walls (--walls none)".into(),
+        WallSource::ImageEdges => "walls at the image borders (--walls edges)".into(),
+        WallSource::Lines(l) => format!("{} walls as given", l.len()),
+    }
+}
+
+/// `--walls`'s word for where the walls came from.
+fn wall_word(walls: &WallSource) -> &'static str {
+    match walls {
+        WallSource::None => "none",
+        WallSource::Lines(_) => "lines",
+        WallSource::ImageEdges => "edges",
+        WallSource::PackingBox => "box",
+    }
 }
 
 fn overlay_path(base: &Path, frame: usize, count: usize) -> PathBuf {
@@ -299,7 +331,7 @@ pub fn run(args: Args) -> Result<()> {
     })?;
     let scenes: Vec<_> = detection.frames.iter().map(|f| f.scene.clone()).collect();
     write_sequence(&args.output, &scenes)?;
-    write_frame(&args.output.join(FRAME_FILE), &detection)?;
+    write_frame(&args.output.join(FRAME_FILE), &detection, &settings.walls)?;
     if settings.gap_px.is_none() {
         write_evidence(
             &args.output.join(EVIDENCE_FILE),
@@ -308,10 +340,11 @@ pub fn run(args: Args) -> Result<()> {
         )?;
     }
     status!(
-        "wrote {} ({} frame{})",
+        "wrote {} ({} frame{}); {}",
         args.output.display(),
         scenes.len(),
-        if scenes.len() == 1 { "" } else { "s" }
+        if scenes.len() == 1 { "" } else { "s" },
+        describe_walls(&settings.walls, &detection.walls)
     );
     Ok(())
 }

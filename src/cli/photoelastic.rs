@@ -30,8 +30,10 @@ pub struct Args {
     /// The channel of a colour photograph that is fitted.
     #[arg(long, default_value = "green", value_parser = |s: &str| Channel::parse(s).map_err(|e| e.to_string()))]
     channel: Channel,
-    /// Friction coefficient where a contact and the scene give none.
-    #[arg(long, default_value_t = 0.5)]
+    /// Friction coefficient where a contact and the scene give none (1: a
+    /// polymer disk's friction, ~0.6, plus the detected contact normal's
+    /// error; docs/photoelastic.md, round 11).
+    #[arg(long, default_value_t = fringe_run::DEFAULT_MU)]
     mu: f64,
     /// Friction coefficient of the contacts with walls (default: --mu);
     /// 0 for smooth walls.
@@ -82,6 +84,17 @@ pub struct Args {
     /// disk) instead of a constant.
     #[arg(long)]
     lighting: bool,
+    /// Where the fit leaves disks flagged (fringes unexplained) under exact
+    /// balance, fit again from a fit with balance as a penalty of this
+    /// weight and keep the lower residual (reported under `second_starts`);
+    /// 0: off.
+    #[arg(long, default_value_t = fringe_run::DEFAULT_PENALTY_START)]
+    penalty_start: f64,
+    /// Where disks are still flagged, fit again from a fit with every
+    /// friction wedge at this μ (when below --mu) and keep the lower
+    /// residual (reported under `second_starts`); 0: off.
+    #[arg(long, default_value_t = fringe_run::DEFAULT_NARROW_START)]
+    narrow_start: f64,
     /// Write the photograph and the fitted fringes side by side (PNG).
     #[arg(long)]
     overlay: Option<PathBuf>,
@@ -108,6 +121,8 @@ pub fn run(args: Args) -> Result<()> {
         sparsity: args.sparsity,
         polariscope: args.polariscope,
         lighting: args.lighting,
+        penalty_start: args.penalty_start,
+        narrow_start: args.narrow_start,
     };
     let done = fringe_run::run(&args.image, &args.scene, &config).map_err(spell_flags)?;
     done.write(
@@ -157,8 +172,17 @@ fn spell_flags(e: Error) -> Error {
     match e {
         Error::Invalid(m) => {
             let mut m = m;
-            for field in ["fsigma", "thickness", "scale"] {
-                m = m.replace(&format!("`{field}`"), &format!("--{field}"));
+            for field in [
+                "fsigma",
+                "thickness",
+                "scale",
+                "penalty_start",
+                "narrow_start",
+            ] {
+                m = m.replace(
+                    &format!("`{field}`"),
+                    &format!("--{}", field.replace('_', "-")),
+                );
             }
             Error::Invalid(m)
         }
