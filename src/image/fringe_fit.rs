@@ -1109,6 +1109,20 @@ impl PixelGrid {
         })
     }
 
+    /// The disk's pixels selected by `subset` (all when `None`) off the
+    /// grid's border, as (column, row): those with four neighbours.
+    fn inner_pixels<'a>(
+        &'a self,
+        d: &'a DiskData,
+        subset: Option<&'a [bool]>,
+    ) -> impl Iterator<Item = (usize, usize)> + 'a {
+        d.pixels.iter().enumerate().filter_map(move |(i, &(x, y))| {
+            let (xi, yi) = ((x - self.x0) as usize, (y - self.y0) as usize);
+            let border = xi == 0 || yi == 0 || xi + 1 == self.width || yi + 1 == self.height;
+            (!subset.is_some_and(|s| !s[i]) && !border).then_some((xi, yi))
+        })
+    }
+
     fn index(&self, x: u32, y: u32) -> usize {
         (y - self.y0) as usize * self.width + (x - self.x0) as usize
     }
@@ -1131,14 +1145,7 @@ fn mean_squared_gradient(d: &DiskData, values: &[f64], subset: Option<&[bool]>) 
     };
     let grid = g.scatter(d, values);
     let (mut sum, mut count) = (0.0, 0usize);
-    for (i, &(x, y)) in d.pixels.iter().enumerate() {
-        if subset.is_some_and(|s| !s[i]) {
-            continue;
-        }
-        let (xi, yi) = ((x - g.x0) as usize, (y - g.y0) as usize);
-        if xi == 0 || yi == 0 || xi + 1 == g.width || yi + 1 == g.height {
-            continue;
-        }
+    for (xi, yi) in g.inner_pixels(d, subset) {
         let at = |xx: usize, yy: usize| grid[yy * g.width + xx];
         let gx = 0.5 * (at(xi + 1, yi) - at(xi - 1, yi));
         let gy = 0.5 * (at(xi, yi + 1) - at(xi, yi - 1));
@@ -1166,14 +1173,7 @@ fn gradient_stencils(d: &DiskData, subset: Option<&[bool]>) -> Vec<[usize; 4]> {
         at[g.index(x, y)] = i;
     }
     let mut out = Vec::new();
-    for (i, &(x, y)) in d.pixels.iter().enumerate() {
-        if subset.is_some_and(|s| !s[i]) {
-            continue;
-        }
-        let (xi, yi) = ((x - g.x0) as usize, (y - g.y0) as usize);
-        if xi == 0 || yi == 0 || xi + 1 == g.width || yi + 1 == g.height {
-            continue;
-        }
+    for (xi, yi) in g.inner_pixels(d, subset) {
         let of = |xx: usize, yy: usize| at[yy * g.width + xx];
         let s = [
             of(xi - 1, yi),
