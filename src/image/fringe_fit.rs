@@ -1119,7 +1119,7 @@ impl PixelGrid {
         d.pixels.iter().enumerate().filter_map(move |(i, &(x, y))| {
             let (xi, yi) = ((x - self.x0) as usize, (y - self.y0) as usize);
             let border = xi == 0 || yi == 0 || xi + 1 == self.width || yi + 1 == self.height;
-            (!subset.is_some_and(|s| !s[i]) && !border).then_some((xi, yi))
+            (subset.is_none_or(|s| s[i]) && !border).then_some((xi, yi))
         })
     }
 
