@@ -24,6 +24,7 @@
 //! least squares, then fitted with the blur widened and narrowed in three
 //! stages (a smoother objective first, fewer local minima).
 
+use super::detect::profile::Laps;
 use super::{FloatImage, PixelFrame};
 use crate::error::{Error, Result};
 use crate::scene::{Body, Contact, Scene};
@@ -575,6 +576,19 @@ fn jacobian_weights(f: [f64; 6], d: f64, g: [f64; 2], by_order: f64, by_gradient
 }
 
 impl DiskData {
+    /// The same disk and loads on the pixels `keep` (indices, in order).
+    fn keeping(&self, keep: &[usize]) -> DiskData {
+        DiskData {
+            grain: self.grain,
+            centre: self.centre,
+            radius: self.radius,
+            loads: self.loads.clone(),
+            points: keep.iter().map(|&i| self.points[i]).collect(),
+            intensity: keep.iter().map(|&i| self.intensity[i]).collect(),
+            pixels: keep.iter().map(|&i| self.pixels[i]).collect(),
+        }
+    }
+
     fn local_unknowns(&self) -> usize {
         2 * self.loads.len()
     }
@@ -1348,13 +1362,8 @@ fn load_level(p: &Prepared, d: &DiskData, l: usize, levels: &[f64]) -> f64 {
     let mut load = d.loads[l];
     load.unknown = 0;
     let sub = DiskData {
-        grain: d.grain,
-        centre: d.centre,
-        radius: d.radius,
         loads: vec![load],
-        points: keep.iter().map(|&i| d.points[i]).collect(),
-        intensity: keep.iter().map(|&i| d.intensity[i]).collect(),
-        pixels: keep.iter().map(|&i| d.pixels[i]).collect(),
+        ..d.keeping(&keep)
     };
     let near: Vec<bool> = (sub.points.iter())
         .map(|pt| {
@@ -1384,11 +1393,7 @@ fn load_level(p: &Prepared, d: &DiskData, l: usize, levels: &[f64]) -> f64 {
         let (un, ut) = (level, 0.0);
         let force = [un * dn[0] + ut * dt[0], un * dn[1] + ut * dt[1]];
         for (m, g) in model.iter_mut().zip(&geometry) {
-            let mut f = [0.0f64; 6];
-            for (fa, ca) in f.iter_mut().zip(&g.field(force)) {
-                *fa += ca;
-            }
-            *m = p.optics.contrast * fringe_intensity(&f, &p.optics);
+            *m = p.optics.contrast * fringe_intensity(&g.field(force), &p.optics);
         }
         let g2 = stencil_mean_squared_gradient(&stencils, &model);
         if g2 >= target {
@@ -1754,46 +1759,33 @@ fn sparsity_rows(x: &[f64], alpha: f64) -> Triplets {
     rows
 }
 
-/// One Levenberg–Marquardt stage's cost, printed to stderr when the
-/// environment variable `GRAINFORCE_PROFILE` is set (where a fit's time
-/// goes: pixels, steps and evaluations per stage).
-struct StageWatch(Option<(std::time::Instant, f64)>);
-
-impl StageWatch {
-    fn start() -> Self {
-        static ON: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-        let on = *ON.get_or_init(|| std::env::var_os("GRAINFORCE_PROFILE").is_some());
-        let cpu = || crate::bench::cpu_seconds().unwrap_or(f64::NAN);
-        StageWatch(on.then(|| (std::time::Instant::now(), cpu())))
+/// One Levenberg–Marquardt stage's cost, printed to stderr by the
+/// detection's stopwatch when `GRAINFORCE_PROFILE` is set (where a fit's
+/// time goes: pixels, steps and evaluations per stage).
+fn stage_lap(
+    laps: &mut Laps,
+    p: &Prepared,
+    optics: &Optics,
+    steps: usize,
+    (full, residual_only): (usize, usize),
+    objective: f64,
+) {
+    if !laps.running() {
+        return;
     }
-
-    fn stop(
-        &self,
-        p: &Prepared,
-        optics: &Optics,
-        steps: usize,
-        (full, residual_only): (usize, usize),
-        objective: f64,
-    ) {
-        let Some((clock, cpu)) = self.0 else {
-            return;
-        };
-        let pixels: usize = p.disks.iter().map(|d| d.points.len()).sum();
-        let stage = match optics.envelope {
-            Some(_) => "envelope".to_string(),
-            None => format!(
-                "blur {:.2} px{}",
-                optics.blur2.sqrt() / p.pixel,
-                if optics.bright_field { " bright" } else { "" }
-            ),
-        };
-        eprintln!(
-            "profile: fringe stage {stage:<18} {pixels:>7} px {:>4} unknowns {steps:>3} steps {full:>3}+{residual_only} evaluations, objective {objective:.2}: {:.3} s wall {:.3} s CPU",
-            2 * p.unknowns,
-            clock.elapsed().as_secs_f64(),
-            crate::bench::cpu_seconds().unwrap_or(f64::NAN) - cpu
-        );
-    }
+    let pixels: usize = p.disks.iter().map(|d| d.points.len()).sum();
+    let stage = match optics.envelope {
+        Some(_) => "envelope".to_string(),
+        None => format!(
+            "blur {:.2} px{}",
+            optics.blur2.sqrt() / p.pixel,
+            if optics.bright_field { " bright" } else { "" }
+        ),
+    };
+    laps.lap(&format!(
+        "fringe stage {stage:<18} {pixels:>7} px {:>4} unknowns {steps:>3} steps {full:>3}+{residual_only} evaluations, objective {objective:.2}:",
+        2 * p.unknowns
+    ));
 }
 
 struct LmOutcome {
@@ -1830,7 +1822,7 @@ impl Stepper<'_> {
                 .map(|d| d.evaluate(&d.gather(x), optics, jacobian))
                 .collect()
         };
-        let watch = StageWatch::start();
+        let mut laps = Laps::start();
         let clock = std::time::Instant::now();
         let mut evals = evaluate(&x, true);
         timing.evaluate += clock.elapsed().as_secs_f64();
@@ -1987,7 +1979,7 @@ impl Stepper<'_> {
                 break;
             }
         }
-        watch.stop(p, optics, iterations, evaluations, current);
+        stage_lap(&mut laps, p, optics, iterations, evaluations, current);
         Ok(LmOutcome {
             x,
             iterations,
@@ -2223,15 +2215,7 @@ fn thinned(p: &Prepared, stride: u32) -> Prepared {
                     stride <= 1 || (d.pixels[i].0 % stride == 0 && d.pixels[i].1 % stride == 0)
                 })
                 .collect();
-            DiskData {
-                grain: d.grain,
-                centre: d.centre,
-                radius: d.radius,
-                loads: d.loads.clone(),
-                points: keep.iter().map(|&i| d.points[i]).collect(),
-                intensity: keep.iter().map(|&i| d.intensity[i]).collect(),
-                pixels: keep.iter().map(|&i| d.pixels[i]).collect(),
-            }
+            d.keeping(&keep)
         })
         .collect();
     Prepared {
@@ -2659,7 +2643,7 @@ fn fit_path(
     walls_first: bool,
 ) -> Result<(FringeFit, Vec<f64>)> {
     let started = std::time::Instant::now();
-    let mut laps = super::detect::profile::Laps::start();
+    let mut laps = Laps::start();
     let mut timing = FitTiming::default();
     let mut p = prepare(image, frame, scene, settings, false)?;
     timing.prepare = started.elapsed().as_secs_f64();

@@ -22,6 +22,11 @@ impl Laps {
         }
     }
 
+    /// Whether laps are printed (labels worth building only then).
+    pub fn running(&self) -> bool {
+        self.start.is_some()
+    }
+
     /// Prints the time since the last lap under `label` and starts the next.
     pub fn lap(&mut self, label: &str) {
         if let Some((t, c)) = self.start {
