@@ -531,7 +531,7 @@ pub fn with_second_starts(
     for &first in firsts {
         let useful = match first {
             FirstFit::Penalty(w) => w > 0.0,
-            FirstFit::Narrow(mu) => mu < settings.mu,
+            FirstFit::Narrow(mu) => mu > 0.0 && mu < settings.mu,
         };
         let wanted = useful
             && settings.balance == Balance::Hard
