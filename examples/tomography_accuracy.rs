@@ -115,7 +115,8 @@ fn main() -> grainforce::Result<()> {
                         worst(&imported, &truth, voxel, &grains);
                     }
                     if std::env::var("TOMO_DEBUG").is_ok() && method.contains("grey") {
-                        debug_zones(&imported, &truth, voxel, &grains);
+                        let rms = debug_zones(&imported, &truth, voxel, &grains);
+                        gap_limit(&truth, voxel, &grains, res, &segmentation(), rms);
                     }
                     if let (Ok(dir), Some(g)) = (std::env::var("TOMO_DUMP"), grey) {
                         dump(
@@ -137,13 +138,14 @@ fn main() -> grainforce::Result<()> {
 
 /// Every grain–grain zone with the bodies' true separation (main spheres),
 /// its grey evidence and whether it was kept; then the grey-gap rule's
-/// threshold and the estimate's error on the true contacts (TOMO_DEBUG=1).
+/// threshold and the estimate's error on the true contacts (TOMO_DEBUG=1);
+/// returns that error's rms [voxels].
 fn debug_zones(
     imported: &labels::LabelScene,
     truth: &[synth::TrueContact],
     voxel: f64,
     grains: &[synth::SynthGrain],
-) {
+) -> f64 {
     let true_pairs = synth::true_pairs(truth);
     let vox = |g: Option<f64>| g.map_or(f64::NAN, |g| g / voxel);
     let gaps: Vec<f64> = imported
@@ -169,6 +171,7 @@ fn debug_zones(
         rows.push((apart, t, c, g));
     }
     rows.sort_by(|x, y| x.0.total_cmp(&y.0));
+    gap_bias(&rows, median);
     for (apart, t, c, g) in rows {
         let labels::Other::Grain(b) = c.b else {
             continue;
@@ -209,6 +212,84 @@ fn debug_zones(
         synth::quantile(&errors, 0.0),
         synth::quantile(&errors, 1.0),
     );
+    rms
+}
+
+/// What the grey gap could reach on this packing (TOMO_DEBUG=1): the
+/// Cramér–Rao bounds on the gap for this scan (the neck fit's window, and
+/// the two whole spheres) and the precision an unbiased estimate of each
+/// spread would give with every near miss's true separation, against the
+/// contacts' measured spread (`sd` from [`debug_zones`]' rms line).
+fn gap_limit(
+    truth: &[synth::TrueContact],
+    voxel: f64,
+    grains: &[synth::SynthGrain],
+    res: f64,
+    seg: &synth::Segmentation,
+    measured: f64,
+) {
+    let true_pairs = synth::true_pairs(truth);
+    let mut near_misses = Vec::new();
+    for i in 0..grains.len() {
+        for j in i + 1..grains.len() {
+            let apart = synth::apart(&grains[i], &grains[j]) / voxel;
+            if apart < 1.0 && !true_pairs.contains(&(i as u32 + 1, j as u32 + 1)) {
+                near_misses.push(apart.max(0.0));
+            }
+        }
+    }
+    // The 4³ sub-sampled voxel is a box (variance 15/192 per axis) under the blur.
+    let sigma = (seg.blur * seg.blur + 15.0 / 192.0).sqrt();
+    let (neck, whole) = labels::gap_bounds([0.5 * res; 2], sigma, seg.noise);
+    let mut line = format!(
+        "    limit: Cramér–Rao sd of the gap {neck:.4} (neck window) / {whole:.4} (whole spheres) voxel; precision at z = 3 / 2.33 with sd"
+    );
+    for sd in [measured, neck, whole] {
+        let p = |z| synth::precision_limit(true_pairs.len(), &near_misses, sd, z);
+        line += &format!(" {sd:.4}: {:.3} / {:.3};", p(3.0), p(2.33));
+    }
+    eprintln!("{line}");
+}
+
+/// The grey gap's error (estimate − the zones' median − the true
+/// separation, voxels) by band of true separation, contacts counted at 0,
+/// and the slope of a line through all zones under 0.5 voxel apart: where
+/// near misses sit against the contacts (TOMO_DEBUG=1).
+fn gap_bias(rows: &[(f64, bool, &labels::DetectedContact, f64)], median: f64) {
+    let bands = [(0.0, 0.05), (0.05, 0.1), (0.1, 0.2), (0.2, 0.5)];
+    let mut line = String::from("    grey gap error by true separation:");
+    let mut summary = |name: String, errors: Vec<f64>| {
+        if errors.is_empty() {
+            return;
+        }
+        let n = errors.len() as f64;
+        let mean = errors.iter().sum::<f64>() / n;
+        let sd = (errors.iter().map(|e| (e - mean).powi(2)).sum::<f64>() / n).sqrt();
+        line += &format!(" {name} n {} mean {mean:+.3} sd {sd:.3};", errors.len());
+    };
+    let error = |&(apart, t, _, g): &(f64, bool, _, f64)| g - median - if t { 0.0 } else { apart };
+    summary(
+        "contacts".into(),
+        rows.iter().filter(|r| r.1).map(error).collect(),
+    );
+    for (lo, hi) in bands {
+        let band = rows.iter().filter(|r| !r.1 && r.0 >= lo && r.0 < hi);
+        summary(format!("[{lo}, {hi})"), band.map(error).collect());
+    }
+    // Least squares of the estimate on the true separation (contacts at 0).
+    let points: Vec<(f64, f64)> = rows
+        .iter()
+        .filter(|r| r.0 < 0.5 && r.3.is_finite())
+        .map(|r| (if r.1 { 0.0 } else { r.0 }, r.3))
+        .collect();
+    let n = points.len() as f64;
+    let (mx, my) = points
+        .iter()
+        .fold((0.0, 0.0), |(a, b), p| (a + p.0 / n, b + p.1 / n));
+    let (sxy, sxx) = points.iter().fold((0.0, 0.0), |(a, b), p| {
+        (a + (p.0 - mx) * (p.1 - my), b + (p.0 - mx).powi(2))
+    });
+    eprintln!("{line} slope {:.3}", sxy / sxx);
 }
 
 /// Writes the labels, the grey image (`.npy`) and every grain–grain zone

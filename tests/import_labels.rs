@@ -562,6 +562,26 @@ fn the_neck_gap_drops_near_misses_at_15_voxels() {
     }
 }
 
+/// The precision an ideal (unbiased, Gaussian) gap estimate would reach:
+/// a near miss at zero separation is kept as often as a contact, one many
+/// standard deviations apart never, and a smaller spread keeps fewer.
+#[test]
+fn the_precision_limit_counts_near_misses_by_their_separation() {
+    assert_eq!(synth::precision_limit(100, &[], 0.03, 3.0), 1.0);
+    let touching = synth::precision_limit(100, &[0.0], 0.03, 3.0);
+    assert!((touching - 100.0 / 101.0).abs() < 1e-12, "{touching}");
+    let far = synth::precision_limit(100, &[1.0], 0.03, 3.0);
+    assert!(far > 1.0 - 1e-12, "{far}");
+    // At the threshold itself half the near misses stay.
+    let at = synth::precision_limit(100, &[0.09], 0.03, 3.0);
+    let kept = 100.0 * 0.998_650_101_968_369_9;
+    assert!((at - kept / (kept + 0.5)).abs() < 1e-6, "{at}");
+    let misses = [0.02, 0.05, 0.08, 0.12, 0.15];
+    let wide = synth::precision_limit(100, &misses, 0.031, 3.0);
+    let narrow = synth::precision_limit(100, &misses, 0.019, 3.0);
+    assert!(narrow > wide, "{narrow} {wide}");
+}
+
 /// On a sharper, noisier scan (σ 0.7 voxel, noise 0.15) some clump contacts
 /// have a flat cut or a satellite at the neck that two spheres do not
 /// describe; their grey gap reads 0.2–0.4 voxel high. The rule drops

@@ -22,6 +22,7 @@ pub mod volume;
 
 use crate::error::{Error, Result};
 use crate::scene::{self, Body, Contact, Grain, Inertia, Scene, Sym, Vec3, Wall};
+pub use neck::gap_bounds;
 use rayon::prelude::*;
 use std::collections::HashMap;
 use std::path::Path;
