@@ -3390,8 +3390,6 @@ mod tests {
         (s_all, ds_all)
     }
 
-    /// Background and contrast in closed form, the residual and (with
-
     /// The batched kernel (and its AVX2 build) gives the scalar model's S
     /// and ∂S/∂u to round-off: the intensity and the envelope, with and
     /// without the Jacobian, on pixels at a load, within its floor, at the

@@ -316,8 +316,8 @@ fn sin_cos_turns(t: &Lanes) -> (Lanes, Lanes) {
 /// 2ⁿ built in the exponent bits; 0 below −708 (eˣ < 10⁻³⁰⁷ there).
 #[inline(always)]
 fn exp_nonpositive(x: &Lanes) -> Lanes {
-    const LN2_HI: f64 = 6.931_471_803_691_238_164_9e-1;
-    const LN2_LO: f64 = 1.908_214_929_270_587_700_02e-10;
+    const LN2_HI: f64 = 6.931_471_803_691_238e-1;
+    const LN2_LO: f64 = 1.908_214_929_270_587_7e-10;
     let (mut r, mut scale) = ([0.0; LANES], [0.0; LANES]);
     for i in 0..LANES {
         let x = if x[i] < -708.0 { 0.0 } else { x[i] };
