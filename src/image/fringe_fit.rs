@@ -25,6 +25,7 @@
 //! stages (a smoother objective first, fewer local minima).
 
 use super::detect::profile::Laps;
+use super::fringe_kernel::{self, KernelLoad, KernelOptics};
 use super::{FloatImage, PixelFrame};
 use crate::error::{Error, Result};
 use crate::scene::{Body, Contact, Scene};
@@ -453,7 +454,10 @@ fn flamant(q: [f64; 2], p: [f64; 2], dir: [f64; 2], floor: f64) -> [f64; 6] {
 
 /// The part of the Flamant field at p of a load at q that does not depend
 /// on the load's direction: e = p − q (floored), z̄⁻² and z̄⁻³. Both
-/// directions of a load share it.
+/// directions of a load share it. The model one pixel at a time, as stated
+/// here, is the reference the batched kernel ([`super::fringe_kernel`])
+/// is tested against.
+#[cfg(test)]
 #[derive(Clone, Copy)]
 struct FlamantGeometry {
     e: [f64; 2],
@@ -464,6 +468,7 @@ struct FlamantGeometry {
     at_load: bool,
 }
 
+#[cfg(test)]
 impl FlamantGeometry {
     #[inline]
     fn new(q: [f64; 2], p: [f64; 2], floor: f64) -> Self {
@@ -527,6 +532,7 @@ impl FlamantGeometry {
 
 /// At a pixel with field `f` (`FlamantGeometry::field` layout): |D|, ∇|D|,
 /// s² = blur² |∇N|² and whether |D| is above round-off (else no gradient).
+#[cfg(test)]
 #[inline]
 fn order_and_gradient(f: &[f64; 6], optics: &Optics) -> (f64, [f64; 2], f64, bool) {
     let fr = optics.fringe;
@@ -546,20 +552,12 @@ fn order_and_gradient(f: &[f64; 6], optics: &Optics) -> (f64, [f64; 2], f64, boo
     (d, gd, s2, live)
 }
 
-/// The intensity model S at a pixel with field `f` (not the envelope).
-#[inline]
-fn fringe_intensity(f: &[f64; 6], optics: &Optics) -> f64 {
-    let (d, _, s2, _) = order_and_gradient(f, optics);
-    let fade = (-2.0 * PI * PI * s2).exp();
-    let (_, cos) = (2.0 * PI * d / optics.fringe).sin_cos();
-    0.5 - 0.5 * cos * fade
-}
-
 /// The weights w with ∂S/∂u_m = w·c_m, c_m an unknown's Flamant numbers
 /// (`FlamantGeometry::field` layout) and `f` = Σ u_m c_m: S depends on u
 /// through |D| (∂S/∂|D| = `by_order`) and through g = ∇|D| (∂S/∂g =
 /// `by_gradient` g). With e = D/|D|, ∂|D| = e·∂D and
 /// ∂g_j = (∂D·∂_j D + D·∂_j ∂D)/|D| − g_j ∂|D|/|D|, which is linear in c_m.
+#[cfg(test)]
 #[inline]
 fn jacobian_weights(f: [f64; 6], d: f64, g: [f64; 2], by_order: f64, by_gradient: f64) -> [f64; 6] {
     let (e1, e2) = (f[0] / d, f[1] / d);
@@ -602,80 +600,22 @@ impl DiskData {
     /// (Keeping each pixel's Flamant numbers for a whole stage instead was
     /// measured no faster on the loaded 2-core machine, at ~50 MB.)
     fn fringes(&self, u: &[f64], optics: &Optics, jacobian: bool) -> (Vec<f64>, Vec<f64>) {
-        let k = self.local_unknowns();
-        let floor = 1e-3 * self.radius;
-        let n = self.points.len();
-        let mut s_all = Vec::with_capacity(n);
-        let mut ds_all = if jacobian {
-            vec![0.0; n * k]
-        } else {
-            Vec::new()
-        };
-        let directions: Vec<[[f64; 2]; 2]> = self.loads.iter().map(|l| l.directions()).collect();
-        let forces: Vec<[f64; 2]> = (directions.iter().enumerate())
-            .map(|(l, [dn, dt])| {
-                let (un, ut) = (u[2 * l], u[2 * l + 1]);
-                [un * dn[0] + ut * dt[0], un * dn[1] + ut * dt[1]]
+        let loads: Vec<KernelLoad> = (self.loads.iter())
+            .map(|l| KernelLoad {
+                point: l.point,
+                directions: l.directions(),
             })
             .collect();
         let fr = optics.fringe;
-        // Per unknown: its Flamant numbers at this pixel.
-        let mut coef = vec![[0.0f64; 6]; k];
-        for (i, p) in self.points.iter().enumerate() {
-            // D's real and imaginary parts and their x, y derivatives, laid
-            // out as `FlamantGeometry::field`.
-            let mut f = [0.0f64; 6];
-            for (l, load) in self.loads.iter().enumerate() {
-                let geometry = FlamantGeometry::new(load.point, *p, floor);
-                if !jacobian {
-                    let c = geometry.field(forces[l]);
-                    for (fa, ca) in f.iter_mut().zip(&c) {
-                        *fa += ca;
-                    }
-                    continue;
-                }
-                for (j, dir) in directions[l].iter().enumerate() {
-                    let c = geometry.field(*dir);
-                    let x = u[2 * l + j];
-                    for (fa, ca) in f.iter_mut().zip(&c) {
-                        *fa += ca * x;
-                    }
-                    coef[2 * l + j] = c;
-                }
-            }
-            let (d, gd, s2, live) = order_and_gradient(&f, optics);
-            let fade = (-2.0 * PI * PI * s2).exp();
-            // ∂S/∂|D| and ∂S/∂|∇|D||·(1/|∇|D||) … see `jacobian_weights`.
-            let (by_order, by_gradient) = if let Some(px_per_m) = optics.envelope {
-                let norm = (gd[0] * gd[0] + gd[1] * gd[1]).sqrt();
-                let gain = optics.contrast * PI / (std::f64::consts::SQRT_2 * fr * px_per_m);
-                s_all.push(gain * norm * fade);
-                if !(jacobian && live && norm > 0.0) {
-                    continue;
-                }
-                (0.0, gain * fade * (1.0 - 4.0 * PI * PI * s2) / norm)
-            } else {
-                let (sin, cos) = (2.0 * PI * d / fr).sin_cos();
-                s_all.push(0.5 - 0.5 * cos * fade);
-                if !(jacobian && live) {
-                    continue;
-                }
-                (
-                    PI * fade * sin / fr,
-                    2.0 * PI * PI * fade * cos * optics.blur2 / (fr * fr),
-                )
-            };
-            let w = jacobian_weights(f, d, gd, by_order, by_gradient);
-            for (out, c) in ds_all[i * k..(i + 1) * k].iter_mut().zip(&coef) {
-                *out = w[0] * c[0]
-                    + w[1] * c[1]
-                    + w[2] * c[2]
-                    + w[3] * c[3]
-                    + w[4] * c[4]
-                    + w[5] * c[5];
-            }
-        }
-        (s_all, ds_all)
+        let kernel = KernelOptics {
+            fringe: fr,
+            blur2: optics.blur2,
+            envelope_gain: optics
+                .envelope
+                .map(|px_per_m| optics.contrast * PI / (std::f64::consts::SQRT_2 * fr * px_per_m)),
+        };
+        let floor = 1e-3 * self.radius;
+        fringe_kernel::fringes(&self.points, &loads, u, &kernel, floor, jacobian)
     }
 
     /// Background and contrast in closed form, the residual and (with
@@ -773,25 +713,15 @@ impl DiskData {
                 })
                 .collect();
             // The rows' centred parts; the contrast is applied once at the end.
-            let mut row = vec![0.0; k];
-            for (i, (ds_i, r)) in ds.chunks_exact(k).zip(&residual).enumerate() {
-                for ((out, v), m) in row.iter_mut().zip(ds_i).zip(&mean_ds) {
-                    *out = v - m;
-                }
-                for (q, c) in slopes.iter().zip(&slope_ds) {
-                    for (out, cm) in row.iter_mut().zip(c) {
-                        *out -= q[i] * cm;
-                    }
-                }
-                for a in 0..k {
-                    let ra = row[a];
-                    rhs[a] += ra * r;
-                    let upper = &mut normal[a * k + a..(a + 1) * k];
-                    for (g, rb) in upper.iter_mut().zip(&row[a..]) {
-                        *g += ra * rb;
-                    }
-                }
-            }
+            fringe_kernel::normal_equations(
+                &ds,
+                &residual,
+                &mean_ds,
+                &slopes,
+                &slope_ds,
+                &mut normal,
+                &mut rhs,
+            );
             for a in 0..k {
                 rhs[a] *= contrast;
                 for b in a..k {
@@ -839,21 +769,13 @@ impl DiskData {
     fn evaluate_envelope(&self, model: &[f64], dm: &[f64], jacobian: bool) -> DiskEval {
         let k = self.local_unknowns();
         let (mut normal, mut rhs) = (vec![0.0; k * k], vec![0.0; k]);
-        let mut ssr = 0.0;
-        for (i, (y, m)) in self.intensity.iter().zip(model).enumerate() {
-            let r = y - m;
-            ssr += r * r;
-            if jacobian {
-                let row = &dm[i * k..(i + 1) * k];
-                for a in 0..k {
-                    let ra = row[a];
-                    rhs[a] += ra * r;
-                    let upper = &mut normal[a * k + a..(a + 1) * k];
-                    for (g, rb) in upper.iter_mut().zip(&row[a..]) {
-                        *g += ra * rb;
-                    }
-                }
-            }
+        let residual: Vec<f64> = (self.intensity.iter().zip(model))
+            .map(|(y, m)| y - m)
+            .collect();
+        let ssr = residual.iter().map(|r| r * r).sum();
+        if jacobian && k > 0 {
+            let zero = vec![0.0; k];
+            fringe_kernel::normal_equations(dm, &residual, &zero, &[], &[], &mut normal, &mut rhs);
         }
         for a in 0..k {
             for b in 0..a {
@@ -1238,25 +1160,34 @@ fn smooth_values(d: &DiskData, values: &[f64], sigma_px: f64) -> Vec<f64> {
         .map(|i| (-(i * i) as f64 / (2.0 * sigma_px * sigma_px)).exp())
         .collect();
     let (w, h) = (g.width as isize, g.height as isize);
+    // Tap by tap over a whole row (vectorised): each output pixel still
+    // sums its taps in order, those off the grid skipped.
     let pass = |src: &[f64], weight: &[f64], horizontal: bool| -> (Vec<f64>, Vec<f64>) {
         let mut out = vec![0.0; src.len()];
         let mut out_w = vec![0.0; src.len()];
         for y in 0..h {
-            for x in 0..w {
-                let (mut acc, mut acc_w) = (0.0, 0.0);
-                for (k, kv) in kernel.iter().enumerate() {
-                    let o = k as isize - reach;
-                    let (xx, yy) = if horizontal { (x + o, y) } else { (x, y + o) };
-                    if xx < 0 || yy < 0 || xx >= w || yy >= h {
-                        continue;
-                    }
-                    let j = (yy * w + xx) as usize;
-                    acc += kv * src[j];
-                    acc_w += kv * weight[j];
+            let row = y * w;
+            for (k, kv) in kernel.iter().enumerate() {
+                let o = k as isize - reach;
+                // Output columns [lo, hi) and where their taps start.
+                let (lo, hi, from) = if horizontal {
+                    let (lo, hi) = ((-o).max(0), (w - o).min(w));
+                    (lo, hi, row + lo + o)
+                } else if (0..h).contains(&(y + o)) {
+                    (0, w, (y + o) * w)
+                } else {
+                    continue;
+                };
+                if lo >= hi {
+                    continue;
                 }
-                let i = (y * w + x) as usize;
-                out[i] = acc;
-                out_w[i] = acc_w;
+                let (at, len, from) = ((row + lo) as usize, (hi - lo) as usize, from as usize);
+                let taps = src[from..from + len].iter().zip(&weight[from..from + len]);
+                let outs = out[at..at + len].iter_mut().zip(&mut out_w[at..at + len]);
+                for ((acc, acc_w), (v, wv)) in outs.zip(taps) {
+                    *acc += kv * v;
+                    *acc_w += kv * wv;
+                }
             }
         }
         (out, out_w)
@@ -1377,24 +1308,13 @@ fn load_level(p: &Prepared, d: &DiskData, l: usize, levels: &[f64]) -> f64 {
     }
     let stencils = gradient_stencils(&sub, Some(&near));
     let target = stencil_mean_squared_gradient(&stencils, &sub.intensity);
-    // The load's geometry at each pixel, the same at every level.
-    let floor = 1e-3 * sub.radius;
-    let geometry: Vec<FlamantGeometry> = (sub.points.iter())
-        .map(|pt| FlamantGeometry::new(load.point, *pt, floor))
-        .collect();
-    let [dn, dt] = load.directions();
-    let mut model = vec![0.0; sub.points.len()];
     let mut previous = (0.0f64, 0.0f64);
     // Past the model's largest G² (dense fringes fade under blur) the level
     // of that largest G² is the answer.
     let mut highest = (0.0f64, 0.0f64);
     for &level in levels {
-        // As `DiskData::fringes` evaluates (u_n, u_t) = (level, 0).
-        let (un, ut) = (level, 0.0);
-        let force = [un * dn[0] + ut * dt[0], un * dn[1] + ut * dt[1]];
-        for (m, g) in model.iter_mut().zip(&geometry) {
-            *m = p.optics.contrast * fringe_intensity(&g.field(force), &p.optics);
-        }
+        let (s, _) = sub.fringes(&[level, 0.0], &p.optics, false);
+        let model: Vec<f64> = s.iter().map(|v| p.optics.contrast * v).collect();
         let g2 = stencil_mean_squared_gradient(&stencils, &model);
         if g2 >= target {
             let (l0, g0) = previous;
@@ -3383,6 +3303,139 @@ mod tests {
             points,
             intensity: (0..n).map(|i| 0.3 + 0.2 * (i as f64 * 0.7).sin()).collect(),
             pixels: (0..n).map(|i| (i as u32, 0)).collect(),
+        }
+    }
+
+    /// The model one pixel at a time with libm (the kernel before it was
+    /// batched): the reference the batched kernel must match to round-off.
+    fn scalar_fringes(
+        this: &DiskData,
+        u: &[f64],
+        optics: &Optics,
+        jacobian: bool,
+    ) -> (Vec<f64>, Vec<f64>) {
+        let k = this.local_unknowns();
+        let floor = 1e-3 * this.radius;
+        let n = this.points.len();
+        let mut s_all = Vec::with_capacity(n);
+        let mut ds_all = if jacobian {
+            vec![0.0; n * k]
+        } else {
+            Vec::new()
+        };
+        let directions: Vec<[[f64; 2]; 2]> = this.loads.iter().map(|l| l.directions()).collect();
+        let forces: Vec<[f64; 2]> = (directions.iter().enumerate())
+            .map(|(l, [dn, dt])| {
+                let (un, ut) = (u[2 * l], u[2 * l + 1]);
+                [un * dn[0] + ut * dt[0], un * dn[1] + ut * dt[1]]
+            })
+            .collect();
+        let fr = optics.fringe;
+        // Per unknown: its Flamant numbers at this pixel.
+        let mut coef = vec![[0.0f64; 6]; k];
+        for (i, p) in this.points.iter().enumerate() {
+            // D's real and imaginary parts and their x, y derivatives, laid
+            // out as `FlamantGeometry::field`.
+            let mut f = [0.0f64; 6];
+            for (l, load) in this.loads.iter().enumerate() {
+                let geometry = FlamantGeometry::new(load.point, *p, floor);
+                if !jacobian {
+                    let c = geometry.field(forces[l]);
+                    for (fa, ca) in f.iter_mut().zip(&c) {
+                        *fa += ca;
+                    }
+                    continue;
+                }
+                for (j, dir) in directions[l].iter().enumerate() {
+                    let c = geometry.field(*dir);
+                    let x = u[2 * l + j];
+                    for (fa, ca) in f.iter_mut().zip(&c) {
+                        *fa += ca * x;
+                    }
+                    coef[2 * l + j] = c;
+                }
+            }
+            let (d, gd, s2, live) = order_and_gradient(&f, optics);
+            let fade = (-2.0 * PI * PI * s2).exp();
+            // ∂S/∂|D| and ∂S/∂|∇|D||·(1/|∇|D||) … see `jacobian_weights`.
+            let (by_order, by_gradient) = if let Some(px_per_m) = optics.envelope {
+                let norm = (gd[0] * gd[0] + gd[1] * gd[1]).sqrt();
+                let gain = optics.contrast * PI / (std::f64::consts::SQRT_2 * fr * px_per_m);
+                s_all.push(gain * norm * fade);
+                if !(jacobian && live && norm > 0.0) {
+                    continue;
+                }
+                (0.0, gain * fade * (1.0 - 4.0 * PI * PI * s2) / norm)
+            } else {
+                let (sin, cos) = (2.0 * PI * d / fr).sin_cos();
+                s_all.push(0.5 - 0.5 * cos * fade);
+                if !(jacobian && live) {
+                    continue;
+                }
+                (
+                    PI * fade * sin / fr,
+                    2.0 * PI * PI * fade * cos * optics.blur2 / (fr * fr),
+                )
+            };
+            let w = jacobian_weights(f, d, gd, by_order, by_gradient);
+            for (out, c) in ds_all[i * k..(i + 1) * k].iter_mut().zip(&coef) {
+                *out = w[0] * c[0]
+                    + w[1] * c[1]
+                    + w[2] * c[2]
+                    + w[3] * c[3]
+                    + w[4] * c[4]
+                    + w[5] * c[5];
+            }
+        }
+        (s_all, ds_all)
+    }
+
+    /// The batched kernel (and its AVX2 build) gives the scalar model's S
+    /// and ∂S/∂u to round-off: the intensity and the envelope, with and
+    /// without the Jacobian, on pixels at a load, within its floor, at the
+    /// centre, a short last batch, and the zero field (no live pixel).
+    #[test]
+    fn batched_fringes_match_the_scalar_model() {
+        let mut d = disk();
+        let q = d.loads[0].point;
+        let floor = 1e-3 * d.radius;
+        d.points.extend([
+            q,
+            [q[0] + 0.3 * floor, q[1]],
+            [q[0] + 2.0 * floor, q[1] - floor],
+            d.centre,
+        ]);
+        if d.points.len() % 8 == 0 {
+            d.points.push([d.centre[0] + 1e-4, d.centre[1]]);
+        }
+        for u in [[1.3, 0.2, 0.7, -0.1, 2.1, 0.4], [0.0; 6]] {
+            for envelope in [None, Some(3.0e4)] {
+                for jacobian in [false, true] {
+                    let optics = Optics {
+                        fringe: 1.0 / d.radius,
+                        blur2: 1e-8,
+                        contrast: 0.6,
+                        envelope,
+                        lighting: false,
+                        bright_field: false,
+                    };
+                    let (s, ds) = d.fringes(&u, &optics, jacobian);
+                    let (s0, ds0) = scalar_fringes(&d, &u, &optics, jacobian);
+                    // Within round-off of the largest value (libm's sine,
+                    // cosine and exponential against the kernel's own).
+                    let close = |a: &[f64], b: &[f64]| {
+                        let size = b.iter().fold(1e-300f64, |m, v| m.max(v.abs()));
+                        a.len() == b.len()
+                            && a.iter().zip(b).all(|(x, y)| (x - y).abs() <= 1e-12 * size)
+                    };
+                    assert!(close(&s, &s0), "S, {envelope:?}, jacobian {jacobian}");
+                    assert!(close(&ds, &ds0), "∂S/∂u, {envelope:?}");
+                    assert!(s.iter().all(|v| v.is_finite()));
+                    // Pixels without a field give no row, as in the scalar model.
+                    let dead = |v: &[f64]| v.iter().map(|x| *x == 0.0).collect::<Vec<_>>();
+                    assert_eq!(dead(&ds), dead(&ds0));
+                }
+            }
         }
     }
 

@@ -15,6 +15,7 @@ pub mod dic;
 pub mod elastic;
 mod font;
 pub mod fringe_fit;
+mod fringe_kernel;
 pub mod fringe_run;
 pub mod io;
 pub mod overlay;
