@@ -533,6 +533,8 @@ pub fn with_second_starts(
 ) -> Result<(FringeFit, Vec<SecondStart>)> {
     let mut best = plain;
     let mut tried = Vec::new();
+    // `best`'s relaxed refits' objectives by the disks left out, while it stays the best.
+    let mut relaxed = Vec::new();
     for &first in firsts {
         let useful = match first {
             FirstFit::Penalty(w) => w > 0.0,
@@ -543,7 +545,11 @@ pub fn with_second_starts(
             && settings.start.is_none()
             && !best.report.flagged.is_empty();
         if wanted {
-            let (fit, record) = second_start(image, frame, scene, settings, best, first)?;
+            let (fit, record) =
+                second_start(image, frame, scene, settings, best, first, &mut relaxed)?;
+            if record.kept {
+                relaxed.clear();
+            }
             best = fit;
             tried.push(record);
         }
@@ -559,6 +565,7 @@ fn second_start(
     settings: &FringeFitSettings,
     best: FringeFit,
     first: FirstFit,
+    relaxed_fits: &mut Vec<(Vec<String>, f64)>,
 ) -> Result<(FringeFit, SecondStart)> {
     let clock = std::time::Instant::now();
     let polariscope = match best.report.bright_field {
@@ -600,11 +607,11 @@ fn second_start(
             judged.get_or_insert((answer, None, false));
             continue;
         }
-        let (kept, relaxed) = match relaxed_best(image, frame, &exact, scene, &best, &answer)? {
+        let relaxed = relaxed_best(image, frame, &exact, scene, &best, &answer, relaxed_fits)?;
+        let (kept, relaxed) = match relaxed {
             None => (true, None),
-            Some(relaxed) => {
-                steps += relaxed.report.iterations;
-                let o = relaxed.report.objective;
+            Some((o, relaxed_steps)) => {
+                steps += relaxed_steps;
                 (answer.report.objective < o, Some(o))
             }
         };
@@ -651,7 +658,8 @@ fn second_start(
 /// cannot balance alone in (a narrow start's), an answer leaves disks out
 /// that `best` keeps; round 11 rejected every such answer, which cost noise
 /// seed 3 its μ 0.5 answer (relerr 0.124 against 0.207; docs/photoelastic.md,
-/// round 12).
+/// round 12). Gives the refit's objective and steps; `fitted` holds the
+/// refits of `best` already made (by the disks left out), reused at no step.
 fn relaxed_best(
     image: &FloatImage,
     frame: &PixelFrame,
@@ -659,7 +667,8 @@ fn relaxed_best(
     scene: &Scene,
     best: &FringeFit,
     answer: &FringeFit,
-) -> Result<Option<FringeFit>> {
+    fitted: &mut Vec<(Vec<String>, f64)>,
+) -> Result<Option<(f64, usize)>> {
     let out = &best.report.balance_left_out;
     if answer
         .report
@@ -673,13 +682,18 @@ fn relaxed_best(
     left_out.extend(answer.report.balance_left_out.iter().cloned());
     left_out.sort();
     left_out.dedup();
+    if let Some((_, objective)) = fitted.iter().find(|(out, _)| *out == left_out) {
+        return Ok(Some((*objective, 0)));
+    }
     let relaxed = FringeFitSettings {
         start: Some(best.forces.clone()),
         polariscope: exact.polariscope,
-        balance_left_out: left_out,
+        balance_left_out: left_out.clone(),
         ..exact.clone()
     };
-    Ok(Some(fit_fringes(image, frame, scene, &relaxed)?))
+    let report = fit_fringes(image, frame, scene, &relaxed)?.report;
+    fitted.push((left_out, report.objective));
+    Ok(Some((report.objective, report.iterations)))
 }
 
 #[cfg(test)]
