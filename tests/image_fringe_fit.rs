@@ -1446,3 +1446,92 @@ fn detected_circles_of_the_bundled_photograph_match_the_dem() {
         worst.1
     );
 }
+
+/// A disk's balance left out by the settings (as the run's second starts
+/// are judged, round 12): listed with the disks the fit leaves out itself,
+/// every other disk still balanced, and the fringes alone still carry it to
+/// the DEM forces.
+#[test]
+fn a_disk_left_out_by_the_settings_is_listed_and_the_rest_balance() {
+    let r = render(20, 8, 20.0, 4e4, 0.0, 0.02, 0.8);
+    let mut s = FringeFitSettings::new(4e4);
+    s.blur_px = 0.8;
+    s.start = Some(nudged(&r.truth, 0.1));
+    let plain = fit_fringes(&r.image, &r.frame, &r.scene, &s).unwrap();
+    let id = r.scene.grains[0].id.clone();
+    assert!(!plain.report.balance_left_out.contains(&id));
+    s.balance_left_out = vec![id.clone()];
+    let fit = fit_fringes(&r.image, &r.frame, &r.scene, &s).unwrap();
+    let e = summary("disk 0's balance left out", &r, &fit);
+    let mut expected = plain.report.balance_left_out.clone();
+    expected.push(id);
+    let mut listed = fit.report.balance_left_out.clone();
+    expected.sort();
+    listed.sort();
+    assert_eq!(listed, expected);
+    let imbalance = imbalances(&r.scene, &fit.forces);
+    for (g, v) in r.scene.grains.iter().zip(&imbalance) {
+        if !listed.contains(&g.id) {
+            assert!(*v < 1e-6, "disk {}: imbalance {v}", g.id);
+        }
+    }
+    assert!(e < 0.02, "relerr {e}");
+}
+
+/// The run's second starts on a fit stuck in a poor basin (two steps from
+/// forces 0.3 / 1.7 times the DEM's, μ 1 about the DEM's μ 0.5): the narrow
+/// start is fitted because disks are flagged, kept only where it ends lower
+/// than the fit it is compared with (and than that fit relaxed to the same
+/// disks' balance, where it leaves more out), and the run ends with the
+/// answer kept, balanced. (Here it ends at objective 31.7 against 71.7 but
+/// relerr 0.53 against 0.41: on 8 disks loaded from outside, a lower
+/// residual is not a closer answer; the 58-disk renders are in
+/// docs/photoelastic.md, round 12.)
+#[test]
+fn a_second_start_is_kept_only_where_it_ends_lower() {
+    use grainforce::image::fringe_run::{with_second_starts, FirstFit};
+    let r = render(20, 8, 20.0, 4e4, 0.0, 0.02, 0.8);
+    let mut s = FringeFitSettings::new(4e4);
+    s.blur_px = 0.8;
+    s.mu = 1.0;
+    let stuck = FringeFitSettings {
+        start: Some(nudged(&r.truth, 0.7)),
+        max_iterations: 2,
+        ..s.clone()
+    };
+    let poor = fit_fringes(&r.image, &r.frame, &r.scene, &stuck).unwrap();
+    let before = summary("stuck", &r, &poor);
+    assert!(
+        !poor.report.flagged.is_empty(),
+        "the setup needs flagged disks"
+    );
+    let compared = poor.report.objective;
+    let (fit, tried) = with_second_starts(
+        &r.image,
+        &r.frame,
+        &r.scene,
+        &s,
+        poor,
+        &[FirstFit::Narrow(0.5)],
+    )
+    .unwrap();
+    let after = summary("after the narrow start", &r, &fit);
+    assert_eq!(tried.len(), 1);
+    let t = &tried[0];
+    assert_eq!(t.compared_objective, compared);
+    let lower = t.objective < compared && t.compared_relaxed.is_none_or(|o| t.objective < o);
+    assert_eq!(t.kept, lower);
+    assert!(t.kept, "objective {} against {compared}", t.objective);
+    assert_eq!(fit.report.objective, t.objective);
+    assert!(fit.report.objective < compared);
+    eprintln!(
+        "relerr {before:.3} → {after:.3}, relaxed {:?}",
+        t.compared_relaxed
+    );
+    let imbalance = imbalances(&r.scene, &fit.forces);
+    for (g, v) in r.scene.grains.iter().zip(&imbalance) {
+        if !fit.report.balance_left_out.contains(&g.id) {
+            assert!(*v < 1e-6, "disk {}: imbalance {v}", g.id);
+        }
+    }
+}
