@@ -190,7 +190,7 @@ const UPSAMPLED_PIXELS: f64 = 16.0e6;
 /// By how much a picture of `pixels` is up-sampled for the search: the
 /// least integer that brings `radius_min` to [`SMALL_DISK_RADIUS`], or 1.
 pub(crate) fn small_disk_factor(radius_min: f64, pixels: f64) -> usize {
-    if !(radius_min > 0.0) || radius_min >= SMALL_DISK_RADIUS {
+    if radius_min.is_nan() || radius_min <= 0.0 || radius_min >= SMALL_DISK_RADIUS {
         return 1;
     }
     let k = (SMALL_DISK_RADIUS / radius_min).ceil();
