@@ -276,15 +276,22 @@ fn colour_distance<T: Copy + Into<f32> + Sync>(
         })
         .collect();
     let scale = distance_scale(distance.iter().step_by(stride.max(3)).copied().collect());
-    // The background bin's own distances (noise, shading), sampled.
-    let mut own: Vec<f32> = raw
-        .chunks_exact(3)
-        .zip(&distance)
-        .step_by(stride.max(3))
-        .filter(|(p, _)| bin(p) == fullest)
-        .map(|(_, &d)| d * scale)
+    // The background bin's own distances (noise, shading), sampled, from
+    // the bin's median colour (see [`own_level`]).
+    let in_bin: Vec<&[T]> = (raw.chunks_exact(3).step_by(stride.max(3)))
+        .filter(|p| bin(p) == fullest)
         .collect();
-    let background_level = percentile(&mut own, 90).unwrap_or(0.0) as f64;
+    let centre = [0, 1, 2].map(|c| {
+        let mut v: Vec<f32> = in_bin.iter().map(|p| p[c].into()).collect();
+        percentile(&mut v, 50).unwrap_or(mean[c] as f32) / full_scale
+    });
+    let mut own: Vec<f32> = (in_bin.iter())
+        .map(|p| {
+            let d = [0, 1, 2].map(|c| (Into::<f32>::into(p[c]) / full_scale - centre[c]) * gain[c]);
+            (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt() * scale
+        })
+        .collect();
+    let background_level = own_level(&mut own);
     let search = FloatImage::from_raw(
         width,
         height,
@@ -304,6 +311,32 @@ fn colour_distance<T: Copy + Into<f32> + Sync>(
         background_level,
     )
 }
+
+/// The background's own level in a distance picture (its noise, light
+/// falling off) from the distances of its histogram bin's pixels from the
+/// bin's median (not from its mean, the background colour, which the
+/// dimmest disks' pixels pull): their 90th percentile, but at most
+/// [`OWN_OVER_MEDIAN`] times their median. The bin is 1/16 of full scale
+/// wide, and in a dim dark field (a monochrome camera's, or any picture
+/// whose response is not linear: the sweep's gamma 1.6) the dimmest disks'
+/// pixels fall into the background's bin; their distances raised its 90th
+/// percentile from 0.004 to 0.09 of the scale on `wc-slope-a`, and the fill
+/// rule (2.5 times this level) then dropped every disk dimmer than 25 grey
+/// levels (docs/image.md, round 12). The median is the background's as long
+/// as its pixels are most of the bin.
+fn own_level(own: &mut [f32]) -> f64 {
+    let Some(p90) = percentile(own, 90) else {
+        return 0.0;
+    };
+    let p50 = percentile(own, 50).unwrap_or(0.0);
+    p90.min(OWN_OVER_MEDIAN * p50) as f64
+}
+
+/// See [`own_level`]: the 90th percentile of a Gaussian's absolute
+/// deviations is 2.44 times their median (and of a colour distance, three
+/// channels of it, 1.63 times), so a background of noise alone keeps its
+/// 90th percentile.
+const OWN_OVER_MEDIAN: f32 = 2.5;
 
 /// The `per_cent`th percentile of `v` (reordered in place); None when `v`
 /// is empty.
@@ -515,6 +548,12 @@ impl GrayDistance {
             .collect();
         let b = background_bin(&count, &bin_luma, sample, 1.0 / LEVELS as f64);
         let level = bin_luma[b] as f32;
+        // The bin's own distances are taken from its median: see [`own_level`].
+        let mut in_bin: Vec<f32> = (values.iter().step_by(stride.max(3)))
+            .filter(|&&v| bin(v) == b)
+            .copied()
+            .collect();
+        let centre = percentile(&mut in_bin, 50).unwrap_or(level);
         let seen: usize = count.iter().sum();
         let scale = distance_scale(
             values
@@ -527,9 +566,9 @@ impl GrayDistance {
             .iter()
             .step_by(stride.max(3))
             .filter(|&&v| bin(v) == b)
-            .map(|&v| (v - level).abs() * scale)
+            .map(|&v| (v - centre).abs() * scale)
             .collect();
-        let own_level = percentile(&mut own, 90).unwrap_or(0.0) as f64;
+        let own_level = own_level(&mut own);
         GrayDistance {
             level,
             scale,

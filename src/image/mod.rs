@@ -311,13 +311,18 @@ fn colour_search(
     detect: &DetectOptions,
     background_level: f64,
 ) -> Result<Vec<Disk>> {
-    let o = colour_search_options(detect, background_level);
+    let pixels = search.width() as f64 * search.height() as f64;
+    let o = colour_search_options(detect, background_level, pixels);
     detect::detect_disks_shrunk(search, &o, colour_search_factor(&o))
 }
 
 /// The settings of a [`colour_search`] (bright disks without dark rims, the
 /// smoothing of the shrunk picture, looser support, a filled interior).
-fn colour_search_options(detect: &DetectOptions, background_level: f64) -> DetectOptions {
+fn colour_search_options(
+    detect: &DetectOptions,
+    background_level: f64,
+    pixels: f64,
+) -> DetectOptions {
     // Disks are bright regions without dark rims in the colour distance.
     let mut o = detect.clone();
     o.polarity = Polarity::Bright;
@@ -327,8 +332,12 @@ fn colour_search_options(detect: &DetectOptions, background_level: f64) -> Detec
     // smoothing would blur away the outline of a disk whose inside
     // is as pale as the background.
     // Disks are searched in the image shrunk to radii of 32–64 px
-    // (below); the smoothing is the shrunk image's.
-    let f = colour_search_factor(&o) as f64;
+    // (below), or small ones up-sampled to 12 px or more; the smoothing
+    // is that picture's.
+    let f = match detect::small_disk_factor(o.radius_min, pixels) {
+        1 => colour_search_factor(&o) as f64,
+        up => 1.0 / up as f64,
+    };
     o.smoothing_px = o
         .smoothing_px
         .or(Some(f * (o.radius_min / f / 15.0).clamp(1.5, 3.0)));
@@ -369,7 +378,7 @@ fn gray_distance_instead(
     let (level, fraction, own_level) = (distance.level, distance.fraction, distance.own_level);
     let (w, h) = (gray.width() as usize, gray.height() as usize);
     let pixels = gray.as_raw();
-    let o = colour_search_options(detect, own_level);
+    let o = colour_search_options(detect, own_level, (w * h) as f64);
     let value = |k: usize| distance.at(pixels[k]);
     let found = detect::detect_disks_shrunk_from((w, h), value, &o, colour_search_factor(&o))?;
     let (ours, theirs) = (outline_evidence(&found), outline_evidence(as_is));

@@ -46,7 +46,8 @@ use super::FloatImage;
 use crate::error::{Error, Result};
 use filters::{edge_smoothing_for_noise, median};
 use polish::{polish, ModelFit};
-use pyramid::{coarse_candidates, downsample, pyramid_factor, COARSE_RADIUS};
+pub(crate) use pyramid::small_disk_factor;
+use pyramid::{coarse_candidates, downsample, pyramid_factor, upsample, COARSE_RADIUS};
 use rayon::prelude::*;
 use refine::refine;
 use rims::{add_rim_enclosed, add_rim_enclosed_coarse};
@@ -244,7 +245,8 @@ pub fn detect_disks_shrunk(
     factor: usize,
 ) -> Result<Vec<Disk>> {
     let (w, h) = (image.width() as usize, image.height() as usize);
-    if factor <= 1 || w < 8 * factor || h < 8 * factor {
+    let shrunk = factor > 1 && w >= 8 * factor && h >= 8 * factor;
+    if !shrunk && small_disk_factor(o.radius_min, (w * h) as f64) == 1 {
         return detect_disks(image, o);
     }
     let pixels = image.as_raw();
@@ -262,6 +264,10 @@ pub(crate) fn detect_disks_shrunk_from(
     factor: usize,
 ) -> Result<Vec<Disk>> {
     if factor <= 1 || w < 8 * factor || h < 8 * factor {
+        let up = small_disk_factor(o.radius_min, (w * h) as f64);
+        if up > 1 {
+            return detect_disks_upsampled((w, h), value, o, up);
+        }
         let image = FloatImage::from_fn(w as u32, h as u32, |x, y| {
             ::image::Luma([value(y as usize * w + x as usize)])
         });
@@ -284,6 +290,37 @@ pub(crate) fn detect_disks_shrunk_from(
             y: full(d.y),
             r: f * d.r,
             rms: f * d.rms,
+            ..d
+        })
+        .collect())
+}
+
+/// Finds the disks as [`detect_disks`] does in the picture up-sampled by
+/// `factor` (see [`small_disk_factor`]), every setting given in pixels
+/// scaled with it, and the circles scaled back.
+fn detect_disks_upsampled(
+    (w, h): (usize, usize),
+    value: impl Fn(usize) -> f32 + Sync,
+    o: &DetectOptions,
+    factor: usize,
+) -> Result<Vec<Disk>> {
+    let f = factor as f64;
+    let big = upsample(w, h, factor, value);
+    let mut uo = o.clone();
+    (uo.radius_min, uo.radius_max) = (o.radius_min * f, o.radius_max * f);
+    uo.classes = o.classes.iter().map(|c| [c[0] * f, c[1] * f]).collect();
+    uo.smoothing_px = o.smoothing_px.map(|s| s * f);
+    uo.edge_smoothing_px = o.edge_smoothing_px.map(|s| s * f);
+    let found = detect_disks(&big, &uo)?;
+    // Pixel (J, I) of the up-sampled picture is the point ((J + ½)/f − ½, …).
+    let back = |v: f64| (v + 0.5) / f - 0.5;
+    Ok(found
+        .into_iter()
+        .map(|d| Disk {
+            x: back(d.x),
+            y: back(d.y),
+            r: d.r / f,
+            rms: d.rms / f,
             ..d
         })
         .collect())
