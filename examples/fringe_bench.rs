@@ -207,12 +207,10 @@ fn main() -> grainforce::Result<()> {
             let (fit, tried) = with_second_starts(&image, &frame, fit_scene, &s, plain, &firsts)?;
             for t in &tried {
                 println!(
-                    "  second start {:?}: objective {:.2} against {:.2}{}, balance left out on {}, {}",
+                    "  second start {:?}: objective {:.2} against {:.2}, balance left out on {}, {}",
                     t.first,
                     t.objective,
                     t.compared_objective,
-                    t.compared_relaxed
-                        .map_or(String::new(), |o| format!(" ({o:.2} relaxed alike)")),
                     t.balance_left_out,
                     if t.kept { "kept" } else { "not kept" }
                 );

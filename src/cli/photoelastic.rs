@@ -87,14 +87,12 @@ pub struct Args {
     /// Where the fit leaves disks flagged (fringes unexplained) under exact
     /// balance, fit again from a fit with balance as a penalty of this
     /// weight and keep the lower residual (reported under `second_starts`);
-    /// 0: off. An answer that leaves more disks' balance out must also end
-    /// lower than the fit refitted with those disks left out too.
+    /// 0: off.
     #[arg(long, default_value_t = fringe_run::DEFAULT_PENALTY_START)]
     penalty_start: f64,
     /// Where disks are still flagged, fit again from a fit with every
     /// friction wedge at this μ (when below --mu) and keep the lower
-    /// residual, judged as --penalty-start's (reported under
-    /// `second_starts`); 0: off.
+    /// residual (reported under `second_starts`); 0: off.
     #[arg(long, default_value_t = fringe_run::DEFAULT_NARROW_START)]
     narrow_start: f64,
     /// Write the photograph and the fitted fringes side by side (PNG).

@@ -123,11 +123,6 @@ pub struct FringeFitSettings {
     /// walls carry friction the other path wins; docs/photoelastic.md,
     /// round 9). Costs a second fit in that case.
     pub smooth_walls_first: bool,
-    /// Disks (grain ids) whose balance is left out whatever their contacts
-    /// (listed in the report's `balance_left_out` with the others). The
-    /// photoelastic run refits a fit with a second start's disks left out
-    /// too, so the two are judged on the same problem (round 12).
-    pub balance_left_out: Vec<String>,
 }
 
 /// How the photograph was lit: [`FringeFitSettings::polariscope`].
@@ -183,7 +178,6 @@ impl FringeFitSettings {
             lighting: false,
             polariscope: Polariscope::Auto,
             smooth_walls_first: false,
-            balance_left_out: Vec::new(),
         }
     }
 
@@ -2580,9 +2574,6 @@ fn fit_path(
         .par_iter()
         .map(|d| can_balance(d, &cones))
         .collect::<Result<_>>()?;
-    for (b, grain) in p.balanced.iter_mut().zip(&scene.grains) {
-        *b &= !settings.balance_left_out.contains(&grain.id);
-    }
     // From the fringe gradients, the start and the coarse stages hold the
     // walls frictionless (a disk that then cannot balance alone is left out
     // of them); the final stage gives the walls their friction.

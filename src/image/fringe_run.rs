@@ -496,15 +496,11 @@ pub struct SecondStart {
     pub first: FirstFit,
     /// The final objective of the fit it was compared with, and its own.
     pub compared_objective: f64,
-    /// Where it leaves out the balance of disks the fit it was compared
-    /// with keeps: that fit's objective refitted with those disks' balance
-    /// left out too, the same problem (round 12).
-    pub compared_relaxed: Option<f64>,
     pub objective: f64,
     /// Disks whose balance it leaves out.
     pub balance_left_out: usize,
-    /// Kept: its objective is lower than the compared fit's, and than that
-    /// fit's relaxed to the same disks' balance where it leaves more out.
+    /// Kept: its objective is the lower and it leaves out the balance of no
+    /// disk the fit it was compared with keeps balanced.
     pub kept: bool,
     /// Both its fits [s] (in the report's `seconds`, not here: a report's
     /// other fields are the same run to run).
@@ -515,14 +511,13 @@ pub struct SecondStart {
 /// `plain` (the fit from the fringe start), or the best of it and the
 /// second starts `firsts` in turn, each fitted only while the best so far
 /// leaves disks flagged (fringes unexplained) under exact balance, and kept
-/// where it ends lower, judged on the same problem (`relaxed_best` where
-/// it leaves more disks' balance out). The fit they end with is the
+/// where it ends lower under the same balance. The fit they end with is the
 /// run's own problem (μ, exact balance); only the start differs. A penalty
 /// start lets the first fit leave the basin the exact balance holds it in
 /// (round 10, step83: objective 3262.9 → 1706.0); a narrow one the basin of
 /// sideways loads that wide wedges admit from the fringe start (round 11).
 /// All are judged on the same pixels and polariscope (the plain fit's), so
-/// the lower residual decides (docs/photoelastic.md, rounds 11 and 12).
+/// the lower residual decides (docs/photoelastic.md, round 11).
 pub fn with_second_starts(
     image: &FloatImage,
     frame: &PixelFrame,
@@ -533,8 +528,6 @@ pub fn with_second_starts(
 ) -> Result<(FringeFit, Vec<SecondStart>)> {
     let mut best = plain;
     let mut tried = Vec::new();
-    // `best`'s relaxed refits' objectives by the disks left out, while it stays the best.
-    let mut relaxed = Vec::new();
     for &first in firsts {
         let useful = match first {
             FirstFit::Penalty(w) => w > 0.0,
@@ -545,11 +538,7 @@ pub fn with_second_starts(
             && settings.start.is_none()
             && !best.report.flagged.is_empty();
         if wanted {
-            let (fit, record) =
-                second_start(image, frame, scene, settings, best, first, &mut relaxed)?;
-            if record.kept {
-                relaxed.clear();
-            }
+            let (fit, record) = second_start(image, frame, scene, settings, best, first)?;
             best = fit;
             tried.push(record);
         }
@@ -565,7 +554,6 @@ fn second_start(
     settings: &FringeFitSettings,
     best: FringeFit,
     first: FirstFit,
-    relaxed_fits: &mut Vec<(Vec<String>, f64)>,
 ) -> Result<(FringeFit, SecondStart)> {
     let clock = std::time::Instant::now();
     let polariscope = match best.report.bright_field {
@@ -589,48 +577,33 @@ fn second_start(
         polariscope,
         ..settings.clone()
     };
-    let refit = fit_fringes(image, frame, scene, &exact)?;
-    let mut steps = started.report.iterations + refit.report.iterations;
-    let mut answers = vec![refit];
+    let mut second = fit_fringes(image, frame, scene, &exact)?;
+    let steps = started.report.iterations + second.report.iterations;
+    // Refitted from a start the balance pins, the exact fit leaves out the
+    // balance of the disks that pin it (release_forced_zeros): fewer
+    // constraints, so a lower objective alone would favour it (round 11: a
+    // penalty start at μ 0.5 left 11 of fixed48's disks out). Only the same
+    // disks' balance may be out.
+    let balanced_as = |fit: &FringeFit| {
+        (fit.report.balance_left_out.iter()).all(|g| best.report.balance_left_out.contains(g))
+    };
     // A narrow start's own answer is admissible under the run's wider
-    // wedges: an answer of the run's problem too (its refit, whose smoothed
-    // stages start over from it, can end higher).
-    if matches!(first, FirstFit::Narrow(_)) {
-        let mut own = started;
-        own.report.mu = settings.mu;
-        answers.push(own);
+    // wedges: where it balances the disks `best` balances and the refit,
+    // whose smoothed stages start over from it, ends higher, the answer
+    // itself is the better one found.
+    let lower = started.report.objective < second.report.objective;
+    if matches!(first, FirstFit::Narrow(_)) && lower && balanced_as(&started) {
+        second = started;
+        second.report.mu = settings.mu;
     }
-    answers.sort_by(|a, b| a.report.objective.total_cmp(&b.report.objective));
-    let mut judged = None;
-    for answer in answers {
-        if answer.report.objective >= best.report.objective {
-            judged.get_or_insert((answer, None, false));
-            continue;
-        }
-        let relaxed = relaxed_best(image, frame, &exact, scene, &best, &answer, relaxed_fits)?;
-        let (kept, relaxed) = match relaxed {
-            None => (true, None),
-            Some((o, relaxed_steps)) => {
-                steps += relaxed_steps;
-                (answer.report.objective < o, Some(o))
-            }
-        };
-        if kept || judged.is_none() {
-            judged = Some((answer, relaxed, kept));
-        }
-        if kept {
-            break;
-        }
-    }
-    let (mut second, relaxed, kept) = judged.expect("at least the refit is judged");
     let seconds = clock.elapsed().as_secs_f64();
+    let same_balance = balanced_as(&second);
     let record = SecondStart {
         first,
         compared_objective: best.report.objective,
-        compared_relaxed: relaxed,
         objective: second.report.objective,
         balance_left_out: second.report.balance_left_out.len(),
-        kept,
+        kept: same_balance && second.report.objective < best.report.objective,
         seconds,
     };
     let mut kept = if record.kept {
@@ -644,56 +617,6 @@ fn second_start(
     };
     kept.report.seconds += seconds;
     Ok((kept, record))
-}
-
-/// `best` refitted (`exact`: the run's settings under its polariscope)
-/// from its own forces with the balance of `answer`'s
-/// extra disks left out too (those whose balance `answer` leaves out and
-/// `best` keeps), or None where `answer` leaves out no extra disk. Leaving a
-/// disk's balance out relaxes the problem, so a lower residual alone would
-/// favour the answer that leaves more out (round 11: a penalty start left
-/// 3 of narrow21's disks out); a residual means something only against a
-/// fit of the same problem, which this refit is. Refitted from a start its
-/// balance pins (release_forced_zeros), or fitted under wedges a disk
-/// cannot balance alone in (a narrow start's), an answer leaves disks out
-/// that `best` keeps; round 11 rejected every such answer, which cost noise
-/// seed 3 its μ 0.5 answer (relerr 0.124 against 0.207; docs/photoelastic.md,
-/// round 12). Gives the refit's objective and steps; `fitted` holds the
-/// refits of `best` already made (by the disks left out), reused at no step.
-fn relaxed_best(
-    image: &FloatImage,
-    frame: &PixelFrame,
-    exact: &FringeFitSettings,
-    scene: &Scene,
-    best: &FringeFit,
-    answer: &FringeFit,
-    fitted: &mut Vec<(Vec<String>, f64)>,
-) -> Result<Option<(f64, usize)>> {
-    let out = &best.report.balance_left_out;
-    if answer
-        .report
-        .balance_left_out
-        .iter()
-        .all(|g| out.contains(g))
-    {
-        return Ok(None);
-    }
-    let mut left_out = out.clone();
-    left_out.extend(answer.report.balance_left_out.iter().cloned());
-    left_out.sort();
-    left_out.dedup();
-    if let Some((_, objective)) = fitted.iter().find(|(out, _)| *out == left_out) {
-        return Ok(Some((*objective, 0)));
-    }
-    let relaxed = FringeFitSettings {
-        start: Some(best.forces.clone()),
-        polariscope: exact.polariscope,
-        balance_left_out: left_out.clone(),
-        ..exact.clone()
-    };
-    let report = fit_fringes(image, frame, scene, &relaxed)?.report;
-    fitted.push((left_out, report.objective));
-    Ok(Some((report.objective, report.iterations)))
 }
 
 #[cfg(test)]
