@@ -1632,10 +1632,14 @@ fn feasible_start(
 }
 
 fn objective(p: &Prepared, x: &[f64], optics: &Optics) -> f64 {
-    p.disks
+    // Summed in disk order: rayon's parallel sum splits where threads steal,
+    // so its last bits (and the steps decided on them) changed run to run.
+    let per_disk: Vec<f64> = p
+        .disks
         .par_iter()
         .map(|d| d.evaluate(&d.gather(x), optics, false).ssr)
-        .sum()
+        .collect();
+    per_disk.iter().sum()
 }
 
 /// Levenberg–Marquardt from `x`, each step a constrained least squares
