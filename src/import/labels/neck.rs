@@ -380,6 +380,9 @@ fn collect(
     Ok(out)
 }
 
+/// A zone's grey gap, its standard deviation [voxels] and the fit's misfit.
+pub(super) type ZoneGap = (f64, f64, f64);
+
 /// Per zone (`None`: not a grain pair, or no neck): the gap fitted to the
 /// grey at its neck, its standard deviation [voxels] and the fit's misfit
 /// (rms residual over the scan's), with the scan's
@@ -389,7 +392,7 @@ pub(super) fn gaps(
     grey: &mut dyn SliceSource,
     necks: &[Option<Neck>],
     levels: (f64, f64),
-) -> Result<(Vec<Option<(f64, f64, f64)>>, Option<GreyModel>)> {
+) -> Result<(Vec<Option<ZoneGap>>, Option<GreyModel>)> {
     let shape = grey.shape();
     let all: Vec<usize> = (0..necks.len()).filter(|&k| necks[k].is_some()).collect();
     if all.is_empty() {

@@ -75,7 +75,7 @@ impl Start {
         for k in 0..3 {
             let a = (self.centre[k] - half).ceil().max(0.0);
             let b = (self.centre[k] + half).floor().min(dims[k] as f64 - 1.0);
-            if !(a <= b) {
+            if a.is_nan() || b.is_nan() || a > b {
                 return None;
             }
             (lo[k], hi[k]) = (a as usize, b as usize);
