@@ -352,6 +352,20 @@ fn cli_writes_a_scene_that_reads_back() {
     assert!(std::fs::read_to_string(out.join("contacts_quality.csv"))
         .unwrap()
         .starts_with("contact,a,b,zone,kept"));
+    // A limit that is no multiple of the noise is refused before anything is written.
+    let refused = dir.path().join("refused");
+    let (ok, err) = run(&[
+        "import",
+        "labels",
+        npy.to_str().unwrap(),
+        "-o",
+        refused.to_str().unwrap(),
+        "--voxel-size",
+        "1e-4",
+        "--grey-whole-spheres=0",
+    ]);
+    assert!(!ok && err.contains("--grey-whole-spheres"), "{err}");
+    assert!(!refused.exists());
 }
 
 /// The box3d_gated DEM packing (60 spheres) as grains and true contacts, and

@@ -205,7 +205,8 @@ pub struct Options {
     /// the grey of its surface, and where both grains of a zone are spheres
     /// combine their gap with the neck fit's (inverse-variance weights). A
     /// grain is a sphere when its fit's rms residual is at most this many
-    /// times the scan's noise (the necks' rms misfit); clumps and cut grains
+    /// times the scan's noise (the grey's spread deep inside the labels;
+    /// 1.1 was measured); clumps and cut grains
     /// keep the neck fit alone. `None`: the neck fit alone everywhere.
     pub grey_whole_spheres: Option<f64>,
     /// A grain touches a plane wall when its voxels come within this many
