@@ -9,6 +9,10 @@ use grainforce::import::labels::{self, synth, Options};
 use grainforce::scene;
 use std::path::Path;
 
+/// The sphere rule's limit when neither TOMO_WHOLE nor the import's
+/// default gives one.
+const WHOLE_SPHERE_LIMIT: f64 = 1.1;
+
 fn main() -> grainforce::Result<()> {
     let args: Vec<String> = std::env::args().collect();
     let dir = args
@@ -43,6 +47,13 @@ fn main() -> grainforce::Result<()> {
             if shape == "clumps" {
                 let clumped = grains.iter().filter(|g| g.spheres.len() > 1).count();
                 eprintln!("{res}: {clumped} of {} grains are clumps", grains.len());
+                if std::env::var("TOMO_DEBUG").is_ok() {
+                    let labels: Vec<usize> = (0..grains.len())
+                        .filter(|&i| grains[i].spheres.len() > 1)
+                        .map(|i| i + 1)
+                        .collect();
+                    eprintln!("  clumps' labels: {labels:?}");
+                }
             }
             let grid = synth::Grid::around(&grains, voxel, 3.0);
             let (clean, fraction) = synth::voxelise(&grains, &grid);
@@ -54,12 +65,14 @@ fn main() -> grainforce::Result<()> {
                     "fit, gap ≤ 0.5",
                     "fit, grey ≥ 0.9",
                     "fit, grey gap",
+                    "fit, grey gap + spheres",
                 ] {
                     if method.contains("grey") && g.is_none() {
                         continue;
                     }
-                    // TOMO_ONLY=fit: that method alone (for quick comparisons).
-                    if std::env::var("TOMO_ONLY").is_ok_and(|m| m != method) {
+                    // TOMO_ONLY=fit: that method alone (for quick comparisons);
+                    // several separated by ';'.
+                    if std::env::var("TOMO_ONLY").is_ok_and(|m| m.split(';').all(|m| m != method)) {
                         continue;
                     }
                     let options = Options {
@@ -74,12 +87,23 @@ fn main() -> grainforce::Result<()> {
                         min_grey: 0.9,
                         // Round 7's grey rule (the neck's grey alone) beside
                         // the grey gap's (with the neck's).
-                        grey_gap_spread: (method == "fit, grey gap").then(|| {
+                        grey_gap_spread: method.starts_with("fit, grey gap").then(|| {
                             std::env::var("TOMO_GREY_SPREAD")
                                 .ok()
                                 .and_then(|v| v.parse().ok())
                                 .unwrap_or(3.0)
                         }),
+                        // "+ spheres": each grain's whole sphere combined
+                        // with the neck fit (sphere rule: misfit ≤ TOMO_WHOLE).
+                        grey_whole_spheres: if method.ends_with("+ spheres") {
+                            std::env::var("TOMO_WHOLE")
+                                .ok()
+                                .and_then(|v| v.parse().ok())
+                                .or(Options::default().grey_whole_spheres)
+                                .or(Some(WHOLE_SPHERE_LIMIT))
+                        } else {
+                            None
+                        },
                         // TOMO_MISFIT: the neck fit's misfit (over the
                         // zones' median) above which the grey gap drops nothing.
                         grey_gap_max_misfit: std::env::var("TOMO_MISFIT")

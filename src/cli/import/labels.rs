@@ -56,6 +56,12 @@ pub struct LabelArgs {
     /// of the way from void grey to solid grey.
     #[arg(long, default_value_t = 0.9)]
     min_grey: f64,
+    /// labels: with --grey, fit each grain's whole sphere to the grey and combine
+    /// its gap with the neck fit's where both grains are spheres: those whose fit
+    /// leaves at most LIMIT times the scan's noise (1.1 measured; off by default:
+    /// docs/tomography.md, round 12b).
+    #[arg(long, value_name = "LIMIT")]
+    grey_whole_spheres: Option<f64>,
     /// labels: per-grain stresses to attach by position: a scene folder from
     /// `import gff`/`import imaged11`, or a CSV id,x,y,z,s_xx,…,s_yz (SI); the
     /// rigid transform between the two instruments' frames is fitted.
@@ -129,6 +135,15 @@ pub fn run(args: &Args, gravity: Option<[f64; 3]>) -> Result<()> {
             }
         },
     };
+    let grey_whole_spheres = match la.grey_whole_spheres {
+        Some(limit) if !(limit.is_finite() && limit > 0.0) => {
+            let why = "a positive multiple of the scan's noise";
+            return Err(Error::Invalid(format!(
+                "--grey-whole-spheres must be {why}, got {limit}"
+            )));
+        }
+        limit => limit,
+    };
     let options = Options {
         voxel_size,
         origin,
@@ -138,6 +153,7 @@ pub fn run(args: &Args, gravity: Option<[f64; 3]>) -> Result<()> {
         density: la.density,
         max_gap,
         min_grey: la.min_grey,
+        grey_whole_spheres,
         ..Options::default()
     };
     let transform = TransformModel::parse(&la.match_transform).map_err(|_| {

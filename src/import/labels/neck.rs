@@ -166,7 +166,7 @@ fn pdf(x: f64) -> f64 {
 /// A ball of radius `radius` blurred by a Gaussian of width `sigma`, at
 /// distance `r` from its centre, and its derivative in `r`:
 /// Φ((R−r)/σ) − Φ((−R−r)/σ) + σ/r·(φ((R+r)/σ) − φ((R−r)/σ)).
-fn ball(r: f64, radius: f64, sigma: f64) -> (f64, f64) {
+pub(super) fn ball(r: f64, radius: f64, sigma: f64) -> (f64, f64) {
     let r = r.max(1e-9);
     let (a, b) = ((radius + r) / sigma, (radius - r) / sigma);
     // The far side of the ball (a > 9: terms below 10⁻¹⁸) is skipped.
@@ -380,20 +380,23 @@ fn collect(
     Ok(out)
 }
 
+/// A zone's grey gap, its standard deviation [voxels] and the fit's misfit.
+pub(super) type ZoneGap = (f64, f64, f64);
+
 /// Per zone (`None`: not a grain pair, or no neck): the gap fitted to the
 /// grey at its neck, its standard deviation [voxels] and the fit's misfit
 /// (rms residual over the scan's), with the scan's
 /// model measured on the image (`levels`: the mean void and solid greys of
-/// the labels, the start).
+/// the labels, the start), which is returned too (`None`: no neck).
 pub(super) fn gaps(
     grey: &mut dyn SliceSource,
     necks: &[Option<Neck>],
     levels: (f64, f64),
-) -> Result<Vec<Option<(f64, f64, f64)>>> {
+) -> Result<(Vec<Option<ZoneGap>>, Option<GreyModel>)> {
     let shape = grey.shape();
     let all: Vec<usize> = (0..necks.len()).filter(|&k| necks[k].is_some()).collect();
     if all.is_empty() {
-        return Ok(vec![None; necks.len()]);
+        return Ok((vec![None; necks.len()], None));
     }
     let greys = collect(grey, necks, &all)?;
     let offsets: Vec<Vec<[f64; 3]>> = all
@@ -421,7 +424,7 @@ pub(super) fn gaps(
     for (i, f) in fitted.into_iter().enumerate() {
         out[all[i]] = f.map(|f| (f.gap, f.sd, f.misfit));
     }
-    Ok(out)
+    Ok((out, Some(model)))
 }
 
 /// The blur σ and the void and solid levels that explain the sampled necks
