@@ -176,8 +176,8 @@ fn assert_found(disks: &[[f64; 3]], found: &DetectedFrame, what: &str, recall: f
 /// A monochrome camera's dark field: interiors of 25–70 grey levels over a
 /// background of 3, a brighter outer ring, no dark rim. Up-sampled to radii
 /// of 12 px and more 218 of the 226 disks are found (0.965); searched in
-/// its own pixels (the up-sampling turned off, with a first version of
-/// round 12's background rule) 213 (0.942). The same
+/// its own pixels (the up-sampling turned off, `SMALL_DISK_RADIUS` 0) 213
+/// (0.942), so the test fails without it. The same
 /// drawing in numpy, three seeds, scored by the release CLI: 0.934–0.956
 /// before this round, 0.967–0.974 after.
 #[test]
@@ -201,7 +201,7 @@ fn small_disks_on_a_dim_dark_field() {
 }
 
 /// Pale teal disks with a darker rim on a white backlight: all 226 disks
-/// up-sampled, 222 in its own pixels (0.982, measured as above). In numpy,
+/// up-sampled, 222 in its own pixels (0.982: fails the 0.99 floor). In numpy,
 /// three seeds:
 /// 0.979–0.996 before this round, 0.996–1.000 after.
 #[test]
