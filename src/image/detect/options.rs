@@ -69,6 +69,12 @@ pub struct DetectOptions {
     /// the circle settles instead of stopping after two, so a circle left on
     /// a fringe edge beside a dim stretch of outline creeps out to it.
     pub settle_edges: bool,
+    /// The photograph's own pixel in the searched picture's pixels: 1, or
+    /// the factor of an up-sampled search (small disks). The support's
+    /// tolerance is one such pixel plus 0.02 R: up-sampling adds no detail,
+    /// and a tolerance of half a photograph's pixel lost most disks of a
+    /// dense packing whose outlines merge (docs/image.md, round 13).
+    pub sensor_pixel: f64,
 }
 
 impl DetectOptions {
@@ -89,6 +95,7 @@ impl DetectOptions {
             overlap: 0.15,
             min_fill: 0.0,
             settle_edges: false,
+            sensor_pixel: 1.0,
         }
     }
 

@@ -176,8 +176,8 @@ pub(crate) fn downsample(
 /// disks is searched up-sampled by an integer factor to at least this
 /// radius, and the circles scaled back. The search's rules in pixels (the
 /// smoothing's floor of 1.5 px, the edge windows, the 32 rays of a small
-/// disk, the support's 1 px tolerance) then meet small disks at the scale
-/// where they were measured: 12 px is the smallest radius the photographs
+/// disk) then meet small disks at the scale where they were measured (the
+/// support's tolerance stays one photograph's pixel: `sensor_pixel`): 12 px is the smallest radius the photographs
 /// here are found at in their own pixels (`wc-slope-b`, radii 12–24 px,
 /// 383 of 384), and at half size (radii 6–15 px) they lost 17–30 % of
 /// their disks (docs/image.md, round 12).

@@ -107,7 +107,9 @@ pub(crate) fn refine(
     }
     let (edges, fit, rays, visible_rays) = judged?;
     // Support is judged with a fixed tolerance so noise cannot widen it.
-    let tolerance = 1.0 + 0.02 * fit[2];
+    // Its pixel is the photograph's: an up-sampled picture's edges are no
+    // sharper than the sensor made them.
+    let tolerance = o.sensor_pixel + 0.02 * fit[2];
     let residuals: Vec<f64> = edges
         .iter()
         .filter(|e| e.aligned)
