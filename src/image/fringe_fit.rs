@@ -123,6 +123,52 @@ pub struct FringeFitSettings {
     /// walls carry friction the other path wins; docs/photoelastic.md,
     /// round 9). Costs a second fit in that case.
     pub smooth_walls_first: bool,
+    /// Work the fits of one run share (each disk's G² levels): a run's
+    /// paths and second starts are fitted from clones of one settings value
+    /// and find it done (docs/photoelastic.md, round 13).
+    pub shared: SharedWork,
+}
+
+/// Each disk's G² load levels ([`load_levels`]) as scanned by any fit made
+/// with a clone of the same [`FringeFitSettings`], under a key of all they
+/// depend on (the disk's loads, pixels and intensities, the optics), so a
+/// path or a second start reuses the same numbers bit for bit instead of
+/// scanning them again. Clones share it; it is not part of a settings
+/// value's equality.
+#[derive(Clone, Default)]
+pub struct SharedWork(std::sync::Arc<std::sync::Mutex<LevelMemo>>);
+
+type LevelMemo = std::collections::HashMap<Vec<u64>, Vec<f64>>;
+
+/// Entries past which [`SharedWork`] starts over (a long-lived settings
+/// value fitted to frame after frame would otherwise keep every frame's).
+const SHARED_WORK_ENTRIES: usize = 100_000;
+
+impl SharedWork {
+    fn get(&self, key: &[u64]) -> Option<Vec<f64>> {
+        let memo = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        memo.get(key).cloned()
+    }
+
+    fn put(&self, key: Vec<u64>, levels: &[f64]) {
+        let mut memo = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        if memo.len() >= SHARED_WORK_ENTRIES {
+            memo.clear();
+        }
+        memo.insert(key, levels.to_vec());
+    }
+}
+
+impl std::fmt::Debug for SharedWork {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("SharedWork")
+    }
+}
+
+impl PartialEq for SharedWork {
+    fn eq(&self, _: &Self) -> bool {
+        true
+    }
 }
 
 /// How the photograph was lit: [`FringeFitSettings::polariscope`].
@@ -178,6 +224,7 @@ impl FringeFitSettings {
             lighting: false,
             polariscope: Polariscope::Auto,
             smooth_walls_first: false,
+            shared: SharedWork::default(),
         }
     }
 
@@ -1263,7 +1310,7 @@ fn enveloped(p: &Prepared, sigma_px: f64) -> Prepared {
 /// than any other load of the disk, the level at which that load alone
 /// (normal) gives the model the photograph's G² (model contrast: the
 /// packing's). Returned per disk, per load.
-fn load_levels(p: &Prepared) -> Vec<Vec<f64>> {
+fn load_levels(p: &Prepared, shared: &SharedWork) -> Vec<Vec<f64>> {
     let levels: Vec<f64> = (0..28).map(|i| 0.02 * 1.3f64.powi(i)).collect();
     p.disks
         .par_iter()
@@ -1271,11 +1318,46 @@ fn load_levels(p: &Prepared) -> Vec<Vec<f64>> {
             if d.points.len() < 20 {
                 return vec![0.0; d.loads.len()];
             }
-            (0..d.loads.len())
+            let key = level_key(p, d);
+            if let Some(done) = shared.get(&key) {
+                return done;
+            }
+            let out: Vec<f64> = (0..d.loads.len())
                 .map(|l| load_level(p, d, l, &levels))
-                .collect()
+                .collect();
+            shared.put(key, &out);
+            out
         })
         .collect()
+}
+
+/// Everything [`load_level`] reads of disk `d`, as bits: the optics, the
+/// disk's circle and loads, and a hash of its pixels and intensities.
+fn level_key(p: &Prepared, d: &DiskData) -> Vec<u64> {
+    use std::hash::{Hash, Hasher};
+    let o = &p.optics;
+    let mut key = vec![
+        o.fringe.to_bits(),
+        o.blur2.to_bits(),
+        o.contrast.to_bits(),
+        o.envelope.map_or(u64::MAX, f64::to_bits),
+        u64::from(o.lighting) | u64::from(o.bright_field) << 1,
+        p.pixel.to_bits(),
+        d.radius.to_bits(),
+        d.centre[0].to_bits(),
+        d.centre[1].to_bits(),
+    ];
+    for l in &d.loads {
+        let numbers = [l.sign, l.point[0], l.point[1], l.normal[0], l.normal[1]];
+        key.extend(numbers.iter().chain(&l.tangent).map(|v| v.to_bits()));
+    }
+    let mut hasher = std::collections::hash_map::DefaultHasher::new();
+    for (pt, v) in d.points.iter().zip(&d.intensity) {
+        (pt[0].to_bits(), pt[1].to_bits(), v.to_bits()).hash(&mut hasher);
+    }
+    key.push(d.points.len() as u64);
+    key.push(hasher.finish());
+    key
 }
 
 /// [`load_levels`] of load `l` of disk `d`, scanned over `levels`.
@@ -2533,8 +2615,17 @@ fn fit_scene(
     if !two_paths(scene, settings) {
         return fit_path(image, frame, scene, settings, sparsity, false);
     }
-    let first = fit_path(image, frame, scene, settings, sparsity, true)?;
-    let throughout = fit_path(image, frame, scene, settings, sparsity, false)?;
+    // The two paths share nothing but their inputs: fitted at once on two
+    // cores (each sums its objective in disk order, so the same bits
+    // whatever the schedule).
+    // Their G² levels are the same: scanned once, before they part.
+    load_levels(
+        &prepare(image, frame, scene, settings, false)?,
+        &settings.shared,
+    );
+    let path = |walls_first| fit_path(image, frame, scene, settings, sparsity, walls_first);
+    let (first, throughout) = rayon::join(|| path(true), || path(false));
+    let (first, throughout) = (first?, throughout?);
     let steps = first.0.report.iterations + throughout.0.report.iterations;
     let mut kept = if first.0.report.objective <= throughout.0.report.objective {
         first
@@ -2599,7 +2690,7 @@ fn fit_path(
         "fringe path (walls first {walls_first}, {} contacts): prepare",
         scene.contacts.len()
     ));
-    let levels = load_levels(&p);
+    let levels = load_levels(&p, &settings.shared);
     laps.lap("fringe path: G² levels");
     let given_x = match &settings.start {
         Some(forces) => Some(to_unknowns(scene, forces, p.scale)?),
@@ -2962,7 +3053,7 @@ pub fn fit_fringes_per_disk(
     let mut timing = FitTiming::default();
     let p = prepare(image, frame, scene, settings, true)?;
     timing.prepare = started.elapsed().as_secs_f64();
-    let levels = load_levels(&p);
+    let levels = load_levels(&p, &settings.shared);
     let mut x = vec![0.0; 2 * p.unknowns];
     if let Some(forces) = &settings.start {
         // Both sides of a contact start from its force.
@@ -3701,5 +3792,51 @@ mod tests {
         // Already near the edge: no room for a longer step.
         assert!(extrapolated(&x, &[1.0, 0.45], 1.9, &wedge).is_none());
         assert!(extrapolated(&x, &[2.0, 0.0], f64::NAN, &wedge).is_none());
+    }
+
+    /// A second fit of the same disk takes its G² levels from the shared
+    /// work (the memo is read, not rescanned); a moved load or another
+    /// photograph's intensities are scanned afresh, to the same levels a
+    /// fit without shared work finds.
+    #[test]
+    fn shared_levels_are_reused_for_the_same_disk_only() {
+        let problem = |d: DiskData| Prepared {
+            disks: vec![d],
+            unknowns: 3,
+            scale: 1.0,
+            optics: Optics {
+                fringe: 1.0 / 0.01,
+                blur2: 1e-8,
+                contrast: 0.6,
+                envelope: None,
+                lighting: false,
+                bright_field: false,
+            },
+            pixel: 1.3e-3,
+            balanced: vec![true],
+        };
+        let bits = |levels: Vec<Vec<f64>>| -> Vec<u64> {
+            levels.concat().iter().map(|v| v.to_bits()).collect()
+        };
+        let p = problem(disk());
+        let shared = SharedWork::default();
+        let cold = bits(load_levels(&p, &SharedWork::default()));
+        assert!(cold.iter().any(|&v| f64::from_bits(v) > 0.0));
+        assert_eq!(bits(load_levels(&p, &shared)), cold);
+        // A marker in the memo shows the second look reads it.
+        let marker = [7.0; 3];
+        shared.put(level_key(&p, &p.disks[0]), &marker);
+        assert_eq!(load_levels(&p, &shared), vec![marker.to_vec()]);
+        let mut moved = disk();
+        moved.loads[1].point[0] += 1e-4;
+        let mut other_photo = disk();
+        other_photo.intensity[5] += 0.1;
+        for d in [moved, other_photo] {
+            let q = problem(d);
+            assert_eq!(
+                bits(load_levels(&q, &shared)),
+                bits(load_levels(&q, &SharedWork::default()))
+            );
+        }
     }
 }

@@ -13,6 +13,7 @@ use super::fringe_fit::{
 use super::{load_channel, Channel, FloatImage, PixelFrame, FRAME_FILE};
 use crate::error::{Error, Result};
 use crate::scene::{read_scene, write_file_atomically, write_forces, Body, Forces, Scene};
+use rayon::prelude::*;
 use std::path::Path;
 
 /// Which of the scene's contacts are fitted.
@@ -526,19 +527,35 @@ pub fn with_second_starts(
     plain: FringeFit,
     firsts: &[FirstFit],
 ) -> Result<(FringeFit, Vec<SecondStart>)> {
+    let useful = |first: &FirstFit| match *first {
+        FirstFit::Penalty(w) => w > 0.0,
+        FirstFit::Narrow(mu) => mu > 0.0 && mu < settings.mu,
+    };
+    let possible = settings.balance == Balance::Hard
+        && settings.start.is_none()
+        && !plain.report.flagged.is_empty();
+    let firsts: Vec<FirstFit> = firsts.iter().copied().filter(useful).collect();
+    if !possible || firsts.is_empty() {
+        return Ok((plain, Vec::new()));
+    }
+    // Every start is fitted under the plain fit's polariscope and none
+    // depends on another's answer, only whether it is wanted does: all are
+    // fitted at once (two cores), then judged in turn. One whose turn comes
+    // with no disk flagged is dropped unused.
+    let polariscope = match plain.report.bright_field {
+        true => Polariscope::Bright,
+        false => Polariscope::Dark,
+    };
+    let fitted: Vec<Result<StartFits>> = firsts
+        .par_iter()
+        .map(|&first| start_fits(image, frame, scene, settings, polariscope, first))
+        .collect();
     let mut best = plain;
     let mut tried = Vec::new();
-    for &first in firsts {
-        let useful = match first {
-            FirstFit::Penalty(w) => w > 0.0,
-            FirstFit::Narrow(mu) => mu > 0.0 && mu < settings.mu,
-        };
-        let wanted = useful
-            && settings.balance == Balance::Hard
-            && settings.start.is_none()
-            && !best.report.flagged.is_empty();
-        if wanted {
-            let (fit, record) = second_start(image, frame, scene, settings, best, first)?;
+    for (first, fits) in firsts.into_iter().zip(fitted) {
+        let fits = fits?;
+        if !best.report.flagged.is_empty() {
+            let (fit, record) = judged(settings, best, first, fits);
             best = fit;
             tried.push(record);
         }
@@ -546,20 +563,25 @@ pub fn with_second_starts(
     Ok((best, tried))
 }
 
-/// One second start against `best`: the better of the two, and the record.
-fn second_start(
+/// A second start's two fits: the first fit's answer, the exact refit from
+/// it, and the seconds both took.
+struct StartFits {
+    started: FringeFit,
+    second: FringeFit,
+    seconds: f64,
+}
+
+/// The first fit ([`FirstFit`]) under `polariscope`, then the run's own fit
+/// (exact balance, its μ) from its forces.
+fn start_fits(
     image: &FloatImage,
     frame: &PixelFrame,
     scene: &Scene,
     settings: &FringeFitSettings,
-    best: FringeFit,
+    polariscope: Polariscope,
     first: FirstFit,
-) -> Result<(FringeFit, SecondStart)> {
+) -> Result<StartFits> {
     let clock = std::time::Instant::now();
-    let polariscope = match best.report.bright_field {
-        true => Polariscope::Bright,
-        false => Polariscope::Dark,
-    };
     let mut first_settings = FringeFitSettings {
         polariscope,
         ..settings.clone()
@@ -577,7 +599,26 @@ fn second_start(
         polariscope,
         ..settings.clone()
     };
-    let mut second = fit_fringes(image, frame, scene, &exact)?;
+    let second = fit_fringes(image, frame, scene, &exact)?;
+    Ok(StartFits {
+        started,
+        second,
+        seconds: clock.elapsed().as_secs_f64(),
+    })
+}
+
+/// One second start judged against `best`: the better of the two, and the record.
+fn judged(
+    settings: &FringeFitSettings,
+    best: FringeFit,
+    first: FirstFit,
+    fits: StartFits,
+) -> (FringeFit, SecondStart) {
+    let StartFits {
+        started,
+        mut second,
+        seconds,
+    } = fits;
     let steps = started.report.iterations + second.report.iterations;
     // Refitted from a start the balance pins, the exact fit leaves out the
     // balance of the disks that pin it (release_forced_zeros): fewer
@@ -596,7 +637,6 @@ fn second_start(
         second = started;
         second.report.mu = settings.mu;
     }
-    let seconds = clock.elapsed().as_secs_f64();
     let same_balance = balanced_as(&second);
     let record = SecondStart {
         first,
@@ -616,7 +656,7 @@ fn second_start(
         best
     };
     kept.report.seconds += seconds;
-    Ok((kept, record))
+    (kept, record)
 }
 
 #[cfg(test)]
