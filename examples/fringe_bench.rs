@@ -6,7 +6,7 @@
 //!         [--fsigma-scale F] [--iterations N] [--extrapolate]
 //!         [--scene DIR] [--seed N] [--dump DIR] [--circles] [--walls-last]
 //!         [--no-wall-candidates] [--mu MU] [--penalty-start W]
-//!         [--narrow-start MU] [--box-walls]
+//!         [--narrow-start MU] [--box-walls] [--local-starts N]
 //!
 //! Without flags the disks and contacts are the DEM's; `--detect` finds them
 //! in the photograph (`detect`, walls at the DEM's lines, or with
@@ -18,6 +18,7 @@
 //! in place of fixtures/oedometer, `--seed` the renderer's noise seed, so a
 //! default is not judged on one picture alone.
 
+use grainforce::image::fringe_fit::local_restarts;
 use grainforce::image::fringe_fit::{fit_fringes, fit_fringes_per_disk, FringeFitSettings};
 use grainforce::image::fringe_run::{with_second_starts, FirstFit};
 use grainforce::image::photoelastic::{render_photoelastic, save_jpeg, PhotoelasticOptions};
@@ -213,6 +214,16 @@ fn main() -> grainforce::Result<()> {
                     t.compared_objective,
                     t.balance_left_out,
                     if t.kept { "kept" } else { "not kept" }
+                );
+            }
+            // The run's local restarts on the disks still flagged
+            // (`photoelastic --local-starts N`).
+            let starts = value("--local-starts").map_or(0, |n: f64| n as usize);
+            let (fit, restarts) = local_restarts(&image, &frame, fit_scene, &s, fit, starts)?;
+            for r in &restarts {
+                println!(
+                    "  local restart of disk {} ({} contacts, {} starts): objective {:.2} → {:.2}, kept {:?}",
+                    r.grain, r.contacts, r.starts, r.objective_before, r.objective_after, r.kept
                 );
             }
             fit

@@ -1329,6 +1329,10 @@ fn detected_against_pegs(
     if let Some(mu) = var("GRAINFORCE_FRINGE_NARROW_START") {
         config.narrow_start = mu;
     }
+    // The local restarts on flagged disks (round 13; 0: off).
+    if let Some(n) = var("GRAINFORCE_FRINGE_LOCAL_STARTS") {
+        config.local_starts = n as usize;
+    }
     let started = std::time::Instant::now();
     let mut run = fringe_run::run(&image, &scene_dir, &config).unwrap();
     let refit_mu = var("GRAINFORCE_FRINGE_REFIT_MU");

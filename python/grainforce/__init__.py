@@ -749,6 +749,7 @@ def photoelastic(
     lighting: bool = False,
     penalty_start: Optional[float] = None,
     narrow_start: Optional[float] = None,
+    local_starts: Optional[int] = None,
 ) -> Photoelastic:
     """Contact forces fitted to a photoelastic photograph's fringes, all
     disks at once under balance and friction (``grainforce photoelastic``,
@@ -775,7 +776,10 @@ def photoelastic(
     penalty_start (10) and narrow_start (0.5): where the fit leaves disks
     flagged, it is fitted again from a fit with balance as a penalty of this
     weight, then from one with every wedge at this μ, and the lower residual
-    kept (``report["second_starts"]``; 0 turns one off).
+    kept (``report["second_starts"]``; 0 turns one off). local_starts (0,
+    off): each disk still flagged is fitted again from up to this many
+    starts with its and its neighbours' contacts free, kept where the whole
+    residual falls (``report["local_restarts"]``).
     """
     opt = lambda v: None if v is None else float(v)
     return Photoelastic(
@@ -800,6 +804,7 @@ def photoelastic(
             bool(lighting),
             opt(penalty_start),
             opt(narrow_start),
+            None if local_starts is None else int(local_starts),
         )
     )
 

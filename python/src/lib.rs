@@ -781,7 +781,7 @@ impl Photoelastic {
 /// at once under balance and friction (`grainforce photoelastic`). `None`
 /// keeps the CLI's default.
 #[pyfunction]
-#[pyo3(signature = (image, scene, fsigma=None, thickness=None, scale=None, channel=None, mu=None, balance_weight=None, blur=None, edge=None, iterations=None, per_disk=false, contacts=None, candidates=None, sparsity=None, wall_mu=None, polariscope=None, lighting=false, penalty_start=None, narrow_start=None))]
+#[pyo3(signature = (image, scene, fsigma=None, thickness=None, scale=None, channel=None, mu=None, balance_weight=None, blur=None, edge=None, iterations=None, per_disk=false, contacts=None, candidates=None, sparsity=None, wall_mu=None, polariscope=None, lighting=false, penalty_start=None, narrow_start=None, local_starts=None))]
 #[allow(clippy::too_many_arguments)]
 fn photoelastic(
     py: Python<'_>,
@@ -805,6 +805,7 @@ fn photoelastic(
     lighting: bool,
     penalty_start: Option<f64>,
     narrow_start: Option<f64>,
+    local_starts: Option<usize>,
 ) -> PyResult<Photoelastic> {
     use grainforce::image::fringe_run::{self, ContactChoice, PhotoelasticConfig};
     // Fields a caller leaves out keep the library's defaults (the CLI's).
@@ -842,6 +843,7 @@ fn photoelastic(
     config.sparsity = sparsity.unwrap_or(config.sparsity);
     config.penalty_start = penalty_start.unwrap_or(config.penalty_start);
     config.narrow_start = narrow_start.unwrap_or(config.narrow_start);
+    config.local_starts = local_starts.unwrap_or(config.local_starts);
     let run = py
         .detach(|| fringe_run::run(&image, &scene, &config))
         .map_err(to_py)?;

@@ -95,6 +95,13 @@ pub struct Args {
     /// residual (reported under `second_starts`); 0: off.
     #[arg(long, default_value_t = fringe_run::DEFAULT_NARROW_START)]
     narrow_start: f64,
+    /// After the fit, each disk whose fringes it leaves unexplained is
+    /// fitted again from up to this many starts (per-disk, fringe
+    /// gradients, tangents flipped, doubled, halved) with its and its
+    /// neighbours' contacts free and every other force held, balance exact;
+    /// kept where the whole residual falls (0: off).
+    #[arg(long, default_value_t = fringe_run::DEFAULT_LOCAL_STARTS)]
+    local_starts: usize,
     /// Write the photograph and the fitted fringes side by side (PNG).
     #[arg(long)]
     overlay: Option<PathBuf>,
@@ -123,6 +130,7 @@ pub fn run(args: Args) -> Result<()> {
         lighting: args.lighting,
         penalty_start: args.penalty_start,
         narrow_start: args.narrow_start,
+        local_starts: args.local_starts,
     };
     let done = fringe_run::run(&args.image, &args.scene, &config).map_err(spell_flags)?;
     done.write(

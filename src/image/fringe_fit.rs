@@ -35,6 +35,10 @@ use crate::solver::{Cone, ConicProblem, Term};
 use rayon::prelude::*;
 use std::f64::consts::PI;
 
+#[path = "fringe_multistart.rs"]
+mod fringe_multistart;
+pub use fringe_multistart::{local_restarts, LocalRestart, LocalStart};
+
 /// How each disk's balance of force and moment enters the fit.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub enum Balance {
@@ -885,6 +889,10 @@ struct Prepared {
     /// contact missed by detection) is left out, else its zero would spread
     /// through its neighbours to the whole packing.
     balanced: Vec<bool>,
+    /// Unknowns held at a value (column, value) by equalities beside the
+    /// balance: the unknowns a local restart does not free
+    /// (fringe_multistart).
+    pinned: Vec<(usize, f64)>,
 }
 
 impl Prepared {
@@ -910,6 +918,7 @@ impl Prepared {
             optics: self.optics,
             pixel: self.pixel,
             balanced: vec![false],
+            pinned: Vec::new(),
         }
     }
 }
@@ -1044,6 +1053,7 @@ fn prepare(
         optics,
         pixel: 1.0 / s,
         balanced,
+        pinned: Vec::new(),
     })
 }
 
@@ -1302,6 +1312,7 @@ fn enveloped(p: &Prepared, sigma_px: f64) -> Prepared {
         optics: p.optics,
         pixel: p.pixel,
         balanced: p.balanced.clone(),
+        pinned: p.pinned.clone(),
     }
 }
 
@@ -1436,6 +1447,19 @@ fn balance_rows(p: &Prepared) -> Triplets {
         }
     }
     k
+}
+
+/// The equalities of a step: [`balance_rows`] = 0, then each pinned
+/// unknown = its value.
+fn constraint_rows(p: &Prepared) -> (Triplets, Vec<f64>) {
+    let mut rows = balance_rows(p);
+    let mut values = vec![0.0; rows.nrows];
+    for &(col, value) in &p.pinned {
+        rows.nrows += 1;
+        rows.push(rows.nrows - 1, col, 1.0);
+        values.push(value);
+    }
+    (rows, values)
 }
 
 /// Whether disk `d` alone can carry a balanced set of compressive,
@@ -1700,8 +1724,7 @@ fn feasible_start(
     for i in 0..n {
         identity.push(i, i, 1.0);
     }
-    let balance = balance_rows(p);
-    let zeros = vec![0.0; balance.nrows];
+    let (balance, zeros) = constraint_rows(p);
     let terms = vec![Term {
         matrix: &identity,
         rhs: &x0,
@@ -1813,8 +1836,7 @@ impl Stepper<'_> {
     ) -> Result<LmOutcome> {
         let p = self.p;
         let n = 2 * p.unknowns;
-        let balance = balance_rows(p);
-        let zeros = vec![0.0; balance.nrows];
+        let (balance, zeros) = constraint_rows(p);
         let mut solver = StepSolver::default();
         let mut damping = 1e-3;
         let mut iterations = 0;
@@ -1907,7 +1929,7 @@ impl Stepper<'_> {
                 timing.solve += clock.elapsed().as_secs_f64();
                 timing.solves += 1;
                 let hard = self.scene.is_some() && self.settings.balance == Balance::Hard;
-                if hard && balance_violation(&balance, &candidate) > BALANCE_TOLERANCE {
+                if hard && balance_violation(&balance, &zeros, &candidate) > BALANCE_TOLERANCE {
                     // Never take a step off the imposed balance; a smaller one may hold it.
                     timing.unbalanced_steps += 1;
                     damping *= 6.0;
@@ -1943,8 +1965,9 @@ impl Stepper<'_> {
                         let rho = (current - trial) / predicted_gain(p, &evals, &x, &candidate);
                         let cones =
                             friction_cones(self.scene.expect("hard balance"), self.settings);
-                        let longer = extrapolated(&x, &candidate, rho, &cones)
-                            .filter(|l| balance_violation(&balance, l) <= BALANCE_TOLERANCE);
+                        let longer = extrapolated(&x, &candidate, rho, &cones).filter(|l| {
+                            balance_violation(&balance, &zeros, l) <= BALANCE_TOLERANCE
+                        });
                         if let Some(longer) = longer {
                             let clock = std::time::Instant::now();
                             let longer_evals = evaluate(&longer, true);
@@ -2183,8 +2206,8 @@ fn extrapolated(x: &[f64], to: &[f64], rho: f64, cones: &[Cone]) -> Option<Vec<f
 
 /// The largest |K x| over the balance rows, relative to the largest
 /// unknown (at least F₀): how far `x` is from balance.
-fn balance_violation(balance: &Triplets, x: &[f64]) -> f64 {
-    let mut row = vec![0.0; balance.nrows];
+fn balance_violation(balance: &Triplets, values: &[f64], x: &[f64]) -> f64 {
+    let mut row: Vec<f64> = values.iter().map(|v| -v).collect();
     for ((&i, &j), &v) in balance.rows.iter().zip(&balance.cols).zip(&balance.vals) {
         row[i] += v * x[j];
     }
@@ -2227,6 +2250,7 @@ fn thinned(p: &Prepared, stride: u32) -> Prepared {
     Prepared {
         disks,
         balanced: p.balanced.clone(),
+        pinned: p.pinned.clone(),
         ..*p
     }
 }
@@ -2261,6 +2285,7 @@ fn smoothed(p: &Prepared, sigma_px: f64) -> Prepared {
         optics: p.optics,
         pixel: p.pixel,
         balanced: p.balanced.clone(),
+        pinned: p.pinned.clone(),
     }
 }
 
