@@ -3839,6 +3839,7 @@ mod tests {
             },
             pixel: 1.3e-3,
             balanced: vec![true],
+            pinned: Vec::new(),
         };
         let bits = |levels: Vec<Vec<f64>>| -> Vec<u64> {
             levels.concat().iter().map(|v| v.to_bits()).collect()

@@ -116,7 +116,7 @@ pub fn local_restarts(
         .flat_map(|k| [(2 * k, 0.0), (2 * k + 1, 0.0)])
         .collect();
     let mut x = to_unknowns(&work, &forces, p.scale)?;
-    let levels = load_levels(&p);
+    let levels = load_levels(&p, &settings.shared);
     let mut objective_now = objective(&p, &x, &p.optics);
     let mut records = Vec::new();
     let mut steps = 0;
