@@ -3,63 +3,13 @@
 //! forces.
 
 mod common;
-use common::relerr_2d as relerr;
+use common::{cluster, oedometer, relerr_2d as relerr};
 use grainforce::image::fringe_fit::{
     fit_fringes, imbalances, local_restarts, FringeFit, FringeFitSettings,
 };
 use grainforce::image::photoelastic::{render_photoelastic, PhotoelasticOptions};
 use grainforce::image::{FloatImage, PixelFrame};
-use grainforce::scene::{read_forces, read_scene, Body, Contact, Scene};
-use std::path::Path;
-
-/// The `count` grains of the DEM oedometer nearest grain `centre`, their
-/// contacts with the rest as loads from an "outside" wall, and the DEM forces.
-fn cluster(centre: usize, count: usize) -> (Scene, Vec<[f64; 2]>) {
-    let dir = Path::new("fixtures/oedometer");
-    let scene = read_scene(dir).unwrap();
-    let rows = read_forces(&dir.join("forces.csv")).unwrap().rows;
-    let c0 = scene.grains[centre].position;
-    let mut order: Vec<usize> = (0..scene.grains.len()).collect();
-    let d = |g: usize| {
-        let p = scene.grains[g].position;
-        (p[0] - c0[0]).hypot(p[1] - c0[1])
-    };
-    order.sort_by(|a, b| d(*a).total_cmp(&d(*b)));
-    let chosen = &order[..count];
-    let index = |g: usize| chosen.iter().position(|&k| k == g);
-    let mut out = Scene::new(2);
-    out.settings = scene.settings.clone();
-    out.grains = chosen.iter().map(|&g| scene.grains[g].clone()).collect();
-    let mut truth = Vec::new();
-    for c in &scene.contacts {
-        let row = rows.iter().find(|r| r.contact == c.id).unwrap();
-        let f = [row.force[0], row.force[1]];
-        let b = match c.b {
-            Body::Grain(b) => index(b),
-            Body::Wall(_) => None,
-        };
-        let (a, b, n, f) = match (index(c.a), b) {
-            (Some(a), Some(b)) => (a, Body::Grain(b), c.normal, f),
-            (Some(a), None) => (a, Body::Wall(out.wall_or_insert("outside")), c.normal, f),
-            (None, Some(b)) => {
-                let n = c.normal;
-                let w = out.wall_or_insert("outside");
-                (b, Body::Wall(w), [-n[0], -n[1], -n[2]], [-f[0], -f[1]])
-            }
-            (None, None) => continue,
-        };
-        out.contacts.push(Contact {
-            id: c.id.clone(),
-            a,
-            b,
-            point: c.point,
-            normal: n,
-            mu: c.mu,
-        });
-        truth.push(f);
-    }
-    (out, truth)
-}
+use grainforce::scene::{Body, Scene};
 
 struct Rendered {
     scene: Scene,
@@ -70,7 +20,10 @@ struct Rendered {
 
 /// The cluster rendered at r = 20 px, blur 0.8 px, noise 2 %.
 fn rendered() -> Rendered {
-    let (scene, truth) = cluster(20, 8);
+    let (scene, truth) = {
+        let (scene, forces) = oedometer();
+        cluster(&scene, &forces, 20, 8)
+    };
     let mean_r: f64 =
         scene.grains.iter().map(|g| g.radius.unwrap()).sum::<f64>() / scene.grains.len() as f64;
     let mut o = PhotoelasticOptions::new(20.0 / mean_r, FRINGE_STRESS);

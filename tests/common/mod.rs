@@ -472,3 +472,75 @@ pub fn grainforce_infer<S: AsRef<std::ffi::OsStr>>(
         .output()
         .unwrap()
 }
+
+/// The DEM oedometer and its exact forces in contact order.
+pub fn oedometer() -> (Scene, Vec<[f64; 2]>) {
+    let dir = Path::new("fixtures/oedometer");
+    let scene = read_scene(dir).unwrap();
+    let rows = read_forces(&dir.join("forces.csv")).unwrap().rows;
+    let forces = scene
+        .contacts
+        .iter()
+        .map(|c| {
+            let r = rows.iter().find(|r| r.contact == c.id).unwrap();
+            [r.force[0], r.force[1]]
+        })
+        .collect();
+    (scene, forces)
+}
+
+/// The `count` grains nearest grain `centre`, with every contact that touches
+/// them: inside pairs as they are, the others as loads from a body
+/// "outside" (the inside grain as `a`).
+pub fn cluster(
+    scene: &Scene,
+    forces: &[[f64; 2]],
+    centre: usize,
+    count: usize,
+) -> (Scene, Vec<[f64; 2]>) {
+    let c0 = scene.grains[centre].position;
+    let mut order: Vec<usize> = (0..scene.grains.len()).collect();
+    let d = |g: usize| {
+        let p = scene.grains[g].position;
+        (p[0] - c0[0]).hypot(p[1] - c0[1])
+    };
+    order.sort_by(|a, b| d(*a).total_cmp(&d(*b)));
+    let chosen: Vec<usize> = order[..count].to_vec();
+    let index = |g: usize| chosen.iter().position(|&k| k == g);
+    let mut out = Scene::new(2);
+    out.settings = scene.settings.clone();
+    out.grains = chosen.iter().map(|&g| scene.grains[g].clone()).collect();
+    let mut truth = Vec::new();
+    for (c, f) in scene.contacts.iter().zip(forces) {
+        let b = match c.b {
+            Body::Grain(b) => index(b),
+            Body::Wall(_) => None,
+        };
+        let (a, b, n, f) = match (index(c.a), b) {
+            (Some(a), Some(b)) => (a, Body::Grain(b), c.normal, *f),
+            (Some(a), None) => {
+                let name = match c.b {
+                    Body::Wall(w) => scene.walls[w].name.clone(),
+                    Body::Grain(_) => "outside".to_string(),
+                };
+                (a, Body::Wall(out.wall_or_insert(&name)), c.normal, *f)
+            }
+            (None, Some(b)) => {
+                let w = out.wall_or_insert("outside");
+                let n = c.normal;
+                (b, Body::Wall(w), [-n[0], -n[1], -n[2]], [-f[0], -f[1]])
+            }
+            (None, None) => continue,
+        };
+        out.contacts.push(Contact {
+            id: c.id.clone(),
+            a,
+            b,
+            point: c.point,
+            normal: n,
+            mu: c.mu,
+        });
+        truth.push(f);
+    }
+    (out, truth)
+}
