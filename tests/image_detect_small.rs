@@ -58,6 +58,16 @@ fn packing(seed: u64) -> Vec<[f64; 3]> {
     disks
 }
 
+/// Pale teal disks with a darker rim (the outer 0.15 R) on a white
+/// backlight.
+fn teal_on_white(inside: Option<(usize, f64)>) -> [f64; 3] {
+    match inside {
+        None => [250.0; 3],
+        Some((_, t)) if t > 0.85 => [70.0, 100.0, 80.0],
+        Some(_) => [130.0, 170.0, 150.0],
+    }
+}
+
 /// The picture, one value per channel and pixel: each of 4 × 4 samples a
 /// pixel takes `shade(disk index and distance over radius, or None)`; then
 /// the optics' blur (σ 0.7 px) and the sensor's noise (σ 2 grey levels).
@@ -225,11 +235,7 @@ fn small_disks_on_a_dim_dark_field() {
 #[test]
 fn small_disks_on_a_bright_field() {
     let disks = packing(1);
-    let picture = render(&disks, 3, |inside| match inside {
-        None => [250.0; 3],
-        Some((_, t)) if t > 0.85 => [70.0, 100.0, 80.0],
-        Some(_) => [130.0, 170.0, 150.0],
-    });
+    let picture = render(&disks, 3, teal_on_white);
     let dir = tempfile::tempdir().unwrap();
     let path = save_rgb(&picture, "bright.png", &dir);
     assert_found(&disks, &detect(&path, [6.0, 12.0]), "bright field", 0.99);
@@ -294,11 +300,7 @@ fn hex_dark_field() {
 #[test]
 fn hex_bright_field() {
     let disks = hexagonal(20.0, |_| 10.0);
-    let picture = render(&disks, 5, |inside| match inside {
-        None => [250.0; 3],
-        Some((_, t)) if t > 0.85 => [70.0, 100.0, 80.0],
-        Some(_) => [130.0, 170.0, 150.0],
-    });
+    let picture = render(&disks, 5, teal_on_white);
     let dir = tempfile::tempdir().unwrap();
     let path = save_rgb(&picture, "hex-bright.png", &dir);
     assert_found(&disks, &detect(&path, [8.0, 12.0]), "hex bright", 0.78);
