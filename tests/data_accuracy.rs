@@ -199,8 +199,8 @@ fn the_estimated_distance_stops_before_the_certified_bound() {
 }
 
 /// The rule at its extremes: exact stresses keep their route and answer to
-/// the bit; a tenfold noise stops sooner, still within the same share of its
-/// (larger) effect; under a tiny noise the active set settles and its
+/// the bit; a tenfold noise stops no later, still within the same share of
+/// its (larger) effect; under a tiny noise the active set settles and its
 /// answer stays the same to the bit.
 #[test]
 fn the_datas_accuracy_at_the_extremes() {
@@ -229,8 +229,10 @@ fn the_datas_accuracy_at_the_extremes() {
     assert!(fast.report.coulomb_violation < 1e-12);
     assert!(off < 0.03 * noise, "{off:.2e} of noise {noise:.2e}");
     let usual = infer(&moderate, &qs()).unwrap();
+    // Measured 11 and 11 with the estimated distance (12 and 13 on the
+    // certified bound alone): both stop where the forces are.
     assert!(
-        fast.report.iterations < usual.report.iterations,
+        fast.report.iterations <= usual.report.iterations,
         "{} iterations at scatter 1.0, {} at 0.1",
         fast.report.iterations,
         usual.report.iterations
