@@ -795,18 +795,19 @@ struct PathProfile<'a> {
 impl PathProfile<'_> {
     fn report(&self, answer: &[f64]) {
         for (k, x) in self.points.iter().enumerate() {
-            let delta: Vec<f64> = x.iter().zip(answer).map(|(a, b)| a - b).collect();
             eprintln!(
                 "ip-profile true-distance iteration {k} {:.3e}",
-                fit_norm(self.problem, &delta)
+                fit_distance(self.problem, x, answer)
             );
         }
     }
 }
 
-/// ‖δ‖_H = (‖A δ‖² + λ²‖δ‖²)^½, the norm the certificate bounds.
-fn fit_norm(problem: &LeastSquares, delta: &[f64]) -> f64 {
-    let h = problem.hessian_times(delta);
+/// ‖x − y‖_H, with ‖δ‖_H = (‖A δ‖² + λ²‖δ‖²)^½ the norm the certificate
+/// bounds.
+fn fit_distance(problem: &LeastSquares, x: &[f64], y: &[f64]) -> f64 {
+    let delta: Vec<f64> = x.iter().zip(y).map(|(a, b)| a - b).collect();
+    let h = problem.hessian_times(&delta);
     h.iter()
         .zip(delta)
         .map(|(a, b)| a * b)
@@ -850,8 +851,7 @@ impl StepTail {
     /// distance to the optimum.
     fn push(&mut self, problem: &LeastSquares, x: &[f64], bound: f64) -> f64 {
         if let Some(last) = &self.last {
-            let delta: Vec<f64> = x.iter().zip(last).map(|(a, b)| a - b).collect();
-            let step = fit_norm(problem, &delta);
+            let step = fit_distance(problem, x, last);
             if let Some(before) = self.step {
                 self.ratios.push(step / before);
             }
