@@ -568,6 +568,7 @@ fn sparse_interior_point(
         iterations: ip.iterations,
         gap: ip.gap,
         distance: ip.noise.map(|_| ip.distance),
+        estimate: ip.noise.and(ip.estimate.is_finite().then_some(ip.estimate)),
         noise: ip.noise,
         at_data_accuracy: ip.at_distance,
     };
@@ -707,6 +708,7 @@ mod tests {
                     iterations: 9,
                     gap: 1e-7,
                     distance: Some(1e-6),
+                    estimate: None,
                     noise: Some(1e-2),
                     at_data_accuracy,
                 }],

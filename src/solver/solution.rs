@@ -152,6 +152,10 @@ pub enum Attempt {
         gap: f64,
         /// Certified distance to the optimum (fit norm), when `noise` is known.
         distance: Option<f64>,
+        /// The same distance estimated from the last steps' contraction,
+        /// when `noise` is known and the steps contracted; at the data's
+        /// accuracy the stop takes the smaller of the two.
+        estimate: Option<f64>,
         /// What the noise moves the answer by (fit norm), when estimated.
         noise: Option<f64>,
         /// Stopped at the data's accuracy, before the tolerance.
@@ -267,6 +271,7 @@ impl fmt::Display for Attempt {
                 iterations,
                 gap,
                 distance,
+                estimate,
                 noise,
                 at_data_accuracy,
             } => {
@@ -275,9 +280,13 @@ impl fmt::Display for Attempt {
                     "active set: {active_set}; interior point on the sparse factorisation: {iterations} iterations (gap {gap:.1e})"
                 )?;
                 if let (Some(distance), Some(noise)) = (distance, noise) {
+                    write!(f, "; distance to the optimum ≤ {distance:.1e}")?;
+                    if let Some(estimate) = estimate {
+                        write!(f, " (estimated {estimate:.1e})")?;
+                    }
                     write!(
                         f,
-                        "; distance to the optimum ≤ {distance:.1e} against noise {noise:.1e} (fit norm){}",
+                        " against noise {noise:.1e} (fit norm){}",
                         if *at_data_accuracy {
                             ", the data's accuracy"
                         } else {
@@ -340,18 +349,20 @@ mod tests {
             iterations: 17,
             gap: 3.2e-9,
             distance: Some(1.26e-5),
+            estimate: Some(2.04e-6),
             noise: Some(4.0e-3),
             at_data_accuracy: true,
         };
         assert_eq!(
             attempt.to_string(),
             "active set: skipped (it did not settle at a nearby λ); interior point on the sparse \
-             factorisation: 17 iterations (gap 3.2e-9); distance to the optimum ≤ 1.3e-5 against \
-             noise 4.0e-3 (fit norm), the data's accuracy"
+             factorisation: 17 iterations (gap 3.2e-9); distance to the optimum ≤ 1.3e-5 \
+             (estimated 2.0e-6) against noise 4.0e-3 (fit norm), the data's accuracy"
         );
         let json = serde_json::to_value(&attempt).unwrap();
         assert_eq!(json["stage"], "sparse_interior_point");
         assert_eq!(json["distance"].as_f64(), Some(1.26e-5));
+        assert_eq!(json["estimate"].as_f64(), Some(2.04e-6));
         assert_eq!(json["noise"].as_f64(), Some(4.0e-3));
         assert_eq!(json["active_set"], "skipped");
         // Without a noise estimate the text names neither figure.
@@ -360,6 +371,7 @@ mod tests {
             iterations: 17,
             gap: 3.2e-9,
             distance: None,
+            estimate: None,
             noise: None,
             at_data_accuracy: false,
         };

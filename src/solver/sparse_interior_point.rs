@@ -32,6 +32,7 @@
 //! better certified of the two points answers (on the regression packings
 //! the forces land 2–30× closer to the optimum for one iteration).
 
+use super::clarabel::DEFAULT_NOISE_SHARE;
 use super::sparse_ls::{EqualityLeastSquares, CONVERGED_TOL};
 use super::Cone;
 use super::{LeastSquares, Triplets};
@@ -73,8 +74,9 @@ pub struct InteriorPointSettings {
     /// Relative primal and dual residual accepted (clarabel's default is
     /// 1e-8); the relative duality gap must be ten times smaller.
     pub tolerance: f64,
-    /// Also stop, sooner, once the certified distance to the optimum in the
-    /// fit's norm is at most this share of the noise's effect that the
+    /// Also stop, sooner, once the distance to the optimum in the fit's norm
+    /// (the certified bound or, smaller near the end, [`StepTail`]'s
+    /// estimate) is at most this share of the noise's effect that the
     /// start's residual implies ([`noise_size`]; the start is the least
     /// squares without inequalities) and the balance and dual residuals at
     /// most [`DISTANCE_RESIDUAL`]: the data's accuracy.
@@ -146,6 +148,10 @@ pub struct InteriorPointSolution {
     /// Certified bound on the distance of `x` to the optimum in the fit's
     /// norm (‖A δ‖² + λ²‖δ‖²)^½, valid to first order in the residuals.
     pub distance: f64,
+    /// Estimate of the same distance from the last steps' contraction
+    /// (infinite until they contract); at the data's accuracy the stop takes
+    /// the smaller of the two.
+    pub estimate: f64,
     /// [`noise_size`] at the start, when asked for by
     /// [`InteriorPointSettings::noise_share`] and known.
     pub noise: Option<f64>,
@@ -574,6 +580,30 @@ pub fn solve(
         return Ok(InteriorPointSolution::not_started(start));
     }
     let profile = std::env::var_os(PROFILE_ENV).is_some();
+    let mut path = PathProfile {
+        problem,
+        points: Vec::new(),
+    };
+    let out = solve_on_path(
+        problem, cones, start, analysed, restart, settings, profile, &mut path,
+    )?;
+    path.report(&out.x);
+    Ok(out)
+}
+
+/// [`solve`] past its checks; a profiled run records its path.
+#[allow(clippy::too_many_arguments)]
+fn solve_on_path(
+    problem: &LeastSquares,
+    cones: &[Cone],
+    start: &[f64],
+    analysed: &EqualityLeastSquares,
+    restart: Option<&RestartPoint>,
+    settings: &InteriorPointSettings,
+    profile: bool,
+    path: &mut PathProfile,
+) -> Result<InteriorPointSolution> {
+    let n = problem.a.ncols;
     let correctors = std::env::var(CORRECTORS_ENV)
         .ok()
         .and_then(|v| v.parse().ok())
@@ -618,6 +648,13 @@ pub fn solve(
         iterations: settings.max_iterations,
     };
     let mut iterations = settings.max_iterations;
+    let mut tail = StepTail::default();
+    let profile_target = profile
+        .then(|| {
+            let share = settings.noise_share.unwrap_or(DEFAULT_NOISE_SHARE);
+            noise_size(problem, start).map(|n| share * n)
+        })
+        .flatten();
     for iteration in 0..settings.max_iterations {
         // Converged only on the recomputed certificate: the iterate's own
         // residuals are relative to multipliers that can grow and cancel
@@ -625,10 +662,26 @@ pub fn solve(
         // clarabel's optimum), and near the end the solves' multipliers lose
         // accuracy faster than the forces do.
         let clock = Instant::now();
-        let certificate = it.certificate(problem, cones);
+        let mut certificate = it.certificate(problem, cones);
+        let answer = projected(&it.x, cones);
+        certificate.estimate = tail.push(problem, &answer, certificate.distance);
         let certificate_time = clock.elapsed().as_secs_f64();
+        if profile {
+            eprintln!(
+                "ip-profile distance iteration {iteration} step {:.3e} estimate {:.3e} \
+                 bound {:.3e} target {:.3e} gap {:.2e} primal {:.1e} dual {:.1e}",
+                tail.step.unwrap_or(f64::NAN),
+                certificate.estimate,
+                certificate.distance,
+                profile_target.unwrap_or(f64::NAN),
+                certificate.gap,
+                certificate.primal,
+                certificate.dual
+            );
+            path.points.push(answer);
+        }
         let accurate_enough = target.is_some_and(|target| {
-            certificate.distance <= target
+            certificate.distance.min(certificate.estimate) <= target
                 && certificate.primal <= DISTANCE_RESIDUAL
                 && certificate.dual <= DISTANCE_RESIDUAL
         });
@@ -731,6 +784,103 @@ pub fn solve(
     }
 }
 
+/// The answers along a profiled run: at its end each one's distance (fit
+/// norm) to the run's answer is printed, the truth the estimate and the
+/// bound are measured against when the run was solved tight.
+struct PathProfile<'a> {
+    problem: &'a LeastSquares<'a>,
+    points: Vec<Vec<f64>>,
+}
+
+impl PathProfile<'_> {
+    fn report(&self, answer: &[f64]) {
+        for (k, x) in self.points.iter().enumerate() {
+            eprintln!(
+                "ip-profile true-distance iteration {k} {:.3e}",
+                fit_distance(self.problem, x, answer)
+            );
+        }
+    }
+}
+
+/// ‖x − y‖_H, with ‖δ‖_H = (‖A δ‖² + λ²‖δ‖²)^½ the norm the certificate
+/// bounds.
+fn fit_distance(problem: &LeastSquares, x: &[f64], y: &[f64]) -> f64 {
+    let delta: Vec<f64> = x.iter().zip(y).map(|(a, b)| a - b).collect();
+    let h = problem.hessian_times(&delta);
+    h.iter()
+        .zip(delta)
+        .map(|(a, b)| a * b)
+        .sum::<f64>()
+        .max(0.0)
+        .sqrt()
+}
+
+/// x with each contact projected onto its cone: the answer a stop returns.
+fn projected(x: &[f64], cones: &[Cone]) -> Vec<f64> {
+    let mut x = x.to_vec();
+    for c in cones {
+        c.project(&mut x);
+    }
+    x
+}
+
+/// The distance still to go, estimated from the answers' last steps.
+///
+/// The remaining steps are summed as a geometric series, d ≈ s·r/(1 − r)
+/// with s the last step (fit norm) and r the slowest of the last
+/// [`TAIL_RATIOS`] steps' contractions and of the certified bound's: a step
+/// cut short by the cones' boundary looks like convergence in the forces but
+/// not in the bound (the gap stalls with it), and a bound that falls fast
+/// while the forces still move is not taken as convergence either. Infinite
+/// until the steps and the bound have contracted over that many iterations.
+#[derive(Default)]
+struct StepTail {
+    last: Option<Vec<f64>>,
+    /// The last step and bound, and the contractions of those before.
+    step: Option<f64>,
+    bound: f64,
+    ratios: Vec<f64>,
+}
+
+/// How many recent steps' contractions the estimate takes the slowest of.
+const TAIL_RATIOS: usize = 2;
+
+impl StepTail {
+    /// Records the next answer and its certified bound; the estimate of its
+    /// distance to the optimum.
+    fn push(&mut self, problem: &LeastSquares, x: &[f64], bound: f64) -> f64 {
+        if let Some(last) = &self.last {
+            let step = fit_distance(problem, x, last);
+            if let Some(before) = self.step {
+                self.ratios.push(step / before);
+            }
+            self.ratios.push(bound / self.bound);
+            self.step = Some(step);
+        }
+        self.last = Some(x.to_vec());
+        self.bound = bound;
+        self.estimate()
+    }
+
+    fn estimate(&self) -> f64 {
+        // Two ratios per iteration (steps and bounds) once steps are known.
+        let recent = &self.ratios[self.ratios.len().saturating_sub(2 * TAIL_RATIOS)..];
+        if recent.len() < 2 * TAIL_RATIOS {
+            return f64::INFINITY;
+        }
+        // A ratio that is not a number (0/0) counts as no contraction.
+        let r = recent.iter().fold(
+            0.0f64,
+            |m, &v| if v.is_nan() { f64::INFINITY } else { m.max(v) },
+        );
+        match self.step {
+            Some(step) if r < 1.0 => step * r / (1.0 - r),
+            _ => f64::INFINITY,
+        }
+    }
+}
+
 /// The start fits the problem and the settings are usable.
 fn check_settings(n: usize, start: &[f64], settings: &InteriorPointSettings) -> Result<()> {
     if start.len() != n {
@@ -780,6 +930,7 @@ impl InteriorPointSolution {
             primal_residual: f64::INFINITY,
             dual_residual: f64::INFINITY,
             distance: f64::INFINITY,
+            estimate: f64::INFINITY,
             noise: None,
             at_distance: false,
             restart: None,
@@ -823,6 +974,8 @@ struct Measures {
     /// The certificate's bound on ‖x − x*‖_H (∞ for the iterate's own
     /// measures).
     distance: f64,
+    /// [`StepTail`]'s estimate of the same distance (∞ when unknown).
+    estimate: f64,
 }
 
 impl Measures {
@@ -975,6 +1128,7 @@ impl Iterate {
             primal: inf_norm(&balance) / inf_norm(&terms).max(f64::MIN_POSITIVE),
             dual: (outside / size.max(f64::MIN_POSITIVE)).max(free / scale),
             distance: (gap + unbalanced.abs()).sqrt(),
+            estimate: f64::INFINITY,
         }
     }
 
@@ -993,6 +1147,7 @@ impl Iterate {
             primal: inf_norm(&primal_gap) / inf_norm(&self.s).max(f64::MIN_POSITIVE),
             dual: inf_norm(&dual_gap) / size.max(f64::MIN_POSITIVE),
             distance: f64::INFINITY,
+            estimate: f64::INFINITY,
         }
     }
 
@@ -1160,6 +1315,7 @@ impl Iterate {
             primal_residual: measures.primal,
             dual_residual: measures.dual,
             distance: measures.distance,
+            estimate: measures.estimate,
             noise: None,
             at_distance: false,
             restart: None,
