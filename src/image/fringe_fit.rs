@@ -2256,12 +2256,26 @@ fn thinned(p: &Prepared, stride: u32) -> Prepared {
 }
 
 /// The pixel stride a stage smoothed by `sigma_px` can be fitted on
-/// (σ ≥ 1.5 stride px). Finer was measured: stride 2 at σ 1.6 px (the
-/// 0.04 R stage at r = 40 px) kept every bench answer, but round 2 saw it
-/// change the basin at r = 20 px; stride 4 at σ 3.3 px sent the bench's
-/// noise seed 3 into another basin (docs/photoelastic.md, round 11).
+/// (σ ≥ 1.5 stride px); the 0.04 R stage of large disks is thinned further
+/// ([`stage_stride`]). Stride 4 at σ 3.3 px sent the bench's noise seed 3
+/// into another basin (docs/photoelastic.md, round 11).
 fn stride_for(sigma_px: f64) -> u32 {
     ((sigma_px / 1.5).floor() as u32).clamp(1, 4)
+}
+
+/// Disks at least this large [px] fit the 0.04 R stage ([`STAGES`]\[1\],
+/// σ ≥ 1.2 px) on every 2nd pixel too: its time fell by ~3/4 with every
+/// bench answer and real-photo share unchanged. Smaller disks keep every
+/// pixel (round 2 saw stride 2 change the basin at r = 20 px), and the
+/// coarser stages keep [`stride_for`]: stride 2 in all three smoothed stages
+/// from r = 30 px moved fixed48's answer (docs/photoelastic.md, round 14).
+const FINE_STAGE_THIN_RADIUS_PX: f64 = 30.0;
+
+/// The pixel stride of smoothed stage `i` of [`STAGES`] for disks of median
+/// radius `radius_px`.
+fn stage_stride(i: usize, radius_px: f64) -> u32 {
+    let thin_fine = i == 1 && radius_px >= FINE_STAGE_THIN_RADIUS_PX;
+    stride_for(STAGES[i] * radius_px).max(if thin_fine { 2 } else { 1 })
 }
 
 /// The final (unsmoothed) stage first converges on every `FINAL_STRIDE`-th
@@ -2922,7 +2936,10 @@ impl Stages<'_> {
         let sigma = extra * self.radius_px;
         let clock = std::time::Instant::now();
         let stage = if sigma > 0.5 {
-            Some(thinned(&smoothed(p, sigma), stride_for(sigma)))
+            Some(thinned(
+                &smoothed(p, sigma),
+                stage_stride(i, self.radius_px),
+            ))
         } else {
             None
         };
@@ -3864,5 +3881,20 @@ mod tests {
                 bits(load_levels(&q, &SharedWork::default()))
             );
         }
+    }
+
+    #[test]
+    fn the_fine_stage_is_thinned_on_large_disks_only() {
+        // r = 40 px: the 0.04 R stage (σ 1.6 px) on every 2nd pixel as the
+        // 0.08 R stage (σ 3.2 px); r = 20 px: both on every pixel; r = 35 px:
+        // the 0.08 R stage (σ 2.8 px) on every pixel, as before.
+        assert_eq!(stage_stride(1, 40.0), 2);
+        assert_eq!(stage_stride(0, 40.0), 2);
+        assert_eq!(stage_stride(1, 30.0), 2);
+        assert_eq!(stage_stride(1, 29.0), 1);
+        assert_eq!(stage_stride(1, 20.0), 1);
+        assert_eq!(stage_stride(0, 20.0), 1);
+        assert_eq!(stage_stride(0, 35.0), 1);
+        assert_eq!(stage_stride(1, 80.0), 2);
     }
 }
