@@ -6,7 +6,7 @@
 //!         [--fsigma-scale F] [--iterations N] [--extrapolate]
 //!         [--scene DIR] [--seed N] [--dump DIR] [--circles] [--walls-last]
 //!         [--no-wall-candidates] [--mu MU] [--penalty-start W]
-//!         [--narrow-start MU] [--box-walls] [--local-starts N] [--release-weight W]
+//!         [--narrow-start MU] [--box-walls] [--local-starts N]
 //!
 //! Without flags the disks and contacts are the DEM's; `--detect` finds them
 //! in the photograph (`detect`, walls at the DEM's lines, or with
@@ -20,7 +20,7 @@
 
 use grainforce::image::fringe_fit::local_restarts;
 use grainforce::image::fringe_fit::{fit_fringes, fit_fringes_per_disk, FringeFitSettings};
-use grainforce::image::fringe_run::{with_released_balance, with_second_starts, FirstFit};
+use grainforce::image::fringe_run::{with_second_starts, FirstFit};
 use grainforce::image::photoelastic::{render_photoelastic, save_jpeg, PhotoelasticOptions};
 use grainforce::image::synthetic::match_disks;
 use grainforce::image::{detect_images, load_channel, Channel, DetectSettings, WallSource};
@@ -224,23 +224,6 @@ fn main() -> grainforce::Result<()> {
                 println!(
                     "  local restart of disk {} ({} contacts, {} starts): objective {:.2} → {:.2}, kept {:?}",
                     r.grain, r.contacts, r.starts, r.objective_before, r.objective_after, r.kept
-                );
-            }
-            // The flagged disks' balance released (`photoelastic --release-weight W`).
-            let weight = value("--release-weight").unwrap_or(0.0);
-            let (fit, released) =
-                with_released_balance(&image, &frame, fit_scene, &s, fit, weight)?;
-            if let Some(r) = released {
-                println!(
-                    "  balance released on {} disks (weight {}): objective {:.2} → {:.2} + penalty {:.2}, kept {}; their imbalance median {:.3} max {:.3}",
-                    r.disks.len(),
-                    r.weight,
-                    r.objective,
-                    r.released_objective,
-                    r.penalty,
-                    r.kept,
-                    median(&r.imbalance),
-                    r.imbalance.iter().fold(0.0f64, |m, v| m.max(*v)),
                 );
             }
             fit
@@ -514,10 +497,4 @@ fn walls_detail(
             );
         }
     }
-}
-
-fn median(v: &[f64]) -> f64 {
-    let mut v = v.to_vec();
-    v.sort_by(f64::total_cmp);
-    v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
 }

@@ -1333,10 +1333,6 @@ fn detected_against_pegs(
     if let Some(n) = var("GRAINFORCE_FRINGE_LOCAL_STARTS") {
         config.local_starts = n as usize;
     }
-    // The flagged disks' balance released as a penalty of this weight (round 14; 0: off).
-    if let Some(w) = var("GRAINFORCE_FRINGE_RELEASE") {
-        config.release_weight = w;
-    }
     let started = std::time::Instant::now();
     let mut run = fringe_run::run(&image, &scene_dir, &config).unwrap();
     let refit_mu = var("GRAINFORCE_FRINGE_REFIT_MU");
@@ -1424,24 +1420,6 @@ fn detected_against_pegs(
             .collect::<Vec<_>>()
             .join(", "),
     );
-    if let Some(r) = &run.released_balance {
-        let released: Vec<String> = (judged.iter().enumerate())
-            .filter(|(_, j)| r.disks.contains(&run.scene.grains[j.grain].id))
-            .map(|(i, j)| {
-                format!(
-                    "{} {:.3}/{:.3} imb {:.3}",
-                    disks[j.disk].id,
-                    ours.lit[i],
-                    pegs_lit[i],
-                    ours.imbalance[i].unwrap_or(f64::NAN)
-                )
-            })
-            .collect();
-        eprintln!(
-            "  balance released on {} disks (weight {}): objective {:.1} → {:.1} + penalty {:.1}, kept {}; judged released disks (PeGS id ours/PeGS imbalance): {}",
-            r.disks.len(), r.weight, r.objective, r.released_objective, r.penalty, r.kept, released.join(", ")
-        );
-    }
     if std::env::var("GRAINFORCE_FRINGE_DIAG").is_ok_and(|v| v == "2") {
         let mut drawn = run.settings.clone();
         drawn.blur_px = run.fit.report.blur_px;

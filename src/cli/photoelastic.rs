@@ -102,12 +102,6 @@ pub struct Args {
     /// kept where the whole residual falls (0: off).
     #[arg(long, default_value_t = fringe_run::DEFAULT_LOCAL_STARTS)]
     local_starts: usize,
-    /// After the fit, the disks it leaves unexplained are refitted with
-    /// their balance a penalty of this weight instead of exact (every
-    /// other disk's exact), kept where residual plus penalty falls; the
-    /// report's `released_balance` gives their imbalance (0: off).
-    #[arg(long, default_value_t = 0.0)]
-    release_weight: f64,
     /// Write the photograph and the fitted fringes side by side (PNG).
     #[arg(long)]
     overlay: Option<PathBuf>,
@@ -137,7 +131,6 @@ pub fn run(args: Args) -> Result<()> {
         penalty_start: args.penalty_start,
         narrow_start: args.narrow_start,
         local_starts: args.local_starts,
-        release_weight: args.release_weight,
     };
     let done = fringe_run::run(&args.image, &args.scene, &config).map_err(spell_flags)?;
     done.write(

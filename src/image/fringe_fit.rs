@@ -131,12 +131,6 @@ pub struct FringeFitSettings {
     /// paths and second starts are fitted from clones of one settings value
     /// and find it done (docs/photoelastic.md, round 13).
     pub shared: SharedWork,
-    /// Disks (grain ids) whose balance enters as a penalty of
-    /// `release_weight` (as [`Balance::Penalty`]) instead of exactly, under
-    /// exact balance: a disk whose fringes want an imbalance gets one, at a
-    /// price (docs/photoelastic.md, round 14). Empty or weight 0: none.
-    pub released: Vec<String>,
-    pub release_weight: f64,
 }
 
 /// Each disk's G² load levels ([`load_levels`]) as scanned by any fit made
@@ -235,8 +229,6 @@ impl FringeFitSettings {
             polariscope: Polariscope::Auto,
             smooth_walls_first: false,
             shared: SharedWork::default(),
-            released: Vec::new(),
-            release_weight: 0.0,
         }
     }
 
@@ -1436,66 +1428,9 @@ fn load_level(p: &Prepared, d: &DiskData, l: usize, levels: &[f64]) -> f64 {
 /// K_eq: per balanced grain, Σ F = 0 and Σ r × F / R = 0 (3 rows), over
 /// the unknowns.
 fn balance_rows(p: &Prepared) -> Triplets {
-    rows_of(p, &p.balanced)
-}
-
-/// Whether the balance of `d` is released ([`FringeFitSettings::released`]):
-/// a penalty instead of exact rows.
-fn is_released(d: &DiskData, scene: &Scene, settings: &FringeFitSettings) -> bool {
-    settings.release_weight > 0.0
-        && settings.balance == Balance::Hard
-        && d.loads.len() >= 2
-        && settings.released.contains(&scene.grains[d.grain].id)
-}
-
-/// The balance rows of the released disks ([`FringeFitSettings::released`]),
-/// None where there are none.
-fn released_rows(
-    p: &Prepared,
-    scene: Option<&Scene>,
-    settings: &FringeFitSettings,
-) -> Option<Triplets> {
-    let scene = scene?;
-    let which: Vec<bool> = (p.disks.iter())
-        .map(|d| is_released(d, scene, settings))
-        .collect();
-    which.contains(&true).then(|| rows_of(p, &which))
-}
-
-/// w ‖K x‖²: the released disks' balance penalty at x.
-fn release_penalty(rows: Option<&Triplets>, x: &[f64], weight: f64) -> f64 {
-    let Some(k) = rows else {
-        return 0.0;
-    };
-    let mut row = vec![0.0; k.nrows];
-    for ((&i, &j), &v) in k.rows.iter().zip(&k.cols).zip(&k.vals) {
-        row[i] += v * x[j];
-    }
-    weight * row.iter().map(|r| r * r).sum::<f64>()
-}
-
-/// The penalty the released disks' balance adds to the objective at
-/// `forces` ([`FringeFitSettings::released`]; 0 where none is released): a
-/// fit with released disks is compared with an exact one on its objective
-/// plus this.
-pub fn released_penalty(
-    image: &FloatImage,
-    frame: &PixelFrame,
-    scene: &Scene,
-    settings: &FringeFitSettings,
-    forces: &[[f64; 2]],
-) -> Result<f64> {
-    let p = prepare(image, frame, scene, settings, false)?;
-    let x = to_unknowns(scene, forces, p.scale)?;
-    let rows = released_rows(&p, Some(scene), settings);
-    Ok(release_penalty(rows.as_ref(), &x, settings.release_weight))
-}
-
-/// The balance rows of the disks `which` marks (3 per disk).
-fn rows_of(p: &Prepared, which: &[bool]) -> Triplets {
-    let count = which.iter().filter(|b| **b).count();
+    let count = p.balanced.iter().filter(|b| **b).count();
     let mut k = Triplets::new(3 * count, 2 * p.unknowns);
-    let kept = p.disks.iter().zip(which).filter(|(_, b)| **b);
+    let kept = p.disks.iter().zip(&p.balanced).filter(|(_, b)| **b);
     for (g, (d, _)) in kept.enumerate() {
         for l in &d.loads {
             let dirs = l.directions();
@@ -1902,13 +1837,6 @@ impl Stepper<'_> {
         let p = self.p;
         let n = 2 * p.unknowns;
         let (balance, zeros) = constraint_rows(p);
-        let released = released_rows(p, self.scene, self.settings);
-        let released_zeros = vec![0.0; released.as_ref().map_or(0, |k| k.nrows)];
-        let weight = self.settings.release_weight;
-        let released_term = released
-            .as_ref()
-            .map(|k| (k, released_zeros.as_slice(), weight));
-        let penalty = |x: &[f64]| release_penalty(released.as_ref(), x, weight);
         let mut solver = StepSolver::default();
         let mut damping = 1e-3;
         let mut iterations = 0;
@@ -1933,9 +1861,7 @@ impl Stepper<'_> {
         let alpha = self.sparsity * ssr0 / pixels.max(1) as f64;
         let sparse_zeros = vec![0.0; p.unknowns];
         while iterations < max_iterations {
-            current = evals.iter().map(|e| e.ssr).sum::<f64>()
-                + sparsity_penalty(&x, alpha)
-                + penalty(&x);
+            current = evals.iter().map(|e| e.ssr).sum::<f64>() + sparsity_penalty(&x, alpha);
             let sparse = (alpha > 0.0).then(|| sparsity_rows(&x, alpha));
             // Each disk's normal equations as rows: G = V Λ Vᵀ → √λ vᵀ x ≈ vᵀ(h + G u)/√λ.
             let mut rows = Triplets::new(0, n);
@@ -1995,7 +1921,6 @@ impl Stepper<'_> {
                     &damp,
                     &damp_rhs,
                     sparse.as_ref().map(|m| (m, sparse_zeros.as_slice())),
-                    released_term,
                     &balance,
                     &zeros,
                     &x,
@@ -2022,8 +1947,7 @@ impl Stepper<'_> {
                     evaluations.1 += 1;
                 }
                 let trial: f64 = trial_evals.iter().map(|e| e.ssr).sum::<f64>()
-                    + sparsity_penalty(&candidate, alpha)
-                    + penalty(&candidate);
+                    + sparsity_penalty(&candidate, alpha);
                 let spent = clock.elapsed().as_secs_f64();
                 if speculate {
                     timing.evaluate += spent;
@@ -2050,8 +1974,7 @@ impl Stepper<'_> {
                             timing.evaluate += clock.elapsed().as_secs_f64();
                             timing.extrapolations += 1;
                             let at: f64 = longer_evals.iter().map(|e| e.ssr).sum::<f64>()
-                                + sparsity_penalty(&longer, alpha)
-                                + penalty(&longer);
+                                + sparsity_penalty(&longer, alpha);
                             if at.is_finite() && at < trial {
                                 timing.extrapolated += 1;
                                 candidate = longer;
@@ -2102,7 +2025,6 @@ impl Stepper<'_> {
         damp: &Triplets,
         damp_rhs: &[f64],
         sparse: Option<(&Triplets, &[f64])>,
-        released: Option<(&Triplets, &[f64], f64)>,
         balance: &Triplets,
         zeros: &[f64],
         x: &[f64],
@@ -2126,13 +2048,6 @@ impl Stepper<'_> {
                 matrix,
                 rhs,
                 weight: 1.0,
-            });
-        }
-        if let Some((matrix, rhs, weight)) = released {
-            terms.push(Term {
-                matrix,
-                rhs,
-                weight,
             });
         }
         match self.scene {
@@ -2779,10 +2694,6 @@ fn fit_path(
         .par_iter()
         .map(|d| can_balance(d, &cones))
         .collect::<Result<_>>()?;
-    // A released disk's balance is a penalty term of the steps, not a row.
-    for (b, d) in p.balanced.iter_mut().zip(&p.disks) {
-        *b &= !is_released(d, scene, settings);
-    }
     // From the fringe gradients, the start and the coarse stages hold the
     // walls frictionless (a disk that then cannot balance alone is left out
     // of them); the final stage gives the walls their friction.
@@ -3399,8 +3310,7 @@ fn report(
             .iter()
             .zip(&p.balanced)
             // A rattler has no balance to leave out.
-            // A released disk's balance is a penalty, not left out.
-            .filter(|(d, b)| !**b && !d.loads.is_empty() && !is_released(d, scene, settings))
+            .filter(|(d, b)| !**b && !d.loads.is_empty())
             .map(|(d, _)| scene.grains[d.grain].id.clone())
             .collect(),
         flagged: disks

@@ -7,9 +7,8 @@
 //! holds.
 
 use super::fringe_fit::{
-    fit_fringes, fit_fringes_per_disk, fitted_image, imbalances, local_restarts, released_penalty,
-    wall_scale, Balance, FringeFit, FringeFitSettings, LocalRestart, Polariscope,
-    DEFAULT_CANDIDATE_GAP,
+    fit_fringes, fit_fringes_per_disk, fitted_image, local_restarts, wall_scale, Balance,
+    FringeFit, FringeFitSettings, LocalRestart, Polariscope, DEFAULT_CANDIDATE_GAP,
 };
 use super::{load_channel, Channel, FloatImage, PixelFrame, FRAME_FILE};
 use crate::error::{Error, Result};
@@ -92,10 +91,6 @@ pub struct PhotoelasticConfig {
     /// starts, kept where the whole objective falls (0: off;
     /// [`DEFAULT_LOCAL_STARTS`]).
     pub local_starts: usize,
-    /// After the fit, the disks it leaves flagged refitted with their
-    /// balance a penalty of this weight instead of exact, kept where the
-    /// residual plus the penalty falls (0: off; round 14).
-    pub release_weight: f64,
 }
 
 impl Default for PhotoelasticConfig {
@@ -120,7 +115,6 @@ impl Default for PhotoelasticConfig {
             penalty_start: DEFAULT_PENALTY_START,
             narrow_start: DEFAULT_NARROW_START,
             local_starts: DEFAULT_LOCAL_STARTS,
-            release_weight: 0.0,
         }
     }
 }
@@ -145,8 +139,6 @@ pub struct PhotoelasticRun {
     pub second_starts: Vec<SecondStart>,
     /// The local restarts, one per disk flagged after the second starts.
     pub local_restarts: Vec<LocalRestart>,
-    /// The flagged disks' balance released, when tried.
-    pub released_balance: Option<ReleasedBalance>,
 }
 
 impl PhotoelasticRun {
@@ -181,7 +173,6 @@ impl PhotoelasticRun {
         value["warnings"] = serde_json::json!(self.warnings());
         value["second_starts"] = serde_json::json!(self.second_starts);
         value["local_restarts"] = serde_json::json!(self.local_restarts);
-        value["released_balance"] = serde_json::json!(self.released_balance);
         if let Some((f, assumed)) = self.fsigma_fitted {
             value["fsigma_fitted_to_walls"] = serde_json::json!(f);
             value["fsigma_thickness_assumed"] = serde_json::json!(assumed);
@@ -425,7 +416,6 @@ pub fn run(image: &Path, scene_dir: &Path, config: &PhotoelasticConfig) -> Resul
         .collect();
     let mut second_starts = Vec::new();
     let mut restarts = Vec::new();
-    let mut released_balance = None;
     let mut fit = if config.per_disk {
         fit_fringes_per_disk(&picture, &frame, &fitted_scene, &settings)?
     } else {
@@ -446,15 +436,6 @@ pub fn run(image: &Path, scene_dir: &Path, config: &PhotoelasticConfig) -> Resul
             config.local_starts,
         )?;
         restarts = done;
-        let (fit, tried) = with_released_balance(
-            &picture,
-            &frame,
-            &fitted_scene,
-            &settings,
-            fit,
-            config.release_weight,
-        )?;
-        released_balance = tried;
         fit
     };
     // Back to the scene's contacts, zero where left out.
@@ -504,7 +485,6 @@ pub fn run(image: &Path, scene_dir: &Path, config: &PhotoelasticConfig) -> Resul
         fsigma_fitted,
         second_starts,
         local_restarts: restarts,
-        released_balance,
     })
 }
 
@@ -704,82 +684,6 @@ fn judged(
     };
     kept.report.seconds += seconds;
     (kept, record)
-}
-
-/// The flagged disks' balance released ([`with_released_balance`]).
-#[derive(Debug, Clone, serde::Serialize)]
-pub struct ReleasedBalance {
-    pub weight: f64,
-    /// The disks released (grain ids): those the fit left flagged.
-    pub disks: Vec<String>,
-    /// Each released disk's imbalance |ΣF|/Σ|F| in the refit.
-    pub imbalance: Vec<f64>,
-    /// The fit's objective, and the refit's with the balance penalty.
-    pub objective: f64,
-    pub released_objective: f64,
-    pub penalty: f64,
-    /// The refit is kept: its objective plus the penalty is the lower.
-    pub kept: bool,
-}
-
-/// `fit`, or its refit (started from its forces, under its polariscope)
-/// with the balance of the disks it leaves flagged a penalty of `weight`
-/// instead of exact ([`FringeFitSettings::released`]), kept where the
-/// residual plus the penalty ends lower: a disk whose fringes want an
-/// imbalance (a contact the list lacks, a frame that does not balance) gets
-/// one, priced, and every other disk keeps its exact balance
-/// (docs/photoelastic.md, round 14). Exact balance only; weight 0: off.
-pub fn with_released_balance(
-    image: &FloatImage,
-    frame: &PixelFrame,
-    scene: &Scene,
-    settings: &FringeFitSettings,
-    fit: FringeFit,
-    weight: f64,
-) -> Result<(FringeFit, Option<ReleasedBalance>)> {
-    if !(weight > 0.0 && settings.balance == Balance::Hard && !fit.report.flagged.is_empty()) {
-        return Ok((fit, None));
-    }
-    let released = FringeFitSettings {
-        start: Some(fit.forces.clone()),
-        polariscope: match fit.report.bright_field {
-            true => Polariscope::Bright,
-            false => Polariscope::Dark,
-        },
-        released: fit.report.flagged.clone(),
-        release_weight: weight,
-        ..settings.clone()
-    };
-    let clock = std::time::Instant::now();
-    let mut refit = fit_fringes(image, frame, scene, &released)?;
-    let penalty = released_penalty(image, frame, scene, &released, &refit.forces)?;
-    let imbalance = imbalances(scene, &refit.forces);
-    let index: std::collections::HashMap<&str, usize> = (scene.grains.iter().enumerate())
-        .map(|(g, grain)| (grain.id.as_str(), g))
-        .collect();
-    let record = ReleasedBalance {
-        weight,
-        imbalance: (released.released.iter())
-            .map(|id| imbalance[index[id.as_str()]])
-            .collect(),
-        disks: released.released,
-        objective: fit.report.objective,
-        released_objective: refit.report.objective,
-        penalty,
-        kept: refit.report.objective + penalty < fit.report.objective,
-    };
-    let seconds = clock.elapsed().as_secs_f64();
-    let kept = if record.kept {
-        refit.report.objective_start = fit.report.objective_start;
-        refit.report.iterations += fit.report.iterations;
-        refit.report.seconds += fit.report.seconds;
-        refit
-    } else {
-        let mut fit = fit;
-        fit.report.seconds += seconds;
-        fit
-    };
-    Ok((kept, Some(record)))
 }
 
 #[cfg(test)]
