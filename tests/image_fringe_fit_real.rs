@@ -6,7 +6,8 @@
 //! alike (docs/photoelastic.md, "Judged alike"); GRAINFORCE_FRINGE_DIAG=1
 //! prints why ours loses on each disk where it does. The
 //! `*_detected_fringes_against_pegs` tests judge the product's own path
-//! (`detect` → `photoelastic`) the same way (round 10).
+//! (`detect` → `photoelastic`) the same way (round 10); there
+//! GRAINFORCE_FRINGE_DIAG=2 prints round 14's diagnosis of each losing disk.
 
 use grainforce::image::fringe_fit::{fit_fringes, Balance, FringeFitSettings, Polariscope};
 use grainforce::image::{load_channel, Channel, PixelFrame};
@@ -1576,9 +1577,10 @@ fn diagnose_detected(
     let released: Vec<_> = (weights.iter())
         .map(|&w| joint(forces.to_vec(), Balance::Penalty(w)))
         .collect();
-    let touching = |g: usize, f: &[[f64; 2]], on: &dyn Fn(&Contact) -> bool| -> (usize, f64) {
+    // Grain g's contacts: how many are loaded, and Σ|F| over them.
+    let touching = |g: usize, f: &[[f64; 2]]| -> (usize, f64) {
         let loads: Vec<f64> = (scene.contacts.iter().zip(f))
-            .filter(|(c, _)| on(c) && (c.a == g || c.b == Body::Grain(g)))
+            .filter(|(c, _)| c.a == g || c.b == Body::Grain(g))
             .map(|(_, v)| v[0].hypot(v[1]))
             .collect();
         (
@@ -1595,7 +1597,6 @@ fn diagnose_detected(
         released.iter().map(|r| (r.0.report.objective * 10.0).round() / 10.0).collect::<Vec<_>>()
     );
     eprintln!("  PeGS ours | lit: ours PeGS | contacts ours(loaded) PeGS | Σ|F| ours PeGS→ours | PeGS-imb | PeGS-in-our-model free(ours) free(PeGS) | joint-from-PeGS refit | per penalty: lit (imbalance)");
-    let all = |_: &Contact| true;
     let mut wins = [0usize; 5];
     let mut released_wins = vec![0usize; released.len()];
     for (i, j) in judged.iter().enumerate() {
@@ -1617,8 +1618,8 @@ fn diagnose_detected(
             continue;
         }
         let g = j.grain;
-        let (n_ours, f_ours) = touching(g, forces, &all);
-        let (_, f_pegs) = touching(g, &pegs_mean, &all);
+        let (n_ours, f_ours) = touching(g, forces);
+        let (_, f_pegs) = touching(g, &pegs_mean);
         let pen: Vec<String> = (released.iter())
             .map(|r| {
                 format!(
