@@ -6,7 +6,8 @@
 //! alike (docs/photoelastic.md, "Judged alike"); GRAINFORCE_FRINGE_DIAG=1
 //! prints why ours loses on each disk where it does. The
 //! `*_detected_fringes_against_pegs` tests judge the product's own path
-//! (`detect` → `photoelastic`) the same way (round 10).
+//! (`detect` → `photoelastic`) the same way (round 10); there
+//! GRAINFORCE_FRINGE_DIAG=2 prints round 14's diagnosis of each losing disk.
 
 use grainforce::image::fringe_fit::{fit_fringes, Balance, FringeFitSettings, Polariscope};
 use grainforce::image::{load_channel, Channel, PixelFrame};
@@ -1420,6 +1421,23 @@ fn detected_against_pegs(
             .collect::<Vec<_>>()
             .join(", "),
     );
+    if std::env::var("GRAINFORCE_FRINGE_DIAG").is_ok_and(|v| v == "2") {
+        let mut drawn = run.settings.clone();
+        drawn.blur_px = run.fit.report.blur_px;
+        drawn.polariscope = lit_by(run.fit.report.bright_field);
+        drawn.candidate_gap = None;
+        drawn.wall_candidates = false;
+        diagnose_detected(
+            &run.image,
+            &run.frame,
+            &drawn_scene,
+            &drawn_forces,
+            &drawn,
+            &judged,
+            &disks,
+            &ours,
+        );
+    }
     if std::env::var_os("GRAINFORCE_FRINGE_DIAG").is_some() {
         for ((j, o), p) in judged.iter().zip(&ours.lit).zip(&pegs_lit) {
             if o > p {
@@ -1444,6 +1462,194 @@ fn detected_against_pegs(
         }
     }
     Some(figures)
+}
+
+/// PeGS's side forces on each contact of our (detected) `scene`, in our
+/// unit: each side of a contact takes the PeGS entry of its matched disk
+/// whose direction is nearest the contact's (within 25°), zero where PeGS
+/// lists none. `to_pegs` maps our grains to PeGS's disks.
+fn pegs_on_detected(
+    scene: &Scene,
+    frame: &PixelFrame,
+    settings: &FringeFitSettings,
+    disks: &[PegsDisk],
+    to_pegs: &[Option<usize>],
+) -> Vec<Sides> {
+    // PeGS's unit in pixel units (f_σ/t = 1), then ours: × f_σ/t / (px per m).
+    let unit =
+        disks[0].r / (disks[0].rm * disks[0].fsigma) * settings.fringe_stress / frame.px_per_m;
+    // The force on our grain `g` by PeGS along direction `n` (scene axes).
+    let side = |g: usize, n: [f64; 2]| -> Option<[f64; 2]> {
+        let d = &disks[to_pegs[g]?];
+        let (k, cos) = (d.betas.iter().enumerate())
+            .map(|(k, b)| (k, b.cos() * n[0] - b.sin() * n[1]))
+            .max_by(|a, b| a.1.total_cmp(&b.1))?;
+        if cos < 25f64.to_radians().cos() {
+            return None;
+        }
+        let (f, a) = (
+            d.forces.get(k).copied()?,
+            d.alphas.get(k).copied().unwrap_or(0.0),
+        );
+        let b = d.betas[k];
+        Some([-unit * f * (b + a).cos(), unit * f * (b + a).sin()])
+    };
+    scene
+        .contacts
+        .iter()
+        .map(|c| {
+            let n = [c.normal[0], c.normal[1]];
+            let fa = side(c.a, n);
+            let fb = match c.b {
+                Body::Grain(b) => side(b, [-n[0], -n[1]]),
+                Body::Wall(_) => None,
+            };
+            let neg = |f: [f64; 2]| [-f[0], -f[1]];
+            Sides {
+                a: fa.or(fb.map(neg)).unwrap_or([0.0; 2]),
+                b: match c.b {
+                    Body::Grain(_) => Some(fb.or(fa.map(neg)).unwrap_or([0.0; 2])),
+                    Body::Wall(_) => None,
+                },
+            }
+        })
+        .collect()
+}
+
+/// Why each disk the detected fit loses loses (round 14,
+/// GRAINFORCE_FRINGE_DIAG=2): per losing disk, our and PeGS's residual,
+/// the contacts each lists, Σ|F| on the disk (ours, PeGS's), PeGS's own
+/// forces drawn by our model (the model), the same model fitted freely per
+/// disk from our forces and from PeGS's (what balance and the contact list
+/// cost), our joint fit started from PeGS's forces (the start), and our
+/// forces refitted with balance as a penalty of weight 10 and 100 (the
+/// balance: the disk's residual and imbalance there).
+#[allow(clippy::too_many_arguments)]
+fn diagnose_detected(
+    photo: &FloatImage,
+    frame: &PixelFrame,
+    scene: &Scene,
+    forces: &[[f64; 2]],
+    settings: &FringeFitSettings,
+    judged: &[Judged],
+    disks: &[PegsDisk],
+    ours: &Ours,
+) {
+    let score = |s: &Scene, f: &[[f64; 2]]| judge_ours(photo, frame, s, settings, f, judged, disks);
+    let mut to_pegs = vec![None; scene.grains.len()];
+    for j in judged {
+        to_pegs[j.grain] = Some(j.disk);
+    }
+    let pegs = pegs_on_detected(scene, frame, settings, disks, &to_pegs);
+    let ours_sides: Vec<Sides> = (forces.iter())
+        .map(|f| Sides {
+            a: *f,
+            b: Some([-f[0], -f[1]]),
+        })
+        .collect();
+    let (split_scene, from_ours) = split(scene, &ours_sides);
+    let (_, from_pegs) = split(scene, &pegs);
+    let pegs_in_ours = score(&split_scene, &from_pegs).lit;
+    let free = |start: Vec<[f64; 2]>| {
+        let mut s = settings.clone();
+        s.start = Some(start);
+        let f = fit_fringes_per_disk(photo, frame, &split_scene, &s).unwrap();
+        score(&split_scene, &f.forces).lit
+    };
+    let (free_ours, free_pegs) = (free(from_ours), free(from_pegs));
+    let joint = |start: Vec<[f64; 2]>, balance: Balance| {
+        let mut s = settings.clone();
+        s.start = Some(start);
+        s.balance = balance;
+        let f = fit_fringes(photo, frame, scene, &s).unwrap();
+        let judged = score(scene, &f.forces);
+        (f, judged)
+    };
+    let (joint_pegs, joint_pegs_score) =
+        joint(pegs.iter().map(Sides::mean).collect(), Balance::Hard);
+    let (refit, refit_score) = joint(forces.to_vec(), Balance::Hard);
+    // The balance released as a penalty of these weights (GRAINFORCE_FRINGE_DIAG_WEIGHTS).
+    let weights: Vec<f64> = std::env::var("GRAINFORCE_FRINGE_DIAG_WEIGHTS")
+        .unwrap_or_else(|_| "10,100".into())
+        .split(',')
+        .filter_map(|w| w.parse().ok())
+        .collect();
+    let released: Vec<_> = (weights.iter())
+        .map(|&w| joint(forces.to_vec(), Balance::Penalty(w)))
+        .collect();
+    // Grain g's contacts: how many are loaded, and Σ|F| over them.
+    let touching = |g: usize, f: &[[f64; 2]]| -> (usize, f64) {
+        let loads: Vec<f64> = (scene.contacts.iter().zip(f))
+            .filter(|(c, _)| c.a == g || c.b == Body::Grain(g))
+            .map(|(_, v)| v[0].hypot(v[1]))
+            .collect();
+        (
+            loads.iter().filter(|v| **v > 1e-9).count(),
+            loads.iter().sum(),
+        )
+    };
+    let pegs_mean: Vec<[f64; 2]> = pegs.iter().map(Sides::mean).collect();
+    eprintln!(
+        "  round 14 diagnosis: objective refitted from ours {:.1}, joint from PeGS {:.1} ({} disks left out); penalties {weights:?}: objectives {:?}",
+        refit.report.objective,
+        joint_pegs.report.objective,
+        joint_pegs.report.balance_left_out.len(),
+        released.iter().map(|r| (r.0.report.objective * 10.0).round() / 10.0).collect::<Vec<_>>()
+    );
+    eprintln!("  PeGS ours | lit: ours PeGS | contacts ours(loaded) PeGS | Σ|F| ours PeGS→ours | PeGS-imb | PeGS-in-our-model free(ours) free(PeGS) | joint-from-PeGS refit | per penalty: lit (imbalance)");
+    let mut wins = [0usize; 5];
+    let mut released_wins = vec![0usize; released.len()];
+    for (i, j) in judged.iter().enumerate() {
+        let (o, p) = (ours.lit[i], j.pegs_lit);
+        let cols = [
+            pegs_in_ours[i],
+            free_ours[i],
+            free_pegs[i],
+            joint_pegs_score.lit[i],
+            refit_score.lit[i],
+        ];
+        for (w, c) in wins.iter_mut().zip(cols) {
+            *w += usize::from(c <= p);
+        }
+        for (w, r) in released_wins.iter_mut().zip(&released) {
+            *w += usize::from(r.1.lit[i] <= p);
+        }
+        if o <= p {
+            continue;
+        }
+        let g = j.grain;
+        let (n_ours, f_ours) = touching(g, forces);
+        let (_, f_pegs) = touching(g, &pegs_mean);
+        let pen: Vec<String> = (released.iter())
+            .map(|r| {
+                format!(
+                    "{:.3} ({:.3})",
+                    r.1.lit[i],
+                    r.1.imbalance[i].unwrap_or(f64::NAN)
+                )
+            })
+            .collect();
+        eprintln!(
+            "  {:>4} {:>4} | {o:.3} {p:.3} | {} ({n_ours}) {} | {f_ours:.0} {f_pegs:.0} | {:.2} | {:.3} {:.3} {:.3} | {:.3} {:.3} | {}",
+            disks[j.disk].id,
+            scene.grains[g].id,
+            scene.contacts.iter().filter(|c| c.a == g || c.b == Body::Grain(g)).count(),
+            disks[j.disk].forces.len(),
+            j.pegs_imbalance.unwrap_or(f64::NAN),
+            cols[0], cols[1], cols[2], cols[3], cols[4],
+            pen.join(" "),
+        );
+    }
+    let n = judged.len() as f64;
+    eprintln!(
+        "  shares at least as close: PeGS's forces in our model {:.2}, free from ours {:.2}, free from PeGS {:.2}, joint from PeGS {:.2}, refit {:.2}; per penalty (share, imbalance median, max): {:?}",
+        wins[0] as f64 / n, wins[1] as f64 / n, wins[2] as f64 / n, wins[3] as f64 / n, wins[4] as f64 / n,
+        (released.iter().zip(&released_wins)).map(|(r, w)| {
+            let imb: Vec<f64> = r.1.imbalance.iter().flatten().copied().collect();
+            let max = imb.iter().fold(0.0f64, |m, v| m.max(*v));
+            ((*w as f64 / n * 100.0).round() / 100.0, (median(&imb) * 1000.0).round() / 1000.0, (max * 1000.0).round() / 1000.0)
+        }).collect::<Vec<_>>(),
+    );
 }
 
 /// The product's path on one photograph, as a user gets it and with PeGS's
