@@ -1428,7 +1428,6 @@ mod tests {
         // Early, far from the stop: the cap, looser than a tolerance's.
         assert_eq!(refinement_target(1e-2, true), NOISE_REFINE_CAP);
         assert_eq!(refinement_target(1e-2, false), CONVERGED_TOL);
-        assert!(NOISE_REFINE_CAP > CONVERGED_TOL);
         // Late: a share of the gap, still looser, still tied to the gap.
         let (late, tight) = (
             refinement_target(1e-8, true),
