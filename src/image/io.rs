@@ -140,7 +140,7 @@ impl ChannelChoice {
 /// Reads an image for `detect`. With [`Channel::Auto`] a colour image is
 /// searched in its colour distance from the background colour: the most
 /// common of its darkest or brightest colours (a 16-level-per-channel
-/// histogram's fullest such bin, its mean; [`background_bin`]), whatever its
+/// histogram's fullest such bin, its mean; [`background_bins`]), whatever its
 /// colour (a white or painted backdrop, a dark field, coloured light), and
 /// however much of the picture the disks cover. Every part of a disk that differs from the
 /// background, a fringe of any order or colour, a dark rim, a dim interior,
@@ -149,7 +149,7 @@ impl ChannelChoice {
 /// signal is read in green (PeGS's choice). A gray image, or an explicit
 /// channel, is searched as it is, disks as `polarity` says.
 pub fn read_for_detection(path: &Path, channel: Channel, polarity: &str) -> Result<DetectionImage> {
-    let (read, signal) = read_search_picture(path, channel, polarity)?;
+    let (read, _, signal) = read_search_picture(path, channel, polarity)?;
     Ok(DetectionImage {
         signal: signal.unwrap_or_else(|| read.search.clone()),
         search: read.search,
@@ -167,13 +167,14 @@ pub(crate) struct SearchPicture {
     pub background_level: f64,
 }
 
-/// [`read_for_detection`]: the searched picture, and the signal picture
-/// when it is another.
+/// [`read_for_detection`]: the searched picture, the colour distance from
+/// the rival background when the histogram has one ([`background_bins`]),
+/// and the signal picture when it is another.
 pub(crate) fn read_search_picture(
     path: &Path,
     channel: Channel,
     polarity: &str,
-) -> Result<(SearchPicture, Option<FloatImage>)> {
+) -> Result<(SearchPicture, Option<SearchPicture>, Option<FloatImage>)> {
     let reader = ::image::ImageReader::open(path).map_err(|e| Error::io(path, e))?;
     let reader = reader
         .with_guessed_format()
@@ -210,40 +211,56 @@ pub(crate) fn read_search_picture(
             },
             background_level: 0.0,
         };
-        return Ok((picture, None));
+        return Ok((picture, None, None));
     }
     let (w, h) = (decoded.width(), decoded.height());
     // 8-bit RGB (cameras' JPEGs) is read in place; anything else as floats.
-    let (search, (signal, signal_channel), background, fraction, background_level) = match decoded {
+    let (found, rival, (signal, signal_channel)) = match decoded {
         DynamicImage::ImageRgb8(c) => colour_distance(c.as_raw(), (w, h), 255.0),
         other => colour_distance(other.to_rgb32f().as_raw(), (w, h), 1.0),
     };
-    let picture = SearchPicture {
-        search,
+    let signal_name = format!("{signal_channel:?}").to_ascii_lowercase();
+    let picture = |d: ColourDistance| SearchPicture {
+        search: d.search,
         choice: ChannelChoice {
             channel: "colour-distance".to_owned(),
-            background: Some(background.iter().map(|&v| v as f64).collect()),
-            background_fraction: Some(fraction),
+            background: Some(d.background.iter().map(|&v| v as f64).collect()),
+            background_fraction: Some(d.fraction),
             polarity: "bright".to_owned(),
-            signal: Some(format!("{signal_channel:?}").to_ascii_lowercase()),
+            signal: Some(signal_name.clone()),
             instead_of: None,
         },
-        background_level,
+        background_level: d.background_level,
     };
-    Ok((picture, Some(signal)))
+    Ok((picture(found), rival.map(picture), Some(signal)))
+}
+
+/// A colour distance picture ([`colour_distance`]) from one background.
+struct ColourDistance {
+    search: FloatImage,
+    /// The background colour, each channel in [0, 1].
+    background: [f32; 3],
+    /// The fraction of pixels in the background's histogram bin.
+    fraction: f64,
+    /// The background's own level in `search` (see [`own_level`]).
+    background_level: f64,
 }
 
 /// The colour distance of every pixel from the background colour (scaled so
-/// that the 99th percentile of the distances is 1), the channel the
-/// photoelastic signal is read in ([`signal_channel`]), the background colour
-/// the fraction of pixels in its histogram bin, and the background's own
-/// level in the search picture (the 90th percentile over that bin).
+/// that the 99th percentile of the distances is 1), the same from the rival
+/// background when the histogram has one ([`background_bins`]), and the
+/// picture the photoelastic signal is read in with its channel
+/// ([`signal_channel`]).
 #[allow(clippy::type_complexity)]
 fn colour_distance<T: Copy + Into<f32> + Sync>(
     raw: &[T],
     (width, height): (u32, u32),
     full_scale: f32,
-) -> (FloatImage, (FloatImage, Channel), [f32; 3], f64, f64) {
+) -> (
+    ColourDistance,
+    Option<ColourDistance>,
+    (FloatImage, Channel),
+) {
     // Every pixel of a small image, every 7th (a prime stride) of a big one.
     let pixels = raw.len() / 3;
     let stride = if pixels > 4_000_000 { 7 } else { 1 };
@@ -252,20 +269,60 @@ fn colour_distance<T: Copy + Into<f32> + Sync>(
     // disks would share bins. Where that finds no bright field, the
     // channels are binned on the full scale, as before (dark fields).
     let own = channel_tops(raw, stride.max(3), full_scale);
-    let mut scales = own;
-    let mut found = histogram_background(raw, stride, own);
-    if found
-        .2
-        .iter()
-        .all(|&v| (v as f32) < BRIGHT_FIELD * full_scale)
-    {
-        scales = [full_scale; 3];
-        found = histogram_background(raw, stride, scales);
-    }
-    let (fullest, n, mean, seen) = found;
-    let bin = |p: &[T]| bin_of(p, &scales);
-    let background = mean.map(|v| v as f32 / full_scale);
-    let spreads = channel_spreads(raw, stride);
+    let by_own = histogram_background(raw, stride, own);
+    let full = [full_scale; 3];
+    let mut by_full = None;
+    let dark = |b: &BinMean| {
+        b.mean
+            .iter()
+            .all(|&v| (v as f32) < BRIGHT_FIELD * full_scale)
+    };
+    // A candidate (the fuller end's bin, or the rival where there is one)
+    // binned on the channels' own scales while it is a bright field's,
+    // else on the full scale.
+    let mut choose = |pick: &dyn Fn(&HistogramBackground) -> &BinMean| {
+        if !dark(pick(&by_own)) {
+            return (own, by_own.seen, pick(&by_own).bin);
+        }
+        let h = by_full.get_or_insert_with(|| histogram_background(raw, stride, full));
+        (full, h.seen, pick(h).bin)
+    };
+    let first = choose(&|h| &h.bin);
+    let rival = choose(&|h| h.rival.as_ref().unwrap_or(&h.bin));
+    let from = |(scales, seen, bin): (_, usize, usize)| {
+        let h = if scales == own {
+            &by_own
+        } else {
+            by_full.as_ref().expect("binned")
+        };
+        let b = [Some(&h.bin), h.rival.as_ref()]
+            .into_iter()
+            .flatten()
+            .find(|b| b.bin == bin)
+            .expect("a candidate");
+        distance_from(raw, (width, height), full_scale, stride, &scales, b, seen)
+    };
+    let distance = from(first);
+    let rival = (rival != first).then(|| from(rival));
+    let channel = signal_channel(channel_spreads(raw, stride));
+    let signal = pick(raw, (width, height), channel, full_scale);
+    (distance, rival, (signal, channel))
+}
+
+/// [`colour_distance`] from the background of histogram bin `bin` (binned on
+/// `scales`, `seen` pixels counted).
+#[allow(clippy::too_many_arguments)]
+fn distance_from<T: Copy + Into<f32> + Sync>(
+    raw: &[T],
+    (width, height): (u32, u32),
+    full_scale: f32,
+    stride: usize,
+    scales: &[f32; 3],
+    bin: &BinMean,
+    seen: usize,
+) -> ColourDistance {
+    let in_background = |p: &[T]| bin_of(p, scales) == bin.bin;
+    let background = bin.mean.map(|v| v as f32 / full_scale);
     let gain = white_balance(background);
     let distance: Vec<f32> = raw
         .par_chunks_exact(3)
@@ -279,11 +336,11 @@ fn colour_distance<T: Copy + Into<f32> + Sync>(
     // The background bin's own distances (noise, shading), sampled, from
     // the bin's median colour (see [`own_level`]).
     let in_bin: Vec<&[T]> = (raw.chunks_exact(3).step_by(stride.max(3)))
-        .filter(|p| bin(p) == fullest)
+        .filter(|p| in_background(p))
         .collect();
     let centre = [0, 1, 2].map(|c| {
         let mut v: Vec<f32> = in_bin.iter().map(|p| p[c].into()).collect();
-        percentile(&mut v, 50).unwrap_or(mean[c] as f32) / full_scale
+        percentile(&mut v, 50).unwrap_or(bin.mean[c] as f32) / full_scale
     });
     let mut own: Vec<f32> = (in_bin.iter())
         .map(|p| {
@@ -301,15 +358,12 @@ fn colour_distance<T: Copy + Into<f32> + Sync>(
             .collect(),
     )
     .expect("same dimensions");
-    let channel = signal_channel(spreads);
-    let signal = pick(raw, (width, height), channel, full_scale);
-    (
+    ColourDistance {
         search,
-        (signal, channel),
         background,
-        n as f64 / seen.max(1) as f64,
+        fraction: bin.count as f64 / seen.max(1) as f64,
         background_level,
-    )
+    }
 }
 
 /// The background's own level in a distance picture (its noise, light
@@ -366,14 +420,26 @@ fn bin_of<T: Copy + Into<f32>>(p: &[T], scales: &[f32; 3]) -> usize {
     (q(0) * LEVELS + q(1)) * LEVELS + q(2)
 }
 
-/// The background's bin ([`background_bin`]) of a histogram of every
-/// `stride`-th pixel binned on `scales`: the bin, its count, its mean
-/// colour (raw units) and the pixels counted.
+/// A histogram bin: its index, its count and its pixels' mean colour (raw units).
+struct BinMean {
+    bin: usize,
+    count: usize,
+    mean: [f64; 3],
+}
+
+/// The background's bin and its rival ([`background_bins`]) of a histogram
+/// of every `stride`-th pixel binned on `scales`, and the pixels counted.
+struct HistogramBackground {
+    bin: BinMean,
+    rival: Option<BinMean>,
+    seen: usize,
+}
+
 fn histogram_background<T: Copy + Into<f32>>(
     raw: &[T],
     stride: usize,
     scales: [f32; 3],
-) -> (usize, usize, [f64; 3], usize) {
+) -> HistogramBackground {
     let mut count = vec![0usize; LEVELS * LEVELS * LEVELS];
     let mut sum = vec![[0.0f64; 3]; LEVELS * LEVELS * LEVELS];
     let mut seen = 0usize;
@@ -399,10 +465,17 @@ fn histogram_background<T: Copy + Into<f32>>(
         .step_by(stride.max(3))
         .map(|p| luma([0, 1, 2].map(|c| Into::<f32>::into(p[c]) as f64)))
         .collect();
-    let fullest = background_bin(&count, &bin_luma, sample, 1.0 / LEVELS as f64);
-    let n = count[fullest];
-    let mean = [0, 1, 2].map(|c| sum[fullest][c] / n.max(1) as f64);
-    (fullest, n, mean, seen)
+    let (bin, rival) = background_bins(&count, &bin_luma, sample, 1.0 / LEVELS as f64);
+    let mean_of = |b: usize| BinMean {
+        bin: b,
+        count: count[b],
+        mean: [0, 1, 2].map(|c| sum[b][c] / count[b].max(1) as f64),
+    };
+    HistogramBackground {
+        bin: mean_of(bin),
+        rival: rival.map(mean_of),
+        seen,
+    }
 }
 
 /// Each channel's 99th percentile over every `stride`-th pixel, at least
@@ -467,15 +540,23 @@ const DEAD_CHANNEL: f32 = 0.1;
 
 /// The background's histogram bin: the fullest bin whose colour is among the
 /// image's darkest or brightest (its mean luma within one bin of the 5th
-/// percentile's or of the 95th's), or the fullest of all when none is. Behind
-/// a polariscope the background is the light without a disk: extinguished in
-/// a dark field, the brightest part of a bright one; disks are in between. A
+/// percentile's or of the 95th's; of the fullest dark and the fullest bright
+/// one, the fuller), or the fullest of all when none is; and a rival, the
+/// other end's fullest bin, when it is at least [`NEAR_FULLEST`] as full and
+/// farther from the median pixel. Behind a polariscope the background is the
+/// light without a disk: extinguished in a dark field, the brightest part of
+/// a bright one; disks are in between. A
 /// dense packing of unloaded disks of one colour fills more of the picture
 /// than the background does (two photographs of docs/image.md: the disks'
 /// teal 5–8 % of the pixels, the backdrop's white 4 %). `bin_luma` is each
 /// bin's mean luma, `sample` the luma of a sample of pixels, `one_bin` a
 /// bin's width, all in one unit.
-fn background_bin(count: &[usize], bin_luma: &[f64], mut sample: Vec<f64>, one_bin: f64) -> usize {
+pub(crate) fn background_bins(
+    count: &[usize],
+    bin_luma: &[f64],
+    mut sample: Vec<f64>,
+    one_bin: f64,
+) -> (usize, Option<usize>) {
     let fullest = |keep: &dyn Fn(usize) -> bool| {
         (0..count.len())
             .filter(|&b| count[b] > 0 && keep(b))
@@ -483,7 +564,7 @@ fn background_bin(count: &[usize], bin_luma: &[f64], mut sample: Vec<f64>, one_b
     };
     let all = || fullest(&|_| true).unwrap_or(0);
     if sample.len() < 2 {
-        return all();
+        return (all(), None);
     }
     let n = sample.len();
     let dark = *sample
@@ -492,17 +573,48 @@ fn background_bin(count: &[usize], bin_luma: &[f64], mut sample: Vec<f64>, one_b
     let bright = *sample
         .select_nth_unstable_by(n * 19 / 20, |a, b| a.total_cmp(b))
         .1;
-    fullest(&|b| bin_luma[b] <= dark + one_bin || bin_luma[b] >= bright - one_bin)
-        .unwrap_or_else(all)
+    let is_dark = |b: usize| bin_luma[b] <= dark + one_bin;
+    let is_bright = |b: usize| !is_dark(b) && bin_luma[b] >= bright - one_bin;
+    let (Some(darkest), brightest) = (fullest(&is_dark), fullest(&is_bright)) else {
+        return (fullest(&is_bright).unwrap_or_else(all), None);
+    };
+    let Some(brightest) = brightest else {
+        return (darkest, None);
+    };
+    // Which end of the histogram is the background: the fuller one's bin,
+    // but the other end's competes when it is nearly as full and farther
+    // from the median pixel (disks lie between the extremes). In a packing
+    // of touching disks with bright rims the rims' bin can be the fuller by
+    // a little (`tests/image_detect_small.rs`: 11 241 against the dark
+    // triangles' 9 853), and in a dark field with bright rims the rims' bin
+    // is the farther (`tests/image_backgrounds.rs`); the searches judge
+    // (`rival_background_wins` in `src/image/mod.rs`). None of the 14
+    // photographs of docs/image.md with a reference has a rival.
+    let median = *sample
+        .select_nth_unstable_by(n / 2, |a, b| a.total_cmp(b))
+        .1;
+    let (fuller, other) = if count[darkest] >= count[brightest] {
+        (darkest, brightest)
+    } else {
+        (brightest, darkest)
+    };
+    let from_median = |b: usize| (bin_luma[b] - median).abs();
+    let rival = count[other] as f64 >= NEAR_FULLEST * count[fuller] as f64
+        && from_median(other) > from_median(fuller);
+    (fuller, rival.then_some(other))
 }
 
+/// See [`background_bins`]: the other end's bin competes to be the
+/// background when it holds at least this share of the fuller end's.
+const NEAR_FULLEST: f64 = 0.5;
+
 /// A gray picture's distance from its background level (the fullest of
-/// sixteen levels among its darkest or brightest, [`background_bin`]),
+/// sixteen levels among its darkest or brightest, [`background_bins`]),
 /// scaled as [`colour_distance`] scales it; with the background level, the
 /// fraction of pixels in its bin and the background's own level in the
 /// distance (90th percentile over the bin).
 pub fn gray_distance(gray: &FloatImage) -> (FloatImage, f32, f64, f64) {
-    let levels = GrayDistance::of(gray);
+    let (levels, _) = GrayDistance::of(gray);
     let values = gray.as_raw();
     let distance = values.par_iter().map(|&v| levels.at(v)).collect();
     let (w, h) = gray.dimensions();
@@ -526,19 +638,22 @@ pub(crate) struct GrayDistance {
     pub own_level: f64,
 }
 
+/// Gray levels binned by [`GrayDistance::of`].
+const GRAY_LEVELS: usize = 16;
+
 impl GrayDistance {
-    pub fn of(gray: &FloatImage) -> Self {
-        const LEVELS: usize = 16;
+    /// The distance from the background level, and from the rival
+    /// background's when the histogram has one ([`background_bins`]).
+    pub fn of(gray: &FloatImage) -> (Self, Option<Self>) {
         let values = gray.as_raw();
-        let bin = |v: f32| ((v.clamp(0.0, 1.0) * LEVELS as f32) as usize).min(LEVELS - 1);
         let stride = if values.len() > 4_000_000 { 7 } else { 1 };
-        let mut count = [0usize; LEVELS];
-        let mut sum = [0.0f64; LEVELS];
+        let mut count = [0usize; GRAY_LEVELS];
+        let mut sum = [0.0f64; GRAY_LEVELS];
         for &v in values.iter().step_by(stride) {
-            count[bin(v)] += 1;
-            sum[bin(v)] += v as f64;
+            count[gray_bin(v)] += 1;
+            sum[gray_bin(v)] += v as f64;
         }
-        let bin_luma: Vec<f64> = (0..LEVELS)
+        let bin_luma: Vec<f64> = (0..GRAY_LEVELS)
             .map(|b| sum[b] / count[b].max(1) as f64)
             .collect();
         let sample: Vec<f64> = values
@@ -546,15 +661,29 @@ impl GrayDistance {
             .step_by(stride.max(3))
             .map(|&v| v as f64)
             .collect();
-        let b = background_bin(&count, &bin_luma, sample, 1.0 / LEVELS as f64);
-        let level = bin_luma[b] as f32;
+        let (b, rival) = background_bins(&count, &bin_luma, sample, 1.0 / GRAY_LEVELS as f64);
+        let seen: usize = count.iter().sum();
+        let from = |b: usize| {
+            Self::from_bin(
+                values,
+                stride,
+                b,
+                bin_luma[b] as f32,
+                count[b] as f64 / seen.max(1) as f64,
+            )
+        };
+        (from(b), rival.map(from))
+    }
+
+    /// The distance from the level of bin `b` (mean `level`, holding
+    /// `fraction` of the pixels) of `values`, sampled every `stride`-th.
+    fn from_bin(values: &[f32], stride: usize, b: usize, level: f32, fraction: f64) -> Self {
         // The bin's own distances are taken from its median: see [`own_level`].
         let mut in_bin: Vec<f32> = (values.iter().step_by(stride.max(3)))
-            .filter(|&&v| bin(v) == b)
+            .filter(|&&v| gray_bin(v) == b)
             .copied()
             .collect();
         let centre = percentile(&mut in_bin, 50).unwrap_or(level);
-        let seen: usize = count.iter().sum();
         let scale = distance_scale(
             values
                 .iter()
@@ -565,14 +694,14 @@ impl GrayDistance {
         let mut own: Vec<f32> = values
             .iter()
             .step_by(stride.max(3))
-            .filter(|&&v| bin(v) == b)
+            .filter(|&&v| gray_bin(v) == b)
             .map(|&v| (v - centre).abs() * scale)
             .collect();
         let own_level = own_level(&mut own);
         GrayDistance {
             level,
             scale,
-            fraction: count[b] as f64 / seen.max(1) as f64,
+            fraction,
             own_level,
         }
     }
@@ -581,6 +710,11 @@ impl GrayDistance {
     pub fn at(&self, v: f32) -> f32 {
         ((v - self.level).abs() * self.scale).min(1.5)
     }
+}
+
+/// The bin of gray value `v` in [`GrayDistance::of`]'s histogram.
+fn gray_bin(v: f32) -> usize {
+    ((v.clamp(0.0, 1.0) * GRAY_LEVELS as f32) as usize).min(GRAY_LEVELS - 1)
 }
 
 /// The spread of each channel (1st to 99th percentile of a sample of every
