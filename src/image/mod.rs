@@ -327,6 +327,7 @@ fn colour_search_options(
     let mut o = detect.clone();
     o.polarity = Polarity::Bright;
     o.find_by_rims = false;
+    o.outermost_outline = true;
     o.overlap = o.overlap.max(COLOUR_OVERLAP);
     // Outlines in the colour distance are a few pixels wide: more
     // smoothing would blur away the outline of a disk whose inside

@@ -75,6 +75,13 @@ pub struct DetectOptions {
     /// and a tolerance of half a photograph's pixel lost most disks of a
     /// dense packing whose outlines merge (docs/image.md, round 13).
     pub sensor_pixel: f64,
+    /// Each disk found is refined once more from its own circle with the
+    /// outermost edge of each ray as its outline, and the better supported
+    /// of the two kept. For pictures of distances from the background
+    /// (bright disks), where a disk's outline is its last drop: a circle
+    /// inside a loaded disk along its fringes gives way to the outline
+    /// (docs/image.md, round 15).
+    pub outermost_outline: bool,
 }
 
 impl DetectOptions {
@@ -96,6 +103,7 @@ impl DetectOptions {
             min_fill: 0.0,
             settle_edges: false,
             sensor_pixel: 1.0,
+            outermost_outline: false,
         }
     }
 
