@@ -73,9 +73,9 @@ pub(crate) enum EdgePick {
 }
 
 /// An edge counts for [`EdgePick::Outermost`] at this share of the ray's
-/// strongest: a dim outline beside a bright fringe band (a drop of 0.17
-/// against the band's 0.6 in the colour distance) still counts; noise
-/// (0.01 after the smoothing) does not.
+/// strongest: a dim outline beside a bright fringe band still counts,
+/// noise does not (the circle fit drops edges under a quarter of the
+/// median strength as well).
 const OUTERMOST_SHARE: f64 = 0.25;
 
 /// Most wide passes of [`EdgePick::Outermost`], and the move [px] at which
@@ -146,26 +146,26 @@ fn refine_from(
     // with `settle_edges` the narrow passes repeat until the circle settles,
     // so a circle the wide pass left on a fringe edge inside a dim stretch
     // of outline creeps out to it pass by pass.
-    let signs = (sign, sigma);
+    let ray = (sign, sigma);
     let wide = 0.25 * r0 + 2.0 * sigma;
     let wide_passes = match pick {
         EdgePick::Strongest => 1,
         EdgePick::Outermost => OUTERMOST_WIDE_PASSES,
     };
     for _ in 0..wide_passes {
-        let (_, fit, _, _) = edge_pass(img, (c, r), signs, wide, pick, o)?;
+        let (_, fit, _, _) = edge_pass(img, (c, r), ray, wide, pick, o)?;
         let moved = (fit[0] - c[0]).hypot(fit[1] - c[1]) + (fit[2] - r).abs();
         (c, r) = ([fit[0], fit[1]], fit[2]);
         if moved < WIDE_SETTLED_PX {
             break;
         }
     }
-    let judged = edge_pass(img, (c, r), signs, 2.0 * sigma + 2.0, pick, o)?;
+    let judged = edge_pass(img, (c, r), ray, 2.0 * sigma + 2.0, pick, o)?;
     (c, r) = ([judged.1[0], judged.1[1]], judged.1[2]);
     let narrow = (1.5 * sigma).max(1.25);
     for pass in 0..NARROW_PASSES {
         // The first two narrow passes are required; later ones only improve.
-        let Some((_, fit, _, _)) = edge_pass(img, (c, r), signs, narrow, pick, o) else {
+        let Some((_, fit, _, _)) = edge_pass(img, (c, r), ray, narrow, pick, o) else {
             if pass < 2 {
                 return None;
             }
