@@ -436,12 +436,16 @@ fn without_copies(mut found: Vec<Disk>) -> Vec<Disk> {
     kept
 }
 
-/// Whether circle `outer` contains circle `inner`, to the support's
-/// tolerance: a disk's outline encloses whatever inside it was taken for
-/// one; a reading that moves sideways is another disk's.
+/// Whether circle `outer` contains circle `inner` and is larger by more
+/// than the support's tolerance: a disk's outline encloses whatever inside
+/// it was taken for one (a reading that moves sideways is another disk's),
+/// and a reading within the tolerance is the same outline, which stays as
+/// first found (moved by a pixel or two, `jlin-fixed48`'s and
+/// `jlin-step83`'s circles cost their fringe fits; docs/image.md, round 15).
 fn encloses(outer: &Disk, inner: &Disk, o: &DetectOptions) -> bool {
     let tolerance = o.sensor_pixel + 0.02 * outer.r;
     (outer.x - inner.x).hypot(outer.y - inner.y) + inner.r <= outer.r + tolerance
+        && outer.r > inner.r + tolerance
 }
 
 /// Whether two circles are copies of one disk (centres within 0.7 of the
