@@ -6,7 +6,7 @@
 //!         [--fsigma-scale F] [--iterations N] [--extrapolate]
 //!         [--scene DIR] [--seed N] [--dump DIR] [--circles] [--walls-last]
 //!         [--no-wall-candidates] [--mu MU] [--penalty-start W]
-//!         [--narrow-start MU] [--box-walls] [--local-starts N]
+//!         [--narrow-start MU] [--box-walls] [--local-starts N] [--outermost-outline]
 //!
 //! Without flags the disks and contacts are the DEM's; `--detect` finds them
 //! in the photograph (`detect`, walls at the DEM's lines, or with
@@ -120,6 +120,7 @@ fn main() -> grainforce::Result<()> {
         let mut settings = DetectSettings::new(2.2e-3 * px, 4.2e-3 * px, px);
         settings.frame = Some(frame);
         settings.detect.settle_edges = args.iter().any(|a| a == "--settle-edges");
+        settings.detect.outermost_outline = args.iter().any(|a| a == "--outermost-outline");
         settings.walls = WallSource::Lines(grainforce::image::contacts::walls_from_scene_contacts(
             &scene, &frame,
         ));

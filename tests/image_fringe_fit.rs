@@ -1327,27 +1327,25 @@ fn detection_split(
     }
 }
 
-/// The bundled photograph (`fixtures/photoelastic`, the 58-disk render) as
-/// `detect` finds it with `settle_edges` (off by default): every disk's
-/// outer circle within 2.5 px of the DEM's in centre and radius (r ≈ 30–50
-/// px). Without it two disks whose outline is dim on one side beside a
-/// bright fringe are 4.0 px small / 4.2 px off (grain 8) and 2.9 / 3.5 px
-/// (grain 55, whose top-wall contact the fit then loses); with it 1.7 /
-/// 2.0 px at worst.
-#[test]
-fn detected_circles_of_the_bundled_photograph_match_the_dem() {
+/// The worst centre offset and radius error [px] of the circles `detect`
+/// finds in `photo` (the 58-disk oedometer drawn in `frame`) against the
+/// DEM's grains; every grain must be found.
+fn worst_circle_errors(
+    photo: &Path,
+    frame: PixelFrame,
+    settle_edges: bool,
+    outermost_outline: bool,
+) -> (f64, f64) {
     use grainforce::image::synthetic::match_disks;
     use grainforce::image::{detect_images, DetectSettings};
     let (scene, _) = oedometer();
-    let dir = Path::new("fixtures/photoelastic");
-    let frame = PixelFrame::read(&dir.join("scene/image-frame.json")).unwrap();
     let px = frame.px_per_m;
     let mut settings = DetectSettings::new(2.2e-3 * px, 4.2e-3 * px, px);
     settings.frame = Some(frame);
-    settings.detect.settle_edges = true;
-    let photo = dir.join("photo.jpg");
+    settings.detect.settle_edges = settle_edges;
+    settings.detect.outermost_outline = outermost_outline;
     let detection = detect_images(
-        std::slice::from_ref(&photo),
+        std::slice::from_ref(&photo.to_path_buf()),
         &settings,
         &mut |_, _, _, _| Ok(()),
     )
@@ -1364,13 +1362,66 @@ fn detected_circles_of_the_bundled_photograph_match_the_dem() {
             (d.x - centre[0]).hypot(d.y - centre[1]),
             d.r - grain.radius.unwrap() * px,
         );
-        eprintln!("grain {g}: centre off {off:.2} px, radius {dr:+.2} px");
+        if off > 1.5 || dr.abs() > 1.5 {
+            eprintln!("grain {g}: centre off {off:.2} px, radius {dr:+.2} px");
+        }
         worst = (worst.0.max(off), worst.1.max(dr.abs()));
     }
+    worst
+}
+
+/// The bundled photograph (`fixtures/photoelastic`, the 58-disk render) as
+/// `detect` finds it with `settle_edges` (off by default): every disk's
+/// outer circle within 2.5 px of the DEM's in centre and radius (r ≈ 30–50
+/// px). Round 8: without it two
+/// disks whose outline is dim on one side beside a bright fringe were 4.0
+/// px small / 4.2 px off (grain 8) and 2.9 / 3.5 px (grain 55, whose
+/// top-wall contact the fit then loses); with it 1.7 / 2.0 px at worst.
+#[test]
+fn detected_circles_of_the_bundled_photograph_match_the_dem() {
+    let dir = Path::new("fixtures/photoelastic");
+    let frame = PixelFrame::read(&dir.join("scene/image-frame.json")).unwrap();
+    let worst = worst_circle_errors(&dir.join("photo.jpg"), frame, true, false);
     assert!(
         worst.0 <= 2.5 && worst.1 <= 2.5,
         "worst centre offset {:.2} px, radius error {:.2} px",
         worst.0,
         worst.1
     );
+}
+
+/// Round 15, with `outermost_outline` (off by default): the bundled packing drawn as `fringe_bench`
+/// draws it (r ≈ 40 px, blur 0.8 px, noise 2 %, JPEG q90) with noise seeds
+/// 1, 2 and 3. The colour-distance search took grain 8's bright fringe
+/// band for its outline (4.2, 9.1 and 8.9 px off, 4.0, 8.4 and 8.1 px
+/// small: a circle inside the disk, whose contacts the fit then loses);
+/// each disk refined again along its outermost edges reaches the outline:
+/// every circle within 2.5 px of the DEM's (2.0 px at worst).
+#[test]
+fn circles_inside_fringes_reach_the_outline() {
+    let (scene, truth) = oedometer();
+    let mean_r: f64 =
+        scene.grains.iter().map(|g| g.radius.unwrap()).sum::<f64>() / scene.grains.len() as f64;
+    let dir = tempfile::tempdir().unwrap();
+    for seed in [1, 2, 3] {
+        let mut o = PhotoelasticOptions::new(40.0 / mean_r, 4e4);
+        o.blur_px = 0.8;
+        o.noise = 0.02;
+        o.uneven_lighting = 0.1;
+        o.seed = seed;
+        let (rgb, frame) = render_photoelastic(&scene, &truth, &o).unwrap();
+        let path = dir.path().join(format!("oedometer-{seed}.jpg"));
+        grainforce::image::photoelastic::save_jpeg(&path, &rgb, 90).unwrap();
+        let worst = worst_circle_errors(&path, frame, false, true);
+        eprintln!(
+            "seed {seed}: worst centre {:.2} px, radius {:.2} px",
+            worst.0, worst.1
+        );
+        assert!(
+            worst.0 <= 2.5 && worst.1 <= 2.5,
+            "seed {seed}: worst centre offset {:.2} px, radius error {:.2} px",
+            worst.0,
+            worst.1
+        );
+    }
 }

@@ -354,6 +354,14 @@ fn colour_search_options(
     o
 }
 
+/// The options of a picture searched as it is (not in its distance from
+/// the background): the outermost outline is a distance picture's rule.
+fn as_is(detect: &DetectOptions) -> DetectOptions {
+    let mut o = detect.clone();
+    o.outermost_outline = false;
+    o
+}
+
 /// The outline evidence of a search: the support (the fraction of rays that
 /// agree with the circle) summed over the disks.
 fn outline_evidence(disks: &[Disk]) -> f64 {
@@ -665,7 +673,7 @@ pub fn detect_images(
                 .as_ref()
                 .is_some_and(|b| b.iter().all(|&v| v < DARK_FIELD));
             let instead = if dark_field {
-                single_channel_instead(&image, &settings.detect, &by_distance, &choice)?
+                single_channel_instead(&image, &as_is(&settings.detect), &by_distance, &choice)?
             } else {
                 None
             };
@@ -686,9 +694,9 @@ pub fn detect_images(
             // took 28 of its 32 s of CPU here.
             let disks = if settings.channel == Channel::Auto {
                 let factor = signal_search_factor(&search, &settings.detect);
-                detect::detect_disks_shrunk(&search, &settings.detect, factor)?
+                detect::detect_disks_shrunk(&search, &as_is(&settings.detect), factor)?
             } else {
-                detect_disks(&search, &settings.detect)?
+                detect_disks(&search, &as_is(&settings.detect))?
             };
             let gray_auto = settings.channel == Channel::Auto
                 && choice.channel == "gray"

@@ -49,7 +49,7 @@ use polish::{polish, ModelFit};
 pub(crate) use pyramid::small_disk_factor;
 use pyramid::{coarse_candidates, downsample, pyramid_factor, upsample, COARSE_RADIUS};
 use rayon::prelude::*;
-use refine::refine;
+use refine::{refine, refine_outermost};
 use rims::{add_rim_enclosed, add_rim_enclosed_coarse};
 use voting::{distance_peaks, peaks, vote, whole_disk_votes};
 
@@ -167,7 +167,7 @@ fn search(image: &FloatImage, options: &DetectOptions, mask: bool) -> Result<Vec
             })
             .collect::<Vec<_>>()
     };
-    let mut found: Vec<Disk> = if pyramid {
+    let found: Vec<Disk> = if pyramid {
         refine_strongest_first(&candidates, refine_candidate, o)
     } else {
         candidates
@@ -175,16 +175,21 @@ fn search(image: &FloatImage, options: &DetectOptions, mask: bool) -> Result<Vec
             .flat_map_iter(refine_candidate)
             .collect()
     };
-    drop(edge_image);
     laps.lap(&format!("search: refine {} candidates", candidates.len()));
-    // Merge duplicates: the best-supported copy of each disk wins.
-    found.sort_by(|a, b| score(b).total_cmp(&score(a)));
-    let mut kept: Vec<Disk> = Vec::new();
-    for d in found {
-        if !kept.iter().any(|k| same_disk(k, &d)) {
-            kept.push(d);
-        }
+    let mut kept = without_copies(found);
+    if o.outermost_outline && o.polarity == Polarity::Bright {
+        let outermost: Vec<Disk> = kept
+            .par_iter()
+            .map(|d| {
+                refine_outermost(&plane, d, 1.0, edge_sigma, o)
+                    .filter(|e| score(e) > score(d) && encloses(e, d, o))
+                    .unwrap_or(*d)
+            })
+            .collect();
+        kept = without_copies(outermost);
+        laps.lap("search: outermost outlines");
     }
+    drop(edge_image);
     let fits: Vec<Option<ModelFit>> = (0..kept.len())
         .into_par_iter()
         .map(|k| polish(image, &kept, k))
@@ -417,6 +422,30 @@ pub(crate) fn without_overlaps(mut kept: Vec<Disk>, overlap: f64) -> Vec<Disk> {
     }
     solid.sort_by(|a, b| a.y.total_cmp(&b.y).then(a.x.total_cmp(&b.x)));
     solid
+}
+
+/// Duplicates merged: the best-supported copy of each disk wins.
+fn without_copies(mut found: Vec<Disk>) -> Vec<Disk> {
+    found.sort_by(|a, b| score(b).total_cmp(&score(a)));
+    let mut kept: Vec<Disk> = Vec::new();
+    for d in found {
+        if !kept.iter().any(|k| same_disk(k, &d)) {
+            kept.push(d);
+        }
+    }
+    kept
+}
+
+/// Whether circle `outer` contains circle `inner` and is larger by more
+/// than the support's tolerance: a disk's outline encloses whatever inside
+/// it was taken for one (a reading that moves sideways is another disk's),
+/// and a reading within the tolerance is the same outline, which stays as
+/// first found (moved by a pixel or two, `jlin-fixed48`'s and
+/// `jlin-step83`'s circles cost their fringe fits; docs/image.md, round 15).
+fn encloses(outer: &Disk, inner: &Disk, o: &DetectOptions) -> bool {
+    let tolerance = o.sensor_pixel + 0.02 * outer.r;
+    (outer.x - inner.x).hypot(outer.y - inner.y) + inner.r <= outer.r + tolerance
+        && outer.r > inner.r + tolerance
 }
 
 /// Whether two circles are copies of one disk (centres within 0.7 of the

@@ -60,6 +60,30 @@ const SETTLED_PX: f64 = 0.05;
 /// Largest angle between the gradient and the ray at a boundary point: tan 25°.
 pub(crate) const ALIGNMENT: f64 = 0.466;
 
+/// Which edge of a ray's search window is the disk's outline.
+#[derive(Clone, Copy, PartialEq, Eq)]
+pub(crate) enum EdgePick {
+    /// The strongest: a disk's outline against its surroundings.
+    Strongest,
+    /// The outermost of those at least [`OUTERMOST_SHARE`] of the strongest:
+    /// in a picture of distances from the background nothing outside a
+    /// disk is above the background but its neighbours, so the disk's
+    /// outline is its last drop, however strong the fringe edges inside.
+    Outermost,
+}
+
+/// An edge counts for [`EdgePick::Outermost`] at this share of the ray's
+/// strongest: a dim outline beside a bright fringe band still counts,
+/// noise does not (the circle fit drops edges under a quarter of the
+/// median strength as well).
+const OUTERMOST_SHARE: f64 = 0.25;
+
+/// Most wide passes of [`EdgePick::Outermost`], and the move [px] at which
+/// they stop: a circle found inside a disk along its fringes grows by
+/// about the wide window a pass until it meets the outline.
+const OUTERMOST_WIDE_PASSES: usize = 4;
+const WIDE_SETTLED_PX: f64 = 0.5;
+
 /// Refines a candidate centre into a disk, or rejects it.
 pub(crate) fn refine(
     img: &Plane,
@@ -70,6 +94,49 @@ pub(crate) fn refine(
     o: &DetectOptions,
 ) -> Option<Disk> {
     let r0 = radial_peak(img, centre, hint, sign, o)?;
+    refine_from(img, centre, r0, sign, sigma, o, EdgePick::Strongest)
+}
+
+/// A disk refined again from its own circle, each ray's outline its
+/// outermost edge ([`EdgePick::Outermost`]), judged as [`refine`] judges.
+pub(crate) fn refine_outermost(
+    img: &Plane,
+    d: &Disk,
+    sign: f64,
+    sigma: f64,
+    o: &DetectOptions,
+) -> Option<Disk> {
+    let r = d.r - sigma * sigma / (2.0 * d.r);
+    refine_from(img, [d.x, d.y], r, sign, sigma, o, EdgePick::Outermost)
+}
+
+/// The edges of one pass along rays from `c` within ±`half_window` of `r`,
+/// and the circle fitted to them; `None` when too little of the circle is
+/// in view or the fit fails.
+fn edge_pass(
+    img: &Plane,
+    (c, r): ([f64; 2], f64),
+    (sign, sigma): (f64, f64),
+    half_window: f64,
+    pick: EdgePick,
+    o: &DetectOptions,
+) -> Option<(Vec<Edge>, [f64; 3], usize, usize)> {
+    let (edges, rays, visible_rays) = ray_edges(img, c, r, sign, half_window, sigma, pick);
+    let seen = visible_rays > 0 && (visible_rays as f64) >= o.min_visible * rays as f64;
+    let fit = seen.then(|| robust_circle_fit(&edges, c, r)).flatten()?;
+    Some((edges, fit, rays, visible_rays))
+}
+
+/// [`refine`] from a circle (`centre`, `r0`).
+fn refine_from(
+    img: &Plane,
+    centre: [f64; 2],
+    r0: f64,
+    sign: f64,
+    sigma: f64,
+    o: &DetectOptions,
+    pick: EdgePick,
+) -> Option<Disk> {
     let (mut c, mut r) = (centre, r0);
     // Wide search windows first (the candidate may be a few pixels off), then
     // narrower ones: the medium window judges support (wide enough that
@@ -79,33 +146,38 @@ pub(crate) fn refine(
     // with `settle_edges` the narrow passes repeat until the circle settles,
     // so a circle the wide pass left on a fringe edge inside a dim stretch
     // of outline creeps out to it pass by pass.
+    let ray = (sign, sigma);
+    let wide = 0.25 * r0 + 2.0 * sigma;
+    let wide_passes = match pick {
+        EdgePick::Strongest => 1,
+        EdgePick::Outermost => OUTERMOST_WIDE_PASSES,
+    };
+    for _ in 0..wide_passes {
+        let (_, fit, _, _) = edge_pass(img, (c, r), ray, wide, pick, o)?;
+        let moved = (fit[0] - c[0]).hypot(fit[1] - c[1]) + (fit[2] - r).abs();
+        (c, r) = ([fit[0], fit[1]], fit[2]);
+        if moved < WIDE_SETTLED_PX {
+            break;
+        }
+    }
+    let judged = edge_pass(img, (c, r), ray, 2.0 * sigma + 2.0, pick, o)?;
+    (c, r) = ([judged.1[0], judged.1[1]], judged.1[2]);
     let narrow = (1.5 * sigma).max(1.25);
-    let windows = [0.25 * r0 + 2.0 * sigma, 2.0 * sigma + 2.0];
-    let mut judged = None;
-    for pass in 0..windows.len() + NARROW_PASSES {
-        let half_window = windows.get(pass).copied().unwrap_or(narrow);
-        let (edges, rays, visible_rays) = ray_edges(img, c, r, sign, half_window, sigma);
-        let seen = visible_rays > 0 && (visible_rays as f64) >= o.min_visible * rays as f64;
-        let fit = seen.then(|| robust_circle_fit(&edges, c, r)).flatten();
+    for pass in 0..NARROW_PASSES {
         // The first two narrow passes are required; later ones only improve.
-        let Some(fit) = fit else {
-            if pass < windows.len() + 2 {
+        let Some((_, fit, _, _)) = edge_pass(img, (c, r), ray, narrow, pick, o) else {
+            if pass < 2 {
                 return None;
             }
             break;
         };
-        if pass == 1 {
-            judged = Some((edges, fit, rays, visible_rays));
-        }
         let moved = (fit[0] - c[0]).hypot(fit[1] - c[1]) + (fit[2] - r).abs();
-        c = [fit[0], fit[1]];
-        r = fit[2];
-        let required_done = pass + 1 >= windows.len() + 2;
-        if required_done && (!o.settle_edges || moved < SETTLED_PX) {
+        (c, r) = ([fit[0], fit[1]], fit[2]);
+        if pass >= 1 && (!o.settle_edges || moved < SETTLED_PX) {
             break;
         }
     }
-    let (edges, fit, rays, visible_rays) = judged?;
+    let (edges, fit, rays, visible_rays) = judged;
     // Support is judged with a fixed tolerance so noise cannot widen it.
     // Its pixel is the photograph's: an up-sampled picture's edges are no
     // sharper than the sensor made them.
@@ -254,6 +326,7 @@ pub(crate) fn ray_edges(
     sign: f64,
     half_window: f64,
     sigma: f64,
+    pick: EdgePick,
 ) -> (Vec<Edge>, usize, usize) {
     let rays = ((std::f64::consts::TAU * r / 1.5).ceil() as usize).clamp(32, 1440);
     // Samples every STEP px; the derivative spans ±0.5 px (two samples each side).
@@ -284,14 +357,9 @@ pub(crate) fn ray_edges(
         let derivative: Vec<f64> = (lead..n - lead)
             .map(|m| sign * (samples[m - lead] - samples[m + lead]))
             .collect();
-        let (best, &value) = derivative
-            .iter()
-            .enumerate()
-            .max_by(|a, b| a.1.total_cmp(b.1))
-            .expect("non-empty window");
-        if best == 0 || best + 1 == derivative.len() || value <= 0.0 {
+        let Some((best, value)) = pick_edge(&derivative, pick) else {
             continue;
-        }
+        };
         // The peak of a smoothed edge is about σ wide: fit the parabola over it.
         let reach = ((sigma / STEP).round() as usize).max(1);
         let offset = parabola_fit(&derivative, best, reach);
@@ -313,6 +381,28 @@ pub(crate) fn ray_edges(
         });
     }
     (edges, rays, visible)
+}
+
+/// The edge of one ray's derivative samples (index and value) that `pick`
+/// asks for: a peak inside the window, `None` when it lies at either end
+/// (the edge may be beyond the window) or nothing falls.
+fn pick_edge(derivative: &[f64], pick: EdgePick) -> Option<(usize, f64)> {
+    let (mut best, &strongest) = derivative
+        .iter()
+        .enumerate()
+        .max_by(|a, b| a.1.total_cmp(b.1))?;
+    if pick == EdgePick::Outermost {
+        // The outermost sample over the share, then up its peak.
+        best = derivative
+            .iter()
+            .rposition(|&v| v >= OUTERMOST_SHARE * strongest)
+            .unwrap_or(best);
+        while best > 0 && derivative[best - 1] > derivative[best] {
+            best -= 1;
+        }
+    }
+    let value = derivative[best];
+    (best > 0 && best + 1 < derivative.len() && value > 0.0).then_some((best, value))
 }
 
 /// The median intensity over a disk of radius `r` around `c` (a grid of
