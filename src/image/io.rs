@@ -282,28 +282,19 @@ fn colour_distance<T: Copy + Into<f32> + Sync>(
     // else on the full scale.
     let mut choose = |pick: &dyn Fn(&HistogramBackground) -> &BinMean| {
         if !dark(pick(&by_own)) {
-            return (own, by_own.seen, pick(&by_own).bin);
+            return (own, by_own.seen, pick(&by_own).clone());
         }
         let h = by_full.get_or_insert_with(|| histogram_background(raw, stride, full));
-        (full, h.seen, pick(h).bin)
+        (full, h.seen, pick(h).clone())
     };
     let first = choose(&|h| &h.bin);
     let rival = choose(&|h| h.rival.as_ref().unwrap_or(&h.bin));
-    let from = |(scales, seen, bin): (_, usize, usize)| {
-        let h = if scales == own {
-            &by_own
-        } else {
-            by_full.as_ref().expect("binned")
-        };
-        let b = [Some(&h.bin), h.rival.as_ref()]
-            .into_iter()
-            .flatten()
-            .find(|b| b.bin == bin)
-            .expect("a candidate");
-        distance_from(raw, (width, height), full_scale, stride, &scales, b, seen)
+    let from = |(scales, seen, bin): &([f32; 3], usize, BinMean)| {
+        distance_from(raw, (width, height), full_scale, stride, scales, bin, *seen)
     };
-    let distance = from(first);
-    let rival = (rival != first).then(|| from(rival));
+    let distance = from(&first);
+    let same = rival.0 == first.0 && rival.2.bin == first.2.bin;
+    let rival = (!same).then(|| from(&rival));
     let channel = signal_channel(channel_spreads(raw, stride));
     let signal = pick(raw, (width, height), channel, full_scale);
     (distance, rival, (signal, channel))
@@ -421,6 +412,7 @@ fn bin_of<T: Copy + Into<f32>>(p: &[T], scales: &[f32; 3]) -> usize {
 }
 
 /// A histogram bin: its index, its count and its pixels' mean colour (raw units).
+#[derive(Clone)]
 struct BinMean {
     bin: usize,
     count: usize,
