@@ -25,7 +25,7 @@
 //! stages (a smoother objective first, fewer local minima).
 
 use super::detect::profile::Laps;
-use super::fringe_kernel::{self, Fringes, KernelLoad, KernelOptics};
+use super::fringe_kernel::{self, KernelLoad, KernelOptics};
 use super::{FloatImage, PixelFrame};
 use crate::error::{Error, Result};
 use crate::scene::{Body, Contact, Scene};
@@ -651,12 +651,6 @@ impl DiskData {
     /// (Keeping each pixel's Flamant numbers for a whole stage instead was
     /// measured no faster on the loaded 2-core machine, at ~50 MB.)
     fn fringes(&self, u: &[f64], optics: &Optics, jacobian: bool) -> (Vec<f64>, Vec<f64>) {
-        let out = self.fringes_with_sums(u, optics, jacobian);
-        (out.s, out.ds)
-    }
-
-    /// [`DiskData::fringes`] with each unknown's column of ∂S/∂u summed.
-    fn fringes_with_sums(&self, u: &[f64], optics: &Optics, jacobian: bool) -> Fringes {
         let loads: Vec<KernelLoad> = (self.loads.iter())
             .map(|l| KernelLoad {
                 point: l.point,
@@ -686,7 +680,7 @@ impl DiskData {
                 ..Default::default()
             };
         }
-        let Fringes { s, ds, column_sums } = self.fringes_with_sums(u, optics, jacobian);
+        let (s, ds) = self.fringes(u, optics, jacobian);
         if optics.envelope.is_some() {
             return self.evaluate_envelope(&s, &ds, jacobian);
         }
@@ -748,7 +742,15 @@ impl DiskData {
         let k = self.local_unknowns();
         let (mut normal, mut rhs) = (vec![0.0; k * k], vec![0.0; k]);
         if jacobian && k > 0 {
-            let mean_ds: Vec<f64> = column_sums.iter().map(|c| c / nf).collect();
+            let mut mean_ds = vec![0.0; k];
+            for ds_i in ds.chunks_exact(k) {
+                for (m, v) in mean_ds.iter_mut().zip(ds_i) {
+                    *m += v;
+                }
+            }
+            for m in &mut mean_ds {
+                *m /= nf;
+            }
             // Each column's part along the plane's slopes, projected out too.
             let slope_ds: Vec<Vec<f64>> = (slopes.iter())
                 .map(|q| {
@@ -1862,26 +1864,44 @@ impl Stepper<'_> {
             current = evals.iter().map(|e| e.ssr).sum::<f64>() + sparsity_penalty(&x, alpha);
             let sparse = (alpha > 0.0).then(|| sparsity_rows(&x, alpha));
             // Each disk's normal equations as rows: G = V Λ Vᵀ → √λ vᵀ x ≈ vᵀ(h + G u)/√λ.
-            // The decompositions on both cores, gathered in disk order.
-            let blocks: Vec<Option<DiskRows>> = (p.disks.par_iter().zip(&evals))
-                .map(|(d, e)| disk_rows(d, e, &x))
-                .collect();
             let mut rows = Triplets::new(0, n);
             let mut rhs = Vec::new();
             let mut diagonal = vec![0.0; n];
-            for (block, e) in blocks.iter().zip(&evals) {
-                let Some(block) = block else { continue };
-                let k = block.cols.len();
-                for (m, &c) in block.cols.iter().enumerate() {
+            for (d, e) in p.disks.iter().zip(&evals) {
+                let k = d.local_unknowns();
+                if k == 0 || d.points.is_empty() {
+                    continue;
+                }
+                let g = nalgebra::DMatrix::from_row_slice(k, k, &e.normal);
+                let u = d.gather(&x);
+                let gu = &g * nalgebra::DVector::from_column_slice(&u);
+                let eig = nalgebra::SymmetricEigen::new(g);
+                let top = eig.eigenvalues.iter().fold(0.0f64, |m, v| m.max(*v));
+                if top <= 0.0 {
+                    continue;
+                }
+                let cols: Vec<usize> = d
+                    .loads
+                    .iter()
+                    .flat_map(|l| [2 * l.unknown, 2 * l.unknown + 1])
+                    .collect();
+                for (m, &c) in cols.iter().enumerate() {
                     diagonal[c] += e.normal[m * k + m];
                 }
-                for (coefficients, b) in &block.rows {
+                for (j, &lambda) in eig.eigenvalues.iter().enumerate() {
+                    if lambda <= 1e-10 * top {
+                        continue;
+                    }
+                    let v = eig.eigenvectors.column(j);
+                    let root = lambda.sqrt();
                     let row = rows.nrows;
                     rows.nrows += 1;
-                    for (&c, &v) in block.cols.iter().zip(coefficients) {
-                        rows.push(row, c, v);
+                    let mut b = 0.0;
+                    for m in 0..k {
+                        rows.push(row, cols[m], root * v[m]);
+                        b += v[m] * (e.rhs[m] + gu[m]);
                     }
-                    rhs.push(*b);
+                    rhs.push(b / root);
                 }
             }
             let floor = 1e-6 * diagonal.iter().fold(0.0f64, |m, v| m.max(*v)).max(1e-12);
@@ -2069,48 +2089,6 @@ impl Stepper<'_> {
             }
         }
     }
-}
-
-/// One disk's normal equations G = V Λ Vᵀ as least-squares rows over its
-/// columns: √λ vᵀ x ≈ vᵀ(h + G u)/√λ per eigenvalue above 10⁻¹⁰ of the
-/// largest; none for a disk without pixels, unknowns or a positive one.
-struct DiskRows {
-    cols: Vec<usize>,
-    /// Each row's coefficients (one per column) and right-hand side.
-    rows: Vec<(Vec<f64>, f64)>,
-}
-
-fn disk_rows(d: &DiskData, e: &DiskEval, x: &[f64]) -> Option<DiskRows> {
-    let k = d.local_unknowns();
-    if k == 0 || d.points.is_empty() {
-        return None;
-    }
-    let g = nalgebra::DMatrix::from_row_slice(k, k, &e.normal);
-    let u = d.gather(x);
-    let gu = &g * nalgebra::DVector::from_column_slice(&u);
-    let eig = nalgebra::SymmetricEigen::new(g);
-    let top = eig.eigenvalues.iter().fold(0.0f64, |m, v| m.max(*v));
-    if top <= 0.0 {
-        return None;
-    }
-    let cols = (d.loads.iter())
-        .flat_map(|l| [2 * l.unknown, 2 * l.unknown + 1])
-        .collect();
-    let mut rows = Vec::new();
-    for (j, &lambda) in eig.eigenvalues.iter().enumerate() {
-        if lambda <= 1e-10 * top {
-            continue;
-        }
-        let v = eig.eigenvectors.column(j);
-        let root = lambda.sqrt();
-        let mut b = 0.0;
-        let coefficients = (0..k).map(|m| root * v[m]).collect();
-        for m in 0..k {
-            b += v[m] * (e.rhs[m] + gu[m]);
-        }
-        rows.push((coefficients, b / root));
-    }
-    Some(DiskRows { cols, rows })
 }
 
 /// The constrained solve of one Levenberg–Marquardt step, through the

@@ -134,18 +134,8 @@ impl Geometry {
     }
 }
 
-/// What [`fringes`] gives: S per pixel and, with the Jacobian asked, ∂S/∂u
-/// row-major (pixel × unknown) and each unknown's column summed over the
-/// pixels in their order (the sums a separate pass over the rows gives, bit
-/// for bit, without that pass).
-pub(super) struct Fringes {
-    pub s: Vec<f64>,
-    pub ds: Vec<f64>,
-    pub column_sums: Vec<f64>,
-}
-
-/// S per pixel and (with `u`'s Jacobian asked) ∂S/∂u, for the local
-/// unknowns `u` (2 per load) at `points`.
+/// S per pixel and (with `u`'s Jacobian asked) ∂S/∂u row-major (pixel ×
+/// unknown), for the local unknowns `u` (2 per load) at `points`.
 pub(super) fn fringes(
     points: &[[f64; 2]],
     loads: &[KernelLoad],
@@ -153,7 +143,7 @@ pub(super) fn fringes(
     optics: &KernelOptics,
     floor: f64,
     jacobian: bool,
-) -> Fringes {
+) -> (Vec<f64>, Vec<f64>) {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU has AVX2, checked just above.
@@ -171,7 +161,7 @@ unsafe fn fringes_avx2(
     optics: &KernelOptics,
     floor: f64,
     jacobian: bool,
-) -> Fringes {
+) -> (Vec<f64>, Vec<f64>) {
     fringes_batched(points, loads, u, optics, floor, jacobian)
 }
 
@@ -183,7 +173,7 @@ fn fringes_batched(
     optics: &KernelOptics,
     floor: f64,
     jacobian: bool,
-) -> Fringes {
+) -> (Vec<f64>, Vec<f64>) {
     let n = points.len();
     let k = 2 * loads.len();
     let mut s_all = vec![0.0; n];
@@ -192,7 +182,6 @@ fn fringes_batched(
     } else {
         Vec::new()
     };
-    let mut column_sums = vec![0.0; if jacobian { k } else { 0 }];
     // Each load's force vector, for a residual-only evaluation (the field
     // is linear in it).
     let forces: Vec<[f64; 2]> = (loads.iter().enumerate())
@@ -254,19 +243,12 @@ fn fringes_batched(
                     + w[5][i] * c[5][i];
                 row[i] = if row_live[i] { v } else { 0.0 };
             }
-            let mut sum = column_sums[m];
             for (i, v) in row[..len].iter().enumerate() {
                 ds_all[(start + i) * k + m] = *v;
-                sum += *v;
             }
-            column_sums[m] = sum;
         }
     }
-    Fringes {
-        s: s_all,
-        ds: ds_all,
-        column_sums,
-    }
+    (s_all, ds_all)
 }
 
 /// 1.5 · 2⁵²: x + this − this rounds x to an integer (|x| < 2⁵¹), and the
@@ -627,21 +609,12 @@ mod tests {
                     blur2: 1e-8,
                     envelope_gain,
                 };
-                let got = fringes(&points, &loads, &u, &optics, 1e-5, jacobian);
-                let portable = fringes_batched(&points, &loads, &u, &optics, 1e-5, jacobian);
+                let (s, ds) = fringes(&points, &loads, &u, &optics, 1e-5, jacobian);
+                let (s0, ds0) = fringes_batched(&points, &loads, &u, &optics, 1e-5, jacobian);
                 let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
-                assert_eq!(bits(&got.s), bits(&portable.s));
-                assert_eq!(bits(&got.ds), bits(&portable.ds));
-                assert_eq!(bits(&got.column_sums), bits(&portable.column_sums));
-                assert!(got.s.iter().any(|v| *v != 0.0));
-                // The column sums are a pass over the rows in pixel order.
-                let mut by_pass = vec![0.0; if jacobian { u.len() } else { 0 }];
-                for row in got.ds.chunks_exact(u.len()) {
-                    for (sum, v) in by_pass.iter_mut().zip(row) {
-                        *sum += v;
-                    }
-                }
-                assert_eq!(bits(&got.column_sums), bits(&by_pass));
+                assert_eq!(bits(&s), bits(&s0));
+                assert_eq!(bits(&ds), bits(&ds0));
+                assert!(s.iter().any(|v| *v != 0.0));
             }
         }
     }
