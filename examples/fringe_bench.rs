@@ -6,7 +6,8 @@
 //!         [--fsigma-scale F] [--iterations N] [--extrapolate]
 //!         [--scene DIR] [--seed N] [--dump DIR] [--circles] [--walls-last]
 //!         [--no-wall-candidates] [--mu MU] [--penalty-start W]
-//!         [--narrow-start MU] [--box-walls] [--local-starts N] [--outermost-outline]
+//!         [--narrow-start MU] [--box-walls] [--local-starts N] [--no-outermost-outline]
+//!         [--drop-pair A,B] [--add-pair A,B]
 //!
 //! Without flags the disks and contacts are the DEM's; `--detect` finds them
 //! in the photograph (`detect`, walls at the DEM's lines, or with
@@ -120,7 +121,8 @@ fn main() -> grainforce::Result<()> {
         let mut settings = DetectSettings::new(2.2e-3 * px, 4.2e-3 * px, px);
         settings.frame = Some(frame);
         settings.detect.settle_edges = args.iter().any(|a| a == "--settle-edges");
-        settings.detect.outermost_outline = args.iter().any(|a| a == "--outermost-outline");
+        // `detect --outermost-outline=false`: round 15's circles.
+        settings.detect.outermost_outline = !args.iter().any(|a| a == "--no-outermost-outline");
         settings.walls = WallSource::Lines(grainforce::image::contacts::walls_from_scene_contacts(
             &scene, &frame,
         ));
@@ -177,6 +179,21 @@ fn main() -> grainforce::Result<()> {
                 .map_err(|e| grainforce::Error::io(out, e))?;
         }
         let mut found = found;
+        // One contact list change at a time (detected grain indices "A,B"):
+        // which of two contacts moves the fit into another basin.
+        for (k, flag) in args.iter().enumerate() {
+            if flag != "--drop-pair" && flag != "--add-pair" {
+                continue;
+            }
+            let Some(pair) = args.get(k + 1) else {
+                continue;
+            };
+            let ids: Vec<usize> = pair.split(',').filter_map(|v| v.parse().ok()).collect();
+            let [a, b] = ids[..] else {
+                return Err(grainforce::Error::Invalid(format!("{flag} needs A,B")));
+            };
+            edit_pair(&mut found.scene, a, b, flag == "--add-pair");
+        }
         // The walls' friction, where known (the DEM's walls are frictionless).
         if let Some(mu) = value("--wall-mu") {
             for c in &mut found.scene.contacts {
@@ -498,4 +515,40 @@ fn walls_detail(
             );
         }
     }
+}
+
+/// Drops the contact between grains `a` and `b` of `scene`, or adds one at
+/// the middle of their gap (normal along the line of centres).
+fn edit_pair(scene: &mut Scene, a: usize, b: usize, add: bool) {
+    let joins = |c: &grainforce::scene::Contact| {
+        (c.a == a && c.b == Body::Grain(b)) || (c.a == b && c.b == Body::Grain(a))
+    };
+    let before = scene.contacts.len();
+    scene.contacts.retain(|c| !joins(c));
+    println!(
+        "  pair {a}–{b}: {} contact(s) dropped{}",
+        before - scene.contacts.len(),
+        if add { ", one added" } else { "" }
+    );
+    if !add {
+        return;
+    }
+    let (pa, pb) = (scene.grains[a].position, scene.grains[b].position);
+    let (ra, rb) = (
+        scene.grains[a].radius.unwrap_or(0.0),
+        scene.grains[b].radius.unwrap_or(0.0),
+    );
+    let d = [pb[0] - pa[0], pb[1] - pa[1]];
+    let dist = d[0].hypot(d[1]);
+    let n = [d[0] / dist, d[1] / dist, 0.0];
+    let reach = ra + 0.5 * (dist - ra - rb);
+    let mu = scene.contacts.first().and_then(|c| c.mu);
+    scene.contacts.push(grainforce::scene::Contact {
+        id: format!("added-{a}-{b}"),
+        a,
+        b: Body::Grain(b),
+        point: [pa[0] + reach * n[0], pa[1] + reach * n[1], pa[2]],
+        normal: n,
+        mu,
+    });
 }

@@ -1390,7 +1390,7 @@ fn detected_circles_of_the_bundled_photograph_match_the_dem() {
     );
 }
 
-/// Round 15, with `outermost_outline` (off by default): the bundled packing drawn as `fringe_bench`
+/// Round 15, with `outermost_outline` (on by default since round 16): the bundled packing drawn as `fringe_bench`
 /// draws it (r ≈ 40 px, blur 0.8 px, noise 2 %, JPEG q90) with noise seeds
 /// 1, 2 and 3. The colour-distance search took grain 8's bright fringe
 /// band for its outline (4.2, 9.1 and 8.9 px off, 4.0, 8.4 and 8.1 px

@@ -32,8 +32,9 @@ pub struct Args {
     #[arg(long)]
     thickness: Option<f64>,
     /// Walls: `box` (the default) along the bounding box of the disks found,
-    /// what holds a packing whose walls the picture does not show (the disks
-    /// on the box's sides touch it; without any wall a balanced field of
+    /// each at the second outermost disk edge of its side, what holds a
+    /// packing whose walls the picture does not show (the disks on the box's
+    /// sides touch it; without any wall a balanced field of
     /// compressive forces carries no load and `photoelastic` fits zero);
     /// `none` for no walls (a packing free on every side); `edges` for the
     /// image borders; or NAME=x0,y0,x1,y1 lines in pixels. The choice is
@@ -65,10 +66,11 @@ pub struct Args {
     /// disk once more along each ray's outermost edge and keep that circle
     /// where it encloses the first and is better supported, so a circle
     /// found inside a loaded disk along its fringes reaches the outline.
-    /// Off by default: on rendered 58-disk photographs it takes the worst
-    /// circle from 12 px off to 2 px, but it costs the real photographs'
-    /// fringe fits (docs/image.md, round 15).
-    #[arg(long)]
+    /// On by default (`--outermost-outline=false` turns it off): on
+    /// rendered 58-disk photographs it takes the worst circle from 12 px
+    /// off to 2 px (docs/image.md, rounds 15 and 16).
+    #[arg(long, num_args = 0..=1, require_equals = true, default_value_t = true,
+        default_missing_value = "true", action = clap::ArgAction::Set)]
     outermost_outline: bool,
     /// The disks are darker than their surroundings.
     #[arg(long, conflicts_with = "either_polarity")]

@@ -66,18 +66,26 @@ impl WallLine {
 }
 
 /// Four walls along the bounding box of `disks` (`left`, `right`, `top`,
-/// `bottom`, in the image's axes), each spanning it: the outermost disk on
-/// each side touches its wall. None without disks.
+/// `bottom`, in the image's axes), each spanning it, at the second outermost
+/// disk edge on each side: a wall the picture does not show is put where two
+/// disks agree, so that one disk found larger or farther out (jlin-narrow21's
+/// corner disk, 9 px beyond its column) does not move the wall off all the
+/// others; the outermost one overlaps it, which counts as touching. None
+/// without disks.
 pub fn packing_box_walls(disks: &[Disk]) -> Vec<WallLine> {
     if disks.is_empty() {
         return Vec::new();
     }
-    let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
-    for d in disks {
-        for (k, c) in [d.x, d.y].into_iter().enumerate() {
-            lo[k] = lo[k].min(c - d.r);
-            hi[k] = hi[k].max(c + d.r);
-        }
+    // The second smallest of the edges (the only one of one disk).
+    let second = |mut edges: Vec<f64>| {
+        edges.sort_by(f64::total_cmp);
+        edges[1.min(edges.len() - 1)]
+    };
+    let (mut lo, mut hi) = ([0.0; 2], [0.0; 2]);
+    for k in 0..2 {
+        let centre = |d: &Disk| if k == 0 { d.x } else { d.y };
+        lo[k] = second(disks.iter().map(|d| centre(d) - d.r).collect());
+        hi[k] = -second(disks.iter().map(|d| -(centre(d) + d.r)).collect());
     }
     let wall = |name: &str, p0, p1| WallLine {
         name: name.into(),
@@ -740,4 +748,44 @@ fn bump_between(
         .iter()
         .fold(f64::NEG_INFINITY, |m, &v| m.max(v));
     Some((peak, 0.5 * (first.1 + second.1)))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A column of disks along an unseen left wall, one of them found 9 px
+    /// farther out than the rest (as jlin-narrow21's corner disk is once
+    /// its circle reaches the outline): every disk of the column touches
+    /// the box wall, not only the outermost.
+    #[test]
+    fn one_disk_farther_out_does_not_move_the_box_wall_off_the_others() {
+        let disk = |x: f64, y: f64, r: f64| Disk {
+            x,
+            y,
+            r,
+            support: 1.0,
+            visible: 1.0,
+            contrast: 1.0,
+            rms: 0.0,
+        };
+        // Left edges at 100, 100.5, 101.5 and 91 px.
+        let disks = [
+            disk(165.0, 100.0, 65.0),
+            disk(166.5, 240.0, 66.0),
+            disk(166.5, 380.0, 65.0),
+            disk(161.0, 520.0, 70.0),
+        ];
+        let walls = packing_box_walls(&disks);
+        let image = FloatImage::new(400, 700);
+        let rims = vec![None; disks.len()];
+        let found = find_image_contacts(&image, &disks, &rims, &walls, &ContactOptions::default());
+        let left = walls.iter().position(|w| w.name == "left").unwrap();
+        let touching: Vec<usize> = found
+            .iter()
+            .filter(|c| !c.doubtful && c.contact.b == ContactBody::Wall(left))
+            .map(|c| c.contact.a)
+            .collect();
+        assert_eq!(touching, vec![0, 1, 2, 3], "{:?}", walls[left]);
+    }
 }

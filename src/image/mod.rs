@@ -214,7 +214,8 @@ pub enum WallSource {
     /// The four image borders (`left`, `right`, `top`, `bottom`).
     ImageEdges,
     /// Four walls along the bounding box of the first frame's disks
-    /// (`left`, `right`, `top`, `bottom`): what holds a packing whose walls
+    /// (`left`, `right`, `top`, `bottom`; each at the second outermost disk
+    /// edge of its side: [`contacts::packing_box_walls`]): what holds a packing whose walls
     /// the picture does not show. Without any wall a balanced field of
     /// compressive forces has no load and is zero (docs/photoelastic.md).
     PackingBox,

@@ -75,14 +75,14 @@ pub struct DetectOptions {
     /// and a tolerance of half a photograph's pixel lost most disks of a
     /// dense packing whose outlines merge (docs/image.md, round 13).
     pub sensor_pixel: f64,
-    /// Off by default (measured: it mends circles found inside loaded
-    /// disks on rendered photographs but costs the real photographs'
-    /// fringe fits; docs/image.md, round 15): in the searches of distances
-    /// from the background (the colour distance, a gray picture's
-    /// distance), where a disk's outline is its last drop, each disk found
-    /// is refined once more from its own circle with the outermost edge of
-    /// each ray as its outline, and that reading kept when it is better
-    /// supported and encloses the first.
+    /// On by default (docs/image.md, rounds 15 and 16: it mends circles
+    /// found inside loaded disks on rendered photographs; its cost on the
+    /// real photographs' fringe fits was the box walls'): in the searches
+    /// of distances from the background (the colour distance, a gray
+    /// picture's distance), where a disk's outline is its last drop, each
+    /// disk found is refined once more from its own circle with the
+    /// outermost edge of each ray as its outline, and that reading kept
+    /// when it is better supported and encloses the first.
     pub outermost_outline: bool,
 }
 
@@ -105,7 +105,7 @@ impl DetectOptions {
             min_fill: 0.0,
             settle_edges: false,
             sensor_pixel: 1.0,
-            outermost_outline: false,
+            outermost_outline: true,
         }
     }
 
