@@ -944,8 +944,6 @@ fn factor_of(
         )?,
     };
     ls.set_first_regularisation(REGULARISATION);
-    // Only the cone rows R = W⁻¹G change from iteration to iteration.
-    ls.keep_rows_fixed(aug.rows_at);
     Ok(ls)
 }
 

@@ -194,8 +194,6 @@ impl EqualityLeastSquares {
             refine_to: ROUNDOFF_FLOOR,
             first_delta: super::DELTA_LADDER[0],
             bordering: Bordering::Auto,
-            fixed_rows: 0,
-            fixed: None,
             numeric: None,
         }
     }
@@ -267,15 +265,10 @@ impl EqualityLeastSquares {
         // G is left out: the scales must not depend on the active set.
         let mut col_scale = vec![1.0; n];
         let mut c_row_scale = vec![1.0; mc];
-        let a_col_sq = if self.fixed_rows > 0 {
-            self.refresh_fixed_rows(a)
-        } else {
-            let mut col_sq = vec![0.0; n];
-            for (q, &j) in self.a_csr.idx.iter().enumerate() {
-                col_sq[j] += self.a_csr.val[q] * self.a_csr.val[q];
-            }
-            col_sq
-        };
+        let mut a_col_sq = vec![0.0; n];
+        for (q, &j) in self.a_csr.idx.iter().enumerate() {
+            a_col_sq[j] += self.a_csr.val[q] * self.a_csr.val[q];
+        }
         for _ in 0..EQUILIBRATION_PASSES {
             c_row_scale = row_inverse_norms(&self.c_csr, &col_scale);
             // s_j = 1 / ‖column j of [A; T C]‖.
@@ -307,28 +300,17 @@ impl EqualityLeastSquares {
         };
         let c_row_max = row_max(&self.c_csr, &c_row_scale);
         let mut values = vec![0.0; self.kkt_row_idx.len()];
-        match self.fixed.as_ref().filter(|_| self.fixed_rows > 0) {
-            Some(fixed) => {
-                for j in 0..n {
-                    for p in self.kkt_col_ptr[j]..self.kkt_col_ptr[j + 1] {
-                        let i = self.kkt_row_idx[p];
-                        values[p] = fixed.gram[p] * col_scale[i] * col_scale[j];
-                    }
-                }
-                let ones = vec![1.0; fixed.rest.nmajor];
-                self.add_row_products(&mut values, &fixed.rest, &ones, &col_scale, "row")?;
-            }
-            None => gram_upper_values(
-                &self.a_csr,
-                &self.a_csc,
-                &vec![1.0; ma],
-                &col_scale,
-                &self.kkt_col_ptr,
-                &self.kkt_row_idx,
-                &mut values,
-                &mut vec![0.0; n],
-            ),
-        }
+        let mut work = vec![0.0; n];
+        gram_upper_values(
+            &self.a_csr,
+            &self.a_csc,
+            &vec![1.0; ma],
+            &col_scale,
+            &self.kkt_col_ptr,
+            &self.kkt_row_idx,
+            &mut values,
+            &mut work,
+        );
         for j in 0..n {
             // Rows are sorted with i ≤ j: the diagonal closes the column.
             values[self.kkt_col_ptr[j + 1] - 1] += lambda2_s2[j] + delta;
@@ -355,95 +337,6 @@ impl EqualityLeastSquares {
     }
 }
 
-impl EqualityLeastSquares {
-    /// The fixed rows' Gram kept from the last call when their values are
-    /// the same, else formed (see [`Self::keep_rows_fixed`]); the other
-    /// rows' values taken in. A's squared column norms.
-    fn refresh_fixed_rows(&mut self, a: &Triplets) -> Vec<f64> {
-        let mut fixed = match self.fixed.take() {
-            Some(fixed) if fixed.holds(a) => fixed,
-            _ => FixedRows::new(a, self.fixed_rows, &self.kkt_col_ptr, &self.kkt_row_idx),
-        };
-        let rest_vals: Vec<f64> = fixed.rest_at.iter().map(|&k| a.vals[k]).collect();
-        fixed.rest.refill(&rest_vals);
-        let mut col_sq = fixed.col_sq.clone();
-        for (q, &j) in fixed.rest.idx.iter().enumerate() {
-            col_sq[j] += fixed.rest.val[q] * fixed.rest.val[q];
-        }
-        self.fixed = Some(fixed);
-        col_sq
-    }
-}
-
-/// The leading rows of A that keep their values across solves: their
-/// unscaled Gram matrix on the KKT pattern, formed once, and the other
-/// rows' pattern.
-pub(super) struct FixedRows {
-    /// Triplets of the fixed rows (their indices in A's triplets) and their
-    /// values when the Gram was formed.
-    fixed_at: Vec<usize>,
-    vals: Vec<f64>,
-    /// Triplets of the other rows, and those rows compressed (rows renumbered
-    /// from 0).
-    rest_at: Vec<usize>,
-    rest: Compressed,
-    /// Σ_r a_ri a_rj over the fixed rows on the upper KKT pattern (zero in
-    /// C's columns), and Σ_r a_rj².
-    gram: Vec<f64>,
-    col_sq: Vec<f64>,
-}
-
-impl FixedRows {
-    fn new(a: &Triplets, rows: usize, col_ptr: &[usize], row_idx: &[usize]) -> Self {
-        let (n, rows) = (a.ncols, rows.min(a.nrows));
-        let (fixed_at, rest_at): (Vec<usize>, Vec<usize>) =
-            (0..a.rows.len()).partition(|&k| a.rows[k] < rows);
-        let pick = |at: &[usize], of: &[usize]| at.iter().map(|&k| of[k]).collect::<Vec<_>>();
-        let (f_rows, f_cols) = (pick(&fixed_at, &a.rows), pick(&fixed_at, &a.cols));
-        let vals: Vec<f64> = fixed_at.iter().map(|&k| a.vals[k]).collect();
-        let mut csr = Compressed::from_entries(rows, n, &f_rows, &f_cols);
-        let mut csc = Compressed::from_entries(n, rows, &f_cols, &f_rows);
-        csr.refill(&vals);
-        csc.refill(&vals);
-        let mut gram = vec![0.0; row_idx.len()];
-        gram_upper_values(
-            &csr,
-            &csc,
-            &vec![1.0; rows],
-            &vec![1.0; n],
-            col_ptr,
-            row_idx,
-            &mut gram,
-            &mut vec![0.0; n],
-        );
-        let mut col_sq = vec![0.0; n];
-        for (q, &j) in csr.idx.iter().enumerate() {
-            col_sq[j] += csr.val[q] * csr.val[q];
-        }
-        let rest_rows: Vec<usize> = rest_at.iter().map(|&k| a.rows[k] - rows).collect();
-        let rest =
-            Compressed::from_entries(a.nrows - rows, n, &rest_rows, &pick(&rest_at, &a.cols));
-        FixedRows {
-            fixed_at,
-            vals,
-            rest_at,
-            rest,
-            gram,
-            col_sq,
-        }
-    }
-
-    /// Made for these fixed rows' values (the pattern is the analysed one).
-    fn holds(&self, a: &Triplets) -> bool {
-        self.fixed_at.len() + self.rest_at.len() == a.vals.len()
-            && self
-                .fixed_at
-                .iter()
-                .zip(&self.vals)
-                .all(|(&k, &v)| a.vals[k] == v)
-    }
-}
-
 /// 1/‖(B S)_r‖ per row of a CSR matrix (1 for empty rows).
 pub(super) fn row_inverse_norms(csr: &Compressed, col_scale: &[f64]) -> Vec<f64> {
     (0..csr.nmajor)
@@ -459,74 +352,4 @@ pub(super) fn row_inverse_norms(csr: &Compressed, col_scale: &[f64]) -> Vec<f64>
             }
         })
         .collect()
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use rand::{Rng, SeedableRng};
-    use rand_chacha::ChaCha8Rng;
-
-    /// The interior point's shape: 90 data rows, then 20 rows whose values
-    /// change between solves (on the data rows' pattern), 10 equalities.
-    fn problem(rng: &mut ChaCha8Rng) -> (Triplets, Triplets, Vec<f64>, Vec<f64>) {
-        let (n, m, mc, moving) = (60, 90, 10, 20);
-        let mut a = Triplets::new(m + moving, n);
-        for i in 0..m {
-            for _ in 0..5 {
-                a.push(i, rng.gen_range(0..n), rng.gen_range(-1.0..1.0));
-            }
-        }
-        for i in 0..moving {
-            // Each on a pair of unknowns that some data row already couples.
-            let k = rng.gen_range(0..5 * m);
-            let (row, j) = (a.rows[k], a.cols[k]);
-            let other = (0..a.rows.len())
-                .find(|&q| a.rows[q] == row && a.cols[q] != j)
-                .map_or(j, |q| a.cols[q]);
-            a.push(m + i, j, 1.0);
-            a.push(m + i, other, 1.0);
-        }
-        let mut c = Triplets::new(mc, n);
-        for i in 0..mc {
-            for j in 0..4 {
-                c.push(i, (6 * i + j) % n, rng.gen_range(0.5..1.5));
-            }
-        }
-        let b = (0..m + moving).map(|_| rng.gen_range(-1.0..1.0)).collect();
-        let d = (0..mc).map(|_| rng.gen_range(-1.0..1.0)).collect();
-        (a, c, b, d)
-    }
-
-    /// With the data rows' Gram kept, the moving rows' new values (over
-    /// four orders of magnitude, as the interior point's scaling) and a
-    /// change of the data rows themselves give the answers of a solver
-    /// that forms every Gram anew, to rounding.
-    #[test]
-    fn fixed_rows_give_the_full_grams_answers() {
-        let mut rng = ChaCha8Rng::seed_from_u64(7);
-        let (mut a, c, b, d) = problem(&mut rng);
-        let data = 90;
-        let mut kept = EqualityLeastSquares::new(&a, &c).unwrap();
-        kept.keep_rows_fixed(data);
-        for step in 0..4 {
-            for (k, v) in a.vals.iter_mut().enumerate() {
-                if a.rows[k] >= data {
-                    *v = rng.gen_range(-1.0..1.0) * 10f64.powi(step - 1);
-                } else if step == 3 {
-                    *v *= 1.5;
-                }
-            }
-            let mut fresh = EqualityLeastSquares::new(&a, &c).unwrap();
-            let expected = fresh.solve(&a, &c, &b, &d, 0.1).unwrap().x;
-            let got = kept.solve(&a, &c, &b, &d, 0.1).unwrap().x;
-            let gap = expected
-                .iter()
-                .zip(&got)
-                .map(|(e, g)| (e - g).abs())
-                .fold(0.0, f64::max);
-            let size = expected.iter().map(|e| e.abs()).fold(0.0, f64::max);
-            assert!(gap <= 1e-10 * size, "step {step}: {gap:.2e} of {size:.2e}");
-        }
-    }
 }

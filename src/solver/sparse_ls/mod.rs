@@ -198,10 +198,6 @@ pub struct EqualityLeastSquares {
     /// The first δ tried (then the larger ones of [`DELTA_LADDER`]).
     first_delta: f64,
     bordering: Bordering,
-    /// Leading rows of A whose values stay across solves (0: none), and
-    /// their Gram matrix once formed (see [`Self::keep_rows_fixed`]).
-    fixed_rows: usize,
-    fixed: Option<kkt::FixedRows>,
     numeric: Option<Numeric>,
 }
 
@@ -301,18 +297,6 @@ impl EqualityLeastSquares {
         self.first_delta = delta.clamp(1e-14, DELTA_LADDER[0]);
     }
 
-    /// The first `rows` rows of A keep their values from solve to solve
-    /// while the others change (the interior point's cone rows below the
-    /// data): their Gram matrix is formed once and each factorisation adds
-    /// only the other rows' products and the equilibration. The KKT values
-    /// then equal the full Gram's to rounding (the sums are scaled after
-    /// summing instead of term by term). Values that do change anyway are
-    /// noticed, and the Gram formed again.
-    pub(crate) fn keep_rows_fixed(&mut self, rows: usize) {
-        self.fixed_rows = rows;
-        self.fixed = None;
-    }
-
     /// Number of stored entries in the factor L (0 for an empty problem).
     pub fn factor_nnz(&self) -> usize {
         self.symbolic.as_ref().map_or(0, |s| s.len_val())
@@ -393,19 +377,9 @@ impl EqualityLeastSquares {
         check_finite(d, "d")?;
         if !self.same_pattern(a, c) {
             let coupling = std::mem::take(&mut self.coupling);
-            let kept = (
-                self.refine_to,
-                self.first_delta,
-                self.bordering,
-                self.fixed_rows,
-            );
+            let kept = (self.refine_to, self.first_delta, self.bordering);
             *self = Self::analyse(a, c, &coupling, self.par, self.ordering)?;
-            (
-                self.refine_to,
-                self.first_delta,
-                self.bordering,
-                self.fixed_rows,
-            ) = kept;
+            (self.refine_to, self.first_delta, self.bordering) = kept;
         }
         let n = self.n;
         if n == 0 {
