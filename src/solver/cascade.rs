@@ -22,15 +22,12 @@ use super::polish as polishing;
 use crate::error::{Error, Result};
 use crate::solver::active_set::{self, ActivePieces, ActiveSetSettings};
 use crate::solver::clarabel::{self, ConicSettings};
-use crate::solver::sparse_interior_point::{
-    self, InteriorPointSettings, InteriorPointSolution, RestartPoint,
-};
+use crate::solver::sparse_interior_point::{self, InteriorPointSettings, RestartPoint};
 use crate::solver::sparse_ls::{self, EqualityLeastSquares, Ordering};
 use crate::solver::{
     ActiveSetMiss, Attempt, InteriorPointFailure, LeastSquares, Solution, SolveStatus, Triplets,
 };
 use crate::solver::{Cone, ConicProblem};
-use std::sync::atomic::{AtomicBool, Ordering as AtomicOrdering};
 use std::sync::Mutex;
 use std::time::Instant;
 
@@ -451,19 +448,22 @@ fn constrained_on_factor(
     if !stages.active_set {
         return Ok((None, None));
     }
-    let (sol, beside) = if warm.expects_active_set_to_fail(p.lambda) {
-        (None, None)
+    let sol = if warm.expects_active_set_to_fail(p.lambda) {
+        None
     } else {
-        let (sol, ip) = active_set_beside_interior_point(
+        let mut sol = active_set::solve_from(
             factor,
             p,
             cone_list,
             &unconstrained.x,
             warm.pieces.as_ref(),
             settings,
-            ip_settings,
-        );
-        (Some(sol?), ip)
+        )?;
+        if !sol.converged && warm.pieces.is_some() {
+            // The previous answer's pieces misled it: start cold.
+            sol = active_set::solve(factor, p, cone_list, &unconstrained.x, settings)?;
+        }
+        Some(sol)
     };
     let sol = match sol {
         Some(sol) if sol.converged => sol,
@@ -483,7 +483,6 @@ fn constrained_on_factor(
                 why,
                 ip_settings,
                 start,
-                beside,
             ));
         }
     };
@@ -509,60 +508,9 @@ fn constrained_on_factor(
     ))
 }
 
-/// Stage 2 (the active set, from the previous answer's pieces, then cold
-/// when they misled it) on the caller's thread, with the interior point
-/// started beside it from the least squares on a second thread: the active
-/// set's first step fails on sheared packings after a factorisation of its
-/// own, which the interior point need not wait for. When the active set
-/// settles the interior point is stopped and its work dropped; when it does
-/// not, the interior point's answer is the one it gives after it (it starts
-/// from the same point, reads nothing the active set writes), so the answer
-/// does not depend on which thread finishes first.
-#[allow(clippy::too_many_arguments)]
-fn active_set_beside_interior_point(
-    factor: &mut EqualityLeastSquares,
-    p: &LeastSquares,
-    cone_list: &[Cone],
-    start: &[f64],
-    pieces: Option<&ActivePieces>,
-    settings: &ActiveSetSettings,
-    ip_settings: &InteriorPointSettings,
-) -> (
-    Result<active_set::ActiveSetSolution>,
-    Option<Result<InteriorPointSolution>>,
-) {
-    let analysis = factor.analysis_only();
-    let cancel = AtomicBool::new(false);
-    std::thread::scope(|scope| {
-        let beside = scope.spawn(|| {
-            sparse_interior_point::solve_cancellable(
-                p,
-                cone_list,
-                start,
-                &analysis,
-                None,
-                ip_settings,
-                &cancel,
-            )
-        });
-        let mut sol = active_set::solve_from(factor, p, cone_list, start, pieces, settings);
-        if matches!(&sol, Ok(s) if !s.converged) && pieces.is_some() {
-            // The previous answer's pieces misled it: start cold.
-            sol = active_set::solve(factor, p, cone_list, start, settings);
-        }
-        let needed = matches!(&sol, Ok(s) if !s.converged);
-        cancel.store(!needed, AtomicOrdering::Relaxed);
-        let ip = beside
-            .join()
-            .unwrap_or_else(|panic| std::panic::resume_unwind(panic));
-        (sol, needed.then_some(ip))
-    })
-}
-
 /// Stage 3, after the active set did not settle (`why`): the interior point
 /// on the cluster's analysis, restarted mid-path from a nearby λ's solve when
-/// there was one, or its run beside the active set (`beside`). Its answer,
-/// else why it failed too (clarabel follows).
+/// there was one. Its answer, else why it failed too (clarabel follows).
 #[allow(clippy::too_many_arguments)]
 fn sparse_interior_point(
     factor: &EqualityLeastSquares,
@@ -573,7 +521,6 @@ fn sparse_interior_point(
     why: ActiveSetMiss,
     settings: &InteriorPointSettings,
     start: Instant,
-    beside: Option<Result<InteriorPointSolution>>,
 ) -> (Option<Solution>, Option<Attempt>) {
     // Only a nearby λ's mid-path iterate is a good start.
     let restart = if warm.expects_active_set_to_fail(p.lambda) {
@@ -587,16 +534,14 @@ fn sparse_interior_point(
     };
     // A failure of this stage (e.g. its own analysis) is a reason to fall
     // back to clarabel, not an error of the inference.
-    let outcome = beside.unwrap_or_else(|| {
-        sparse_interior_point::solve(
-            p,
-            cone_list,
-            &unconstrained.x,
-            factor,
-            restart.as_ref(),
-            settings,
-        )
-    });
+    let outcome = sparse_interior_point::solve(
+        p,
+        cone_list,
+        &unconstrained.x,
+        factor,
+        restart.as_ref(),
+        settings,
+    );
     let mut ip = match outcome {
         Ok(ip) if ip.converged => ip,
         Ok(ip) => {

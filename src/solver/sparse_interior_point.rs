@@ -37,7 +37,6 @@ use super::sparse_ls::{EqualityLeastSquares, CONVERGED_TOL};
 use super::Cone;
 use super::{LeastSquares, Triplets};
 use crate::error::{Error, Result};
-use std::sync::atomic::{AtomicBool, Ordering as AtomicOrdering};
 use std::time::Instant;
 
 /// Set (to anything) to print each iteration's time split on stderr: where
@@ -200,9 +199,6 @@ pub enum InteriorPointStop {
     ShortStep { alpha: f64 },
     /// A Newton system could not be solved (the factorisation's error).
     LinearSolve(String),
-    /// Its caller no longer needed the answer (the active set beside it
-    /// settled).
-    Cancelled,
 }
 
 impl InteriorPointStop {
@@ -228,7 +224,6 @@ impl std::fmt::Display for InteriorPointStop {
             InteriorPointStop::NotFinite => f.write_str("the iterate left the finite numbers"),
             InteriorPointStop::ShortStep { alpha } => write!(f, "step {alpha:.1e}"),
             InteriorPointStop::LinearSolve(e) => write!(f, "linear solve failed: {e}"),
-            InteriorPointStop::Cancelled => f.write_str("cancelled"),
         }
     }
 }
@@ -601,22 +596,6 @@ pub fn solve(
     restart: Option<&RestartPoint>,
     settings: &InteriorPointSettings,
 ) -> Result<InteriorPointSolution> {
-    let never = AtomicBool::new(false);
-    solve_cancellable(problem, cones, start, analysed, restart, settings, &never)
-}
-
-/// [`solve`], stopped (with [`InteriorPointStop::Cancelled`]) at the next
-/// iteration once `cancel` is set: for a run beside another stage whose
-/// answer may make this one's unneeded. Until then the same iterates.
-pub fn solve_cancellable(
-    problem: &LeastSquares,
-    cones: &[Cone],
-    start: &[f64],
-    analysed: &EqualityLeastSquares,
-    restart: Option<&RestartPoint>,
-    settings: &InteriorPointSettings,
-    cancel: &AtomicBool,
-) -> Result<InteriorPointSolution> {
     let n = problem.a.ncols;
     check_settings(n, start, settings)?;
     if cones.iter().any(|c| matches!(c, Cone::Pyramid { .. })) {
@@ -630,7 +609,7 @@ pub fn solve_cancellable(
         solve_residual: 0.0,
     };
     let mut out = solve_on_path(
-        problem, cones, start, analysed, restart, settings, profile, &mut path, cancel,
+        problem, cones, start, analysed, restart, settings, profile, &mut path,
     )?;
     path.report(&out.x);
     (out.refinement_steps, out.solve_residual) = (path.refinement_steps, path.solve_residual);
@@ -648,7 +627,6 @@ fn solve_on_path(
     settings: &InteriorPointSettings,
     profile: bool,
     path: &mut PathProfile,
-    cancel: &AtomicBool,
 ) -> Result<InteriorPointSolution> {
     let n = problem.a.ncols;
     let correctors = std::env::var(CORRECTORS_ENV)
@@ -703,10 +681,6 @@ fn solve_on_path(
         })
         .flatten();
     for iteration in 0..settings.max_iterations {
-        if cancel.load(AtomicOrdering::Relaxed) {
-            (stop, iterations) = (InteriorPointStop::Cancelled, iteration);
-            break;
-        }
         // Converged only on the recomputed certificate: the iterate's own
         // residuals are relative to multipliers that can grow and cancel
         // (measured: 8-facet pyramids at μ = 0.01 "converged" 6e-4 from

@@ -297,30 +297,6 @@ impl EqualityLeastSquares {
         self.first_delta = delta.clamp(1e-14, DELTA_LADDER[0]);
     }
 
-    /// A solver of the same analysis without its numeric factorisation:
-    /// for a stage that runs beside this one (the symbolic factor is
-    /// shared, the patterns copied).
-    pub(crate) fn analysis_only(&self) -> Self {
-        EqualityLeastSquares {
-            n: self.n,
-            a_pattern: self.a_pattern.clone(),
-            c_pattern: self.c_pattern.clone(),
-            coupling: self.coupling.clone(),
-            a_csr: self.a_csr.clone(),
-            a_csc: self.a_csc.clone(),
-            c_csr: self.c_csr.clone(),
-            kkt_col_ptr: self.kkt_col_ptr.clone(),
-            kkt_row_idx: self.kkt_row_idx.clone(),
-            ordering: self.ordering,
-            symbolic: self.symbolic.clone(),
-            par: self.par,
-            refine_to: self.refine_to,
-            first_delta: self.first_delta,
-            bordering: self.bordering,
-            numeric: None,
-        }
-    }
-
     /// Number of stored entries in the factor L (0 for an empty problem).
     pub fn factor_nnz(&self) -> usize {
         self.symbolic.as_ref().map_or(0, |s| s.len_val())
