@@ -571,6 +571,8 @@ fn sparse_interior_point(
         estimate: ip.noise.and(ip.estimate.is_finite().then_some(ip.estimate)),
         noise: ip.noise,
         at_data_accuracy: ip.at_distance,
+        refinement_steps: ip.refinement_steps,
+        solve_residual: ip.solve_residual,
     };
     let solution = Solution {
         x: ip.x,
@@ -711,6 +713,8 @@ mod tests {
                     estimate: None,
                     noise: Some(1e-2),
                     at_data_accuracy,
+                    refinement_steps: 0,
+                    solve_residual: 0.0,
                 }],
                 softened: false,
                 warnings: Vec::new(),

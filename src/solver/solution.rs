@@ -160,6 +160,11 @@ pub enum Attempt {
         noise: Option<f64>,
         /// Stopped at the data's accuracy, before the tolerance.
         at_data_accuracy: bool,
+        /// Refinement steps of its Newton solves in all (what their
+        /// accuracy cost) and the largest relative KKT residual one was
+        /// answered with (not in the text).
+        refinement_steps: usize,
+        solve_residual: f64,
     },
     /// The active set did not deliver, nor did the sparse interior point
     /// (clarabel follows).
@@ -274,6 +279,7 @@ impl fmt::Display for Attempt {
                 estimate,
                 noise,
                 at_data_accuracy,
+                ..
             } => {
                 write!(
                     f,
@@ -352,6 +358,8 @@ mod tests {
             estimate: Some(2.04e-6),
             noise: Some(4.0e-3),
             at_data_accuracy: true,
+            refinement_steps: 41,
+            solve_residual: 8.5e-10,
         };
         assert_eq!(
             attempt.to_string(),
@@ -365,6 +373,8 @@ mod tests {
         assert_eq!(json["estimate"].as_f64(), Some(2.04e-6));
         assert_eq!(json["noise"].as_f64(), Some(4.0e-3));
         assert_eq!(json["active_set"], "skipped");
+        assert_eq!(json["refinement_steps"].as_u64(), Some(41));
+        assert_eq!(json["solve_residual"].as_f64(), Some(8.5e-10));
         // Without a noise estimate the text names neither figure.
         let tolerance_only = Attempt::SparseInteriorPoint {
             active_set: ActiveSetMiss::Skipped,
@@ -374,6 +384,8 @@ mod tests {
             estimate: None,
             noise: None,
             at_data_accuracy: false,
+            refinement_steps: 0,
+            solve_residual: 0.0,
         };
         assert!(!tolerance_only.to_string().contains("distance"));
     }
