@@ -251,5 +251,5 @@ def photoelastic(
 
     `None` keeps the CLI's default: `mu` 1 where the scene gives none; where
     disks are left flagged, second starts (`penalty_start` 10, `narrow_start`
-    0.5; 0 turns one off), the lower residual kept (report `second_starts`).
+    0.3; 0 turns one off), the lower residual kept (report `second_starts`).
     """
