@@ -43,10 +43,10 @@ use std::time::Instant;
 /// the interior point's time goes, for profiling only.
 const PROFILE_ENV: &str = "GRAINFORCE_IP_PROFILE";
 
-/// Seconds spent in one Newton step's parts (printed only when profiling)
-/// and its solves' refinement steps.
+/// What one Newton step cost: seconds in its parts (printed only when profiling),
+/// its correctors and its solves' refinement.
 #[derive(Debug, Default, Clone, Copy)]
-struct StepTimes {
+struct StepCost {
     /// The predictor's solve, with the iteration's numeric factorisation.
     predictor: f64,
     /// The corrector's solve on the same factorisation.
@@ -65,7 +65,7 @@ struct StepTimes {
     worst_residual: f64,
 }
 
-impl StepTimes {
+impl StepCost {
     /// Counts one solve's refinement.
     fn record(&mut self, direction: &Direction) {
         self.refinement_steps += direction.refinement_steps;
@@ -758,23 +758,23 @@ fn solve_on_path(
         // iterations on a sheared 10³ packing; near the end they must be
         // finer than the gap (else it stalls near 1e-8 on small problems).
         ls.set_refinement_target(refinement_target(measures.gap, target.is_some()));
-        let mut times = StepTimes::default();
+        let mut cost = StepCost::default();
         let clock = Instant::now();
-        let step = it.newton_step(problem, &rows, &mut aug, &mut ls, correctors, &mut times);
-        times.rest =
-            clock.elapsed().as_secs_f64() - times.predictor - times.corrector - times.centrality;
-        path.refinement_steps += times.refinement_steps;
-        path.solve_residual = path.solve_residual.max(times.worst_residual);
+        let step = it.newton_step(problem, &rows, &mut aug, &mut ls, correctors, &mut cost);
+        cost.rest =
+            clock.elapsed().as_secs_f64() - cost.predictor - cost.corrector - cost.centrality;
+        path.refinement_steps += cost.refinement_steps;
+        path.solve_residual = path.solve_residual.max(cost.worst_residual);
         if profile {
             eprintln!(
                 "ip-profile iteration {iteration} certificate {certificate_time:.4} \
                  predictor {:.4} corrector {:.4} centrality {:.4} ({} of {} kept) rest {:.4} s",
-                times.predictor,
-                times.corrector,
-                times.centrality,
-                times.correctors_kept,
-                times.correctors_tried,
-                times.rest
+                cost.predictor,
+                cost.corrector,
+                cost.centrality,
+                cost.correctors_kept,
+                cost.correctors_tried,
+                cost.rest
             );
         }
         if let Err(reason) = step {
@@ -1213,7 +1213,7 @@ impl Iterate {
         aug: &mut Augmented,
         ls: &mut EqualityLeastSquares,
         correctors: usize,
-        times: &mut StepTimes,
+        cost: &mut StepCost,
     ) -> std::result::Result<(), InteriorPointStop> {
         if !self.s.iter().chain(&self.z).all(|v| v.is_finite()) {
             return Err(InteriorPointStop::NotFinite);
@@ -1228,8 +1228,8 @@ impl Iterate {
         let minus_lambda: Vec<f64> = lambda.iter().map(|l| -l).collect();
         let clock = Instant::now();
         let affine = self.direction(problem, rows, aug, ls, &w, &lambda, &minus_lambda)?;
-        times.predictor = clock.elapsed().as_secs_f64();
-        times.record(&affine);
+        cost.predictor = clock.elapsed().as_secs_f64();
+        cost.record(&affine);
         // Step lengths in the scaled space, where s and z are both λ (W is an
         // automorphism of the cone): better centred than s and z near the boundary.
         let to_boundary = |d: &Direction| {
@@ -1259,8 +1259,8 @@ impl Iterate {
         let xi = jordan_divide(rows, &lambda, &rc);
         let clock = Instant::now();
         let mut d = self.direction(problem, rows, aug, ls, &w, &lambda, &xi)?;
-        times.corrector = clock.elapsed().as_secs_f64();
-        times.record(&d);
+        cost.corrector = clock.elapsed().as_secs_f64();
+        cost.record(&d);
         let clock = Instant::now();
         // Gondzio: aim at a longer step; where its scaled products s∘z fall
         // outside [β₋σμ, β₊σμ], pull them back in, on the same factor.
@@ -1283,16 +1283,16 @@ impl Iterate {
             let rc_try: Vec<f64> = rc.iter().zip(&pull).map(|(a, b)| a + b).collect();
             let xi_try = jordan_divide(rows, &lambda, &rc_try);
             let d_try = self.direction(problem, rows, aug, ls, &w, &lambda, &xi_try)?;
-            times.correctors_tried += 1;
-            times.record(&d_try);
+            cost.correctors_tried += 1;
+            cost.record(&d_try);
             let reach_try = to_boundary(&d_try).min(1.0);
             if reach_try < reach + GONDZIO_GAIN * (aim - reach) {
                 break;
             }
-            times.correctors_kept += 1;
+            cost.correctors_kept += 1;
             (d, rc, reach) = (d_try, rc_try, reach_try);
         }
-        times.centrality = clock.elapsed().as_secs_f64();
+        cost.centrality = clock.elapsed().as_secs_f64();
         let alpha = (STEP_FRACTION * to_boundary(&d)).min(1.0);
         if alpha.is_nan() || alpha < MIN_STEP {
             return Err(InteriorPointStop::ShortStep { alpha });
