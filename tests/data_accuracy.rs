@@ -364,4 +364,11 @@ fn the_newton_solves_are_refined_to_what_the_stop_needs() {
         "worst Newton solve answered at {worst:.2e}"
     );
     assert!(iterations <= 12, "{iterations} iterations");
+    // The looser solves keep the answer the issue asks for: relerr to the
+    // truth equal to the optimum's to three digits.
+    let optimum = relative_error(&truth, &exact(&loud).forces_or_zero());
+    assert!(
+        (relerr - optimum).abs() <= 5e-4 * optimum,
+        "relerr {relerr:.6} against the optimum's {optimum:.6}"
+    );
 }
