@@ -21,7 +21,7 @@
 
 use grainforce::image::fringe_fit::local_restarts;
 use grainforce::image::fringe_fit::{fit_fringes, fit_fringes_per_disk, FringeFitSettings};
-use grainforce::image::fringe_run::{with_second_starts, FirstFit};
+use grainforce::image::fringe_run::{second_starts_in_order, with_second_starts};
 use grainforce::image::photoelastic::{render_photoelastic, save_jpeg, PhotoelasticOptions};
 use grainforce::image::synthetic::match_disks;
 use grainforce::image::{detect_images, load_channel, Channel, DetectSettings, WallSource};
@@ -216,21 +216,19 @@ fn main() -> grainforce::Result<()> {
             // The run's second starts where disks are left flagged
             // (`photoelastic --penalty-start W --narrow-start MU`; off here
             // unless asked).
-            let mut firsts = Vec::new();
-            if let Some(w) = value("--penalty-start") {
-                firsts.push(FirstFit::Penalty(w));
-            }
-            if let Some(mu) = value("--narrow-start") {
-                firsts.push(FirstFit::Narrow(mu));
-            }
+            let firsts = second_starts_in_order(
+                value("--penalty-start").unwrap_or(0.0),
+                value("--narrow-start").unwrap_or(0.0),
+            );
             let (fit, tried) = with_second_starts(&image, &frame, fit_scene, &s, plain, &firsts)?;
             for t in &tried {
                 println!(
-                    "  second start {:?}: objective {:.2} against {:.2}, balance left out on {}, {}",
+                    "  second start {:?}: objective {:.2} against {:.2}, balance left out on {}, {} flagged, {}",
                     t.first,
                     t.objective,
                     t.compared_objective,
                     t.balance_left_out,
+                    t.flagged,
                     if t.kept { "kept" } else { "not kept" }
                 );
             }

@@ -146,6 +146,21 @@ fn joint_fit_beats_the_per_disk_fit() {
     }
 }
 
+/// The final stage's polish on all pixels takes one step on disks of
+/// r ≥ 30 px, after converging on a quarter of them (round 17: its 3–5
+/// steps were a third of the pixel work, and no answer needed them).
+#[test]
+fn the_polish_on_all_pixels_is_one_step_on_large_disks() {
+    let r = render(20, 8, 40.0, 4e4, 0.0, 0.02, 0.8);
+    let mut s = FringeFitSettings::new(4e4);
+    s.blur_px = 0.8;
+    let fit = fit_fringes(&r.image, &r.frame, &r.scene, &s).unwrap();
+    let steps = &fit.report.timing.steps;
+    summary("r = 40 px", &r, &fit);
+    eprintln!("steps per stage {steps:?}");
+    assert_eq!(steps.last(), Some(&1), "{steps:?}");
+}
+
 /// A contact missed by detection (round 2's all-zero forces with detected
 /// geometry): a disk left with one contact can carry no balanced load, and
 /// with its balance imposed its zero spread to every contact of the packing.

@@ -1415,11 +1415,12 @@ fn detected_against_pegs(
         run.fit.report.objective,
         (run.second_starts.iter())
             .map(|t| format!(
-                "{:?} objective {:.1} against {:.1}, balance left out on {} ({}, {:.1} s)",
+                "{:?} objective {:.1} against {:.1}, balance left out on {}, {} flagged ({}, {:.1} s)",
                 t.first,
                 t.objective,
                 t.compared_objective,
                 t.balance_left_out,
+                t.flagged,
                 if t.kept { "kept" } else { "not kept" },
                 t.seconds
             ))

@@ -773,10 +773,11 @@ def photoelastic(
     "bright" (dark fringes on bright disks) or "auto" (the default: read from
     the photograph; ``report["bright_field"]`` says which). lighting: fit
     each disk's background as a plane (light falling off across it).
-    penalty_start (10) and narrow_start (0.3): where the fit leaves disks
-    flagged, it is fitted again from a fit with balance as a penalty of this
-    weight, then from one with every wedge at this μ, and the lower residual
-    kept (``report["second_starts"]``; 0 turns one off). local_starts (0,
+    narrow_start (0.3) and penalty_start (10): where the fit leaves disks
+    flagged, it is fitted again from a fit with every wedge at this μ, then,
+    where disks are still flagged, from one with balance as a penalty of
+    this weight, and the lower residual kept (``report["second_starts"]``;
+    0 turns one off). local_starts (0,
     off): each disk still flagged is fitted again from up to this many
     starts with its and its neighbours' contacts free, kept where the whole
     residual falls (``report["local_restarts"]``).

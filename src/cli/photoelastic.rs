@@ -84,15 +84,14 @@ pub struct Args {
     /// disk) instead of a constant.
     #[arg(long)]
     lighting: bool,
-    /// Where the fit leaves disks flagged (fringes unexplained) under exact
-    /// balance, fit again from a fit with balance as a penalty of this
-    /// weight and keep the lower residual (reported under `second_starts`);
-    /// 0: off.
+    /// Where disks are still flagged (fringes unexplained) after the narrow
+    /// start, fit again from a fit with balance as a penalty of this weight
+    /// and keep the lower residual (reported under `second_starts`); 0: off.
     #[arg(long, default_value_t = fringe_run::DEFAULT_PENALTY_START)]
     penalty_start: f64,
-    /// Where disks are still flagged, fit again from a fit with every
-    /// friction wedge at this μ (when below --mu) and keep the lower
-    /// residual (reported under `second_starts`); 0: off.
+    /// Where the fit leaves disks flagged under exact balance, fit again
+    /// from a fit with every friction wedge at this μ (when below --mu) and
+    /// keep the lower residual (reported under `second_starts`); 0: off.
     #[arg(long, default_value_t = fringe_run::DEFAULT_NARROW_START)]
     narrow_start: f64,
     /// After the fit, each disk whose fringes it leaves unexplained is
