@@ -107,6 +107,26 @@ fn fit_from_nearby_forces_recovers_the_dem_forces() {
     assert!(fit.report.objective < 0.1 * fit.report.objective_start);
 }
 
+/// Disks of r = 100 px are fitted on the photograph binned 2 × 2 (a
+/// quarter of the pixels, round 17) and land as close to the DEM forces as
+/// at r = 20 px above.
+#[test]
+fn large_disks_are_fitted_binned() {
+    let r = render(20, 8, 100.0, 4e4, 0.0, 0.02, 0.8);
+    let mut s = FringeFitSettings::new(4e4);
+    s.blur_px = 0.8;
+    s.start = Some(nudged(&r.truth, 0.1));
+    let fit = fit_fringes(&r.image, &r.frame, &r.scene, &s).unwrap();
+    let e = summary("r = 100 px, from truth ±10 %", &r, &fit);
+    assert_eq!(fit.report.pixel_bin, 2);
+    assert_eq!(fit.report.blur_px, 0.8);
+    let most = fit.report.disks.iter().map(|d| d.pixels).max().unwrap();
+    // Without the bin a disk of r ≈ 100 px has ~3·10⁴ pixels inside its rim.
+    assert!(most < 10_000, "{most} pixels");
+    assert!(e < 0.01, "relerr {e}");
+    assert!(fit.report.flagged.is_empty(), "{:?}", fit.report.flagged);
+}
+
 fn nudged(truth: &[[f64; 2]], by: f64) -> Vec<[f64; 2]> {
     truth
         .iter()
