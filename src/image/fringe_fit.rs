@@ -3991,7 +3991,7 @@ mod tests {
         let mut scene = Scene::new(2);
         for (i, r_px) in [79.0, 100.0, 130.0].into_iter().enumerate() {
             let r = r_px / frame.px_per_m;
-            let mut g = crate::scene::Grain::new(&i.to_string(), [0.0; 3], PI * r * r, [0.0; 6]);
+            let mut g = crate::scene::Grain::new(i.to_string(), [0.0; 3], PI * r * r, [0.0; 6]);
             g.radius = Some(r);
             scene.grains.push(g);
         }
