@@ -7,7 +7,7 @@
 //!         [--scene DIR] [--seed N] [--dump DIR] [--circles] [--walls-last]
 //!         [--no-wall-candidates] [--mu MU] [--penalty-start W]
 //!         [--narrow-start MU] [--box-walls] [--local-starts N] [--no-outermost-outline]
-//!         [--drop-pair A,B] [--add-pair A,B]
+//!         [--drop-pair A,B] [--add-pair A,B] [--radius-px R]
 //!
 //! Without flags the disks and contacts are the DEM's; `--detect` finds them
 //! in the photograph (`detect`, walls at the DEM's lines, or with
@@ -67,7 +67,13 @@ fn main() -> grainforce::Result<()> {
         .map(|g| g.radius.unwrap_or(0.0))
         .sum::<f64>()
         / scene.grains.len() as f64;
-    let mut o = PhotoelasticOptions::new(40.0 / mean_r, 4e4);
+    // `--radius-px R`: the same packing drawn with disks of mean radius R px.
+    let radius_px: f64 = args
+        .iter()
+        .position(|a| a == "--radius-px")
+        .and_then(|k| args.get(k + 1)?.parse().ok())
+        .unwrap_or(40.0);
+    let mut o = PhotoelasticOptions::new(radius_px / mean_r, 4e4);
     o.blur_px = 0.8;
     o.noise = 0.02;
     o.uneven_lighting = 0.1;

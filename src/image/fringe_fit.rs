@@ -370,6 +370,10 @@ pub struct FringeFitReport {
     pub dropped: Vec<String>,
     /// Near-miss disk pairs fitted as candidate contacts (`candidate_gap`).
     pub candidates: Vec<CandidateContact>,
+    /// The photograph was fitted binned this many pixels a side (1: as it
+    /// is; large disks, [`FIT_RADIUS_PX`]); `disks`' pixels and G² are the
+    /// binned photograph's.
+    pub pixel_bin: u32,
 }
 
 /// A near-miss disk pair (or disk and wall) fitted as a contact: grain `a`
@@ -1544,12 +1548,6 @@ fn release_forced_zeros(
     start: &[f64],
 ) -> Result<()> {
     let ones: Vec<Vec<f64>> = p.disks.iter().map(|d| vec![1.0; d.loads.len()]).collect();
-    let mut touching: Vec<Vec<usize>> = vec![Vec::new(); p.unknowns];
-    for (g, d) in p.disks.iter().enumerate() {
-        for l in &d.loads {
-            touching[l.unknown].push(g);
-        }
-    }
     for _ in 0..p.disks.len() {
         let unit = balanced_start(p, scene, settings, &ones)?;
         let mut forced = Vec::new();
@@ -1561,17 +1559,66 @@ fn release_forced_zeros(
                 forced.push(k);
             }
         }
-        let suspects: Vec<usize> = (forced.iter())
-            .flat_map(|&k| touching[k].iter().copied())
-            .filter(|&g| p.balanced[g])
-            .collect();
-        let Some(fewest) = suspects.iter().map(|&g| p.disks[g].loads.len()).min() else {
+        if !release_fewest(p, &forced) {
             return Ok(());
-        };
-        for g in suspects {
-            if p.disks[g].loads.len() == fewest {
-                p.balanced[g] = false;
-            }
+        }
+    }
+    Ok(())
+}
+
+/// Leaves out the balance of the balanced disks at the contacts `forced`
+/// (to zero) that have the fewest contacts; false when there are none.
+fn release_fewest(p: &mut Prepared, forced: &[usize]) -> bool {
+    let mut forced_at = vec![false; p.unknowns];
+    for &k in forced {
+        forced_at[k] = true;
+    }
+    let suspects: Vec<usize> = (0..p.disks.len())
+        .filter(|&g| p.balanced[g] && p.disks[g].loads.iter().any(|l| forced_at[l.unknown]))
+        .collect();
+    let Some(fewest) = suspects.iter().map(|&g| p.disks[g].loads.len()).min() else {
+        return false;
+    };
+    for g in suspects {
+        if p.disks[g].loads.len() == fewest {
+            p.balanced[g] = false;
+        }
+    }
+    true
+}
+
+/// Below this share of contacts able to carry load, the balance pins the
+/// packing at zero. Each disk may balance alone and the whole admit no load
+/// ([`release_forced_zeros`]): detected packings cut by the picture's
+/// border (neighbours outside it never detected) admitted none at all on
+/// three photographs, and the fit started from zero stayed there (every
+/// disk flagged, 159 of 176 forces zero; docs/photoelastic.md, round 17).
+/// The three PeGS photographs admit load at 43–88 % of their contacts.
+const PINNED_PACKING_SHARE: f64 = 0.25;
+
+/// For a fit from the fringes under exact balance: while fewer than
+/// [`PINNED_PACKING_SHARE`] of the contacts can carry load, leaves out the
+/// balance of the fewest-contact disks at the others (as
+/// [`release_forced_zeros`] does for a given start, without its per-contact
+/// test: a contact the field nearest unit loads leaves unloaded is counted
+/// as pinned).
+fn release_pinned_packing(
+    p: &mut Prepared,
+    scene: &Scene,
+    settings: &FringeFitSettings,
+) -> Result<()> {
+    if settings.balance != Balance::Hard || p.unknowns == 0 {
+        return Ok(());
+    }
+    let ones: Vec<Vec<f64>> = p.disks.iter().map(|d| vec![1.0; d.loads.len()]).collect();
+    for _ in 0..p.disks.len() {
+        let unit = balanced_start(p, scene, settings, &ones)?;
+        let pinned: Vec<usize> = (0..p.unknowns)
+            .filter(|&k| unit[2 * k] < FORCED_ZERO)
+            .collect();
+        let loadable = (p.unknowns - pinned.len()) as f64;
+        if loadable >= PINNED_PACKING_SHARE * p.unknowns as f64 || !release_fewest(p, &pinned) {
+            return Ok(());
         }
     }
     Ok(())
@@ -2293,6 +2340,91 @@ const POLISH_STEPS: usize = 5;
 /// and real-photo share was unchanged (docs/photoelastic.md, round 17).
 const THIN_POLISH_STEPS: usize = 1;
 
+/// Disks of a median radius of at least twice this [px] are fitted on the
+/// photograph binned k × k, k = ⌊R / FIT_RADIUS_PX⌋, so that they span
+/// 40–80 px there: a disk shows as many fringes at any resolution, so the
+/// extra pixels of a larger one add cost and memory (∝ R²), not
+/// information. A bin's mean is what a camera of k× coarser pixels sees,
+/// which the model's pixel term already describes (docs/photoelastic.md,
+/// round 17).
+const FIT_RADIUS_PX: f64 = 40.0;
+
+/// The bin factor of [`FIT_RADIUS_PX`] for `scene` in `frame` (1: none).
+fn pixel_bin(frame: &PixelFrame, scene: &Scene) -> u32 {
+    let mut radii: Vec<f64> = (scene.grains.iter())
+        .map(|g| g.equivalent_radius(2) * frame.px_per_m)
+        .filter(|r| r.is_finite())
+        .collect();
+    if radii.is_empty() {
+        return 1;
+    }
+    radii.sort_by(f64::total_cmp);
+    let bin = (radii[radii.len() / 2] / FIT_RADIUS_PX).floor();
+    (bin as u32).clamp(1, frame.width.min(frame.height).max(1))
+}
+
+/// The photograph binned `bin` × `bin` (each pixel the mean of its block;
+/// a partial last row or column is dropped), its frame (the same scene
+/// positions) and `settings` in its pixels.
+fn binned(
+    image: &FloatImage,
+    frame: &PixelFrame,
+    settings: &FringeFitSettings,
+    bin: u32,
+) -> (FloatImage, PixelFrame, FringeFitSettings) {
+    let (width, height) = (image.width() / bin, image.height() / bin);
+    let share = 1.0 / (bin * bin) as f32;
+    let out = FloatImage::from_fn(width, height, |x, y| {
+        let mut sum = 0.0f32;
+        for v in y * bin..(y + 1) * bin {
+            for u in x * bin..(x + 1) * bin {
+                sum += image.get_pixel(u, v)[0];
+            }
+        }
+        ::image::Luma([sum * share])
+    });
+    let dropped_rows = (frame.height - height * bin) as f64;
+    let frame = PixelFrame {
+        px_per_m: frame.px_per_m / bin as f64,
+        origin: [
+            frame.origin[0],
+            frame.origin[1] + dropped_rows / frame.px_per_m,
+        ],
+        width,
+        height,
+    };
+    // The optics' blur in the coarse pixels; the bin's own box is the
+    // model's pixel term.
+    let settings = FringeFitSettings {
+        blur_px: settings.blur_px / bin as f64,
+        edge_px: settings.edge_px / bin as f64,
+        ..settings.clone()
+    };
+    (out, frame, settings)
+}
+
+/// `fit` at the resolution [`pixel_bin`] chooses: on the binned photograph
+/// where disks are large (the report saying so, its blur in the
+/// photograph's pixels), None where they are fitted as they are.
+fn at_fit_resolution(
+    image: &FloatImage,
+    frame: &PixelFrame,
+    scene: &Scene,
+    settings: &FringeFitSettings,
+    fit: impl Fn(&FloatImage, &PixelFrame, &FringeFitSettings) -> Result<FringeFit>,
+) -> Option<Result<FringeFit>> {
+    let bin = pixel_bin(frame, scene);
+    if bin <= 1 || (image.width(), image.height()) != (frame.width, frame.height) {
+        return None;
+    }
+    let (image, frame, coarse) = binned(image, frame, settings, bin);
+    Some(fit(&image, &frame, &coarse).map(|mut done| {
+        done.report.pixel_bin = bin;
+        done.report.blur_px = settings.blur_px;
+        done
+    }))
+}
+
 /// The problem with each disk's intensities smoothed by `sigma_px`.
 fn smoothed(p: &Prepared, sigma_px: f64) -> Prepared {
     Prepared {
@@ -2365,8 +2497,13 @@ pub fn fit_fringes(
     scene: &Scene,
     settings: &FringeFitSettings,
 ) -> Result<FringeFit> {
-    let started = std::time::Instant::now();
     settings.validate()?;
+    if let Some(done) = at_fit_resolution(image, frame, scene, settings, |i, f, s| {
+        fit_fringes(i, f, scene, s)
+    }) {
+        return done;
+    }
+    let started = std::time::Instant::now();
     let (mut work, mut gaps) = with_candidates(scene, settings.candidate_gap);
     let mut start = settings.clone();
     // Candidates start unloaded (a start of the wrong length is refused below).
@@ -2722,6 +2859,9 @@ fn fit_path(
         .then(|| frictionless_walls(scene))
         .flatten();
     let coarse = coarse_scene.as_ref().unwrap_or(scene);
+    if settings.start.is_none() {
+        release_pinned_packing(&mut p, scene, settings)?;
+    }
     let final_balanced = p.balanced.clone();
     if coarse_scene.is_some() {
         let cones = friction_cones(coarse, settings);
@@ -2731,6 +2871,7 @@ fn fit_path(
         for (b, a) in p.balanced.iter_mut().zip(alone) {
             *b &= a;
         }
+        release_pinned_packing(&mut p, coarse, settings)?;
     }
     laps.lap(&format!(
         "fringe path (walls first {walls_first}, {} contacts): prepare",
@@ -3098,6 +3239,11 @@ pub fn fit_fringes_per_disk(
     scene: &Scene,
     settings: &FringeFitSettings,
 ) -> Result<FringeFit> {
+    if let Some(done) = at_fit_resolution(image, frame, scene, settings, |i, f, s| {
+        fit_fringes_per_disk(i, f, scene, s)
+    }) {
+        return done;
+    }
     if settings.polariscope == Polariscope::Auto {
         return either_polariscope(settings, |s| fit_fringes_per_disk(image, frame, scene, s));
     }
@@ -3350,6 +3496,7 @@ fn report(
         disks,
         dropped: Vec::new(),
         candidates: Vec::new(),
+        pixel_bin: 1,
     }
 }
 
@@ -3819,6 +3966,56 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// A binned pixel is its block's mean, placed at the block's centre in
+    /// the scene (a partial last row or column dropped), and the bin is
+    /// chosen from the median radius.
+    #[test]
+    fn binning_keeps_scene_positions() {
+        let frame = PixelFrame {
+            px_per_m: 250.0,
+            origin: [0.1, -0.2],
+            width: 10,
+            height: 8,
+        };
+        let image = FloatImage::from_fn(10, 8, |x, y| ::image::Luma([(x + 10 * y) as f32]));
+        let (coarse, at, settings) = binned(&image, &frame, &FringeFitSettings::new(1.0), 3);
+        assert_eq!((coarse.width(), coarse.height()), (3, 2));
+        assert_eq!((at.width, at.height), (3, 2));
+        assert_eq!((settings.blur_px, settings.edge_px), (1.0 / 3.0, 2.0));
+        for (bx, by) in [(0, 0), (2, 1), (1, 1)] {
+            let mut centre = [0.0; 2];
+            let mut mean = 0.0;
+            for y in 3 * by..3 * by + 3 {
+                for x in 3 * bx..3 * bx + 3 {
+                    let p = frame.to_scene([x as f64, y as f64]);
+                    centre = [centre[0] + p[0] / 9.0, centre[1] + p[1] / 9.0];
+                    mean += image.get_pixel(x, y)[0] / 9.0;
+                }
+            }
+            let p = at.to_scene([bx as f64, by as f64]);
+            assert!((p[0] - centre[0]).abs() < 1e-12 && (p[1] - centre[1]).abs() < 1e-12);
+            assert!((coarse.get_pixel(bx, by)[0] - mean).abs() < 1e-4);
+        }
+        let mut scene = Scene::new(2);
+        for (i, r_px) in [79.0, 100.0, 130.0].into_iter().enumerate() {
+            let r = r_px / frame.px_per_m;
+            let mut g = crate::scene::Grain::new(i.to_string(), [0.0; 3], PI * r * r, [0.0; 6]);
+            g.radius = Some(r);
+            scene.grains.push(g);
+        }
+        let big = PixelFrame {
+            width: 1000,
+            height: 1000,
+            ..frame
+        };
+        assert_eq!(pixel_bin(&big, &scene), 2);
+        scene.grains.remove(1);
+        assert_eq!(pixel_bin(&big, &scene), 3);
+        scene.grains.pop();
+        assert_eq!(pixel_bin(&big, &scene), 1);
+        assert_eq!(pixel_bin(&big, &Scene::new(2)), 1);
     }
 
     #[test]
