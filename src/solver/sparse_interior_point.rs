@@ -646,7 +646,7 @@ fn solve_on_path(
 
     let mut it = match restart {
         Some(r) if r.fits(n, problem.c.nrows, rows.len()) => r.0.clone(),
-        _ => Iterate::start(problem, cones, &rows, start),
+        _ => Iterate::start(problem, cones, &rows, start, settings.noise_share.is_some()),
     };
     let mut keep: Option<RestartPoint> = None;
     let tol = settings.tolerance;
@@ -1013,6 +1013,26 @@ fn refinement_target(gap: f64, to_noise: bool) -> f64 {
 /// within a factor 3 below the cap.
 const NOISE_REFINE_SHARE: f64 = 1e-2;
 const NOISE_REFINE_CAP: f64 = 1e-9;
+/// The start's slacks are pushed this share of the start's largest
+/// distance outside a cone (in the cones' rows) into their cones. Before
+/// round 17 the margin was a tenth of the largest slack (the forces' whole
+/// scale) and μ₀ about ten times larger: on the 2 000-sphere sheared box the
+/// first iterates walked from 0.84 to 2.5 (fit norm) away from the answer
+/// before coming back, 10 iterations in all; sized by the violation, 8
+/// (docs/bench.md, round 17). Margins of 0.1–0.5 of the violation did alike
+/// on the sheared boxes (±1–2 iterations), but 0.2 took 2–5 more in two
+/// reweighting passes; 10⁻³ of the largest slack made the first steps crawl
+/// and a tenfold noise ran out of progress (clarabel answered). Only at the
+/// data's accuracy: solved to 10⁻¹⁰ from this start the tenfold noise
+/// stalled short of the tolerance (clarabel answered, 67 s against 3 s).
+const START_MARGIN_SHARE: f64 = 0.3;
+/// The margin's floor, a share of the largest slack, for a start already
+/// inside its cones.
+const START_MARGIN_FLOOR: f64 = 1e-3;
+/// The start's multipliers at the pushed slacks are this multiple of the
+/// largest force the cones exert moving the start onto them (10 before
+/// round 17; 20–50 measured alike, 10 a little slower).
+const START_PUSH_MULTIPLE: f64 = 30.0;
 /// Iterations without halving the worst of gap and residuals before giving up.
 const MAX_STALLED: usize = 8;
 const STALL_FACTOR: f64 = 0.5;
@@ -1064,14 +1084,35 @@ struct Iterate {
 }
 
 impl Iterate {
-    /// The slacks G x pushed into their cones, the multipliers centred on them
-    /// (s ∘ z = μ₀ e) at the size of the force the cones must exert to move x
-    /// onto them.
-    fn start(problem: &LeastSquares, cones: &[Cone], rows: &ConeRows, start: &[f64]) -> Self {
+    /// The slacks G x pushed into their cones by a margin sized by how far x
+    /// lies outside them (the Coulomb violation of the least squares, not the
+    /// forces' whole scale), the multipliers centred on them (s ∘ z = μ₀ e)
+    /// at [`START_PUSH_MULTIPLE`] times the force the cones must exert to
+    /// move x onto them: a start near the end of the path, which the first
+    /// steps no longer leave (see [`START_MARGIN_SHARE`]).
+    /// Solved to a tolerance (`near_end` false), the margin is a tenth of
+    /// the largest slack and μ₀ the push times it, as before round 17.
+    fn start(
+        problem: &LeastSquares,
+        cones: &[Cone],
+        rows: &ConeRows,
+        start: &[f64],
+        near_end: bool,
+    ) -> Self {
         let x = start.to_vec();
         let mut s = rows.mul(&x);
+        let projected = projected(&x, cones);
+        let outside = rows
+            .mul(&projected)
+            .iter()
+            .zip(&s)
+            .fold(0.0f64, |m, (p, q)| m.max((p - q).abs()));
         let scale = inf_norm(&s).max(f64::MIN_POSITIVE);
-        let margin = 0.1 * scale;
+        let margin = if near_end {
+            (START_MARGIN_SHARE * outside).max(START_MARGIN_FLOOR * scale)
+        } else {
+            0.1 * scale
+        };
         let lines = rows.lines.len();
         for si in &mut s[..lines] {
             *si = si.max(margin);
@@ -1083,10 +1124,6 @@ impl Iterate {
                 s[r.start] = t + margin;
             }
         }
-        let mut projected = x.clone();
-        for c in cones {
-            c.project(&mut projected);
-        }
         let moved: Vec<f64> = projected.iter().zip(&x).map(|(p, q)| p - q).collect();
         let push = inf_norm(&problem.hessian_times(&moved));
         let z_scale = if push > 0.0 {
@@ -1094,7 +1131,12 @@ impl Iterate {
         } else {
             inf_norm(&problem.gradient(&x)).max(f64::MIN_POSITIVE)
         };
-        let mu0_e = unit(rows, z_scale * scale);
+        let mu0 = if near_end {
+            START_PUSH_MULTIPLE * z_scale * margin
+        } else {
+            z_scale * scale
+        };
+        let mu0_e = unit(rows, mu0);
         let z = jordan_divide(rows, &s, &mu0_e);
         Iterate {
             x,
