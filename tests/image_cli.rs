@@ -359,23 +359,30 @@ fn the_defaults_give_a_detected_packing_its_load() {
             .map(|(r, _)| r.force[0].hypot(r.force[1]))
             .sum();
         let total: f64 = rows.iter().map(|r| r.force[0].hypot(r.force[1])).sum();
+        let left_out = report["balance_left_out"].as_array().unwrap().len();
         eprintln!(
-            "walls {walls:?}: Σ|F| on walls {on_walls:.2} N/m, all {total:.2} N/m, warned {warned}"
+            "walls {walls:?}: Σ|F| on walls {on_walls:.2} N/m, all {total:.2} N/m, \
+             warned {warned}, balance left out {left_out}"
         );
-        (warned, on_walls, total)
+        (warned, on_walls, total, left_out)
     };
-    let (warned, on_walls, total) = fitted(&[], true);
+    let (warned, on_walls, total, left_out) = fitted(&[], true);
     assert!(!warned);
     // Both switches at 0: the plain fit, no second start (a narrow start at
     // 0 once ran a frictionless one).
     fitted(&[], false);
-    let (warned_bare, on_no_walls, total_bare) = fitted(&["--walls", "none"], true);
+    let (warned_bare, on_no_walls, total_bare, left_out_bare) = fitted(&["--walls", "none"], true);
     assert!(warned_bare && on_no_walls == 0.0);
     // The walls hold the packing and carry a share of its load (measured
-    // after two steps: 4280 of 16942 N/m); without them only the disks
-    // whose balance is left out carry any (55 N/m).
+    // after two steps: 4430 of 17966 N/m). Without them balance pins every
+    // force at zero, so the fit leaves out the balance of the
+    // fewest-contact disks (round 17) to carry the fringes' load: more disks
+    // out of balance than with the walls (measured: 13450 N/m in all).
     assert!(on_walls > 0.1 * total, "walls {on_walls}, all {total}");
-    assert!(total > 20.0 * total_bare, "{total} against {total_bare}");
+    assert!(
+        total_bare > 0.0 && left_out_bare > left_out,
+        "{total_bare} N/m, {left_out_bare} disks left out against {left_out}"
+    );
     let (ok, err) = common::run(&[
         "photoelastic",
         BUNDLED_PHOTO,
