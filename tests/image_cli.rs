@@ -180,6 +180,32 @@ fn detect_bundled_photo(out: &Path, extra: &[&str]) -> (bool, String) {
     common::run(&args)
 }
 
+/// `photoelastic` on the bundled photograph with `scene`, writing `forces`
+/// and `report`, f_σ 200 N/m, 5 mm thick, and the `extra` arguments.
+fn photoelastic_bundled_photo(
+    scene: &Path,
+    forces: &Path,
+    report: &Path,
+    extra: &[&str],
+) -> (bool, String) {
+    let mut args = vec![
+        "photoelastic",
+        BUNDLED_PHOTO,
+        "--scene",
+        p(scene),
+        "-o",
+        p(forces),
+        "--report",
+        p(report),
+        "--fsigma",
+        "200",
+        "--thickness",
+        "0.005",
+    ];
+    args.extend(extra);
+    common::run(&args)
+}
+
 /// `detect --settle-edges` reaches the detector: on the bundled photoelastic
 /// photograph the two circles caught on fringe edges (4 px off, see
 /// docs/photoelastic.md) creep out to their outlines, so the grains differ.
@@ -312,30 +338,12 @@ fn the_defaults_give_a_detected_packing_its_load() {
             dir.path().join("forces.csv"),
             dir.path().join("report.json"),
         );
-        let (ok, err) = common::run(
-            &[
-                "photoelastic",
-                BUNDLED_PHOTO,
-                "--scene",
-                p(&scene),
-                "-o",
-                p(&forces),
-                "--report",
-                p(&report),
-                "--fsigma",
-                "200",
-                "--thickness",
-                "0.005",
-                "--iterations",
-                "2",
-                "--polariscope",
-                "dark",
-            ]
+        let extra: Vec<&str> = ["--iterations", "2", "--polariscope", "dark"]
             .iter()
             .chain(if second_starts { &[][..] } else { &off[..] })
             .copied()
-            .collect::<Vec<_>>(),
-        );
+            .collect();
+        let (ok, err) = photoelastic_bundled_photo(&scene, &forces, &report, &extra);
         assert!(ok, "{err}");
         let report: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(&report).unwrap()).unwrap();
@@ -413,22 +421,8 @@ fn the_penalty_start_is_fitted_only_where_the_narrow_start_leaves_disks_flagged(
     let (ok, err) = detect_bundled_photo(&scene, &[]);
     assert!(ok, "{err}");
     let report = dir.path().join("report.json");
-    let (ok, err) = common::run(&[
-        "photoelastic",
-        BUNDLED_PHOTO,
-        "--scene",
-        p(&scene),
-        "-o",
-        p(&dir.path().join("forces.csv")),
-        "--report",
-        p(&report),
-        "--fsigma",
-        "200",
-        "--thickness",
-        "0.005",
-        "--blur",
-        "0.8",
-    ]);
+    let forces = dir.path().join("forces.csv");
+    let (ok, err) = photoelastic_bundled_photo(&scene, &forces, &report, &["--blur", "0.8"]);
     assert!(ok, "{err}");
     let report: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&report).unwrap()).unwrap();

@@ -91,12 +91,7 @@ fn summary(name: &str, r: &Rendered, fit: &FringeFit) -> f64 {
 /// forces, exactly balanced.
 #[test]
 fn fit_from_nearby_forces_recovers_the_dem_forces() {
-    let r = render(20, 8, 20.0, 4e4, 0.0, 0.02, 0.8);
-    let mut s = FringeFitSettings::new(4e4);
-    s.blur_px = 0.8;
-    s.start = Some(nudged(&r.truth, 0.1));
-    let fit = fit_fringes(&r.image, &r.frame, &r.scene, &s).unwrap();
-    let e = summary("from truth ±10 %", &r, &fit);
+    let (fit, e) = fit_near_truth(20.0, "from truth ±10 %");
     assert!(e < 0.01, "relerr {e}");
     assert!(
         fit.report.max_imbalance < 1e-6,
@@ -112,12 +107,7 @@ fn fit_from_nearby_forces_recovers_the_dem_forces() {
 /// at r = 20 px above.
 #[test]
 fn large_disks_are_fitted_binned() {
-    let r = render(20, 8, 100.0, 4e4, 0.0, 0.02, 0.8);
-    let mut s = FringeFitSettings::new(4e4);
-    s.blur_px = 0.8;
-    s.start = Some(nudged(&r.truth, 0.1));
-    let fit = fit_fringes(&r.image, &r.frame, &r.scene, &s).unwrap();
-    let e = summary("r = 100 px, from truth ±10 %", &r, &fit);
+    let (fit, e) = fit_near_truth(100.0, "r = 100 px, from truth ±10 %");
     assert_eq!(fit.report.pixel_bin, 2);
     assert_eq!(fit.report.blur_px, 0.8);
     let most = fit.report.disks.iter().map(|d| d.pixels).max().unwrap();
@@ -125,6 +115,35 @@ fn large_disks_are_fitted_binned() {
     assert!(most < 10_000, "{most} pixels");
     assert!(e < 0.01, "relerr {e}");
     assert!(fit.report.flagged.is_empty(), "{:?}", fit.report.flagged);
+}
+
+/// The fit of an 8-disk cluster of `radius_px` (blur 0.8 px, noise 2 %)
+/// started from the truth ±10 %, and its relerr.
+fn fit_near_truth(radius_px: f64, name: &str) -> (FringeFit, f64) {
+    let r = render(20, 8, radius_px, 4e4, 0.0, 0.02, 0.8);
+    let mut s = FringeFitSettings::new(4e4);
+    s.blur_px = 0.8;
+    s.start = Some(nudged(&r.truth, 0.1));
+    let fit = fit_fringes(&r.image, &r.frame, &r.scene, &s).unwrap();
+    let e = summary(name, &r, &fit);
+    (fit, e)
+}
+
+/// A 2D scene of disks of `radius` at `centres`, friction `mu`, no contacts.
+fn disks(mu: f64, radius: f64, centres: &[(&str, [f64; 2])]) -> Scene {
+    let mut scene = Scene::new(2);
+    scene.settings.mu = Some(mu);
+    for &(id, centre) in centres {
+        let mut g = grainforce::scene::Grain::new(
+            id,
+            [centre[0], centre[1], 0.0],
+            std::f64::consts::PI * radius * radius,
+            [0.0; 6],
+        );
+        g.radius = Some(radius);
+        scene.grains.push(g);
+    }
+    scene
 }
 
 fn nudged(truth: &[[f64; 2]], by: f64) -> Vec<[f64; 2]> {
@@ -397,18 +416,7 @@ fn a_start_the_balance_pins_at_zero_leaves_its_disks_out() {
     let alpha = (-f * along[0] * d3[1] + f * along[1] * d3[0]) / det;
     let beta = (-f * along[1] * d2[0] + f * along[0] * d2[1]) / det;
     assert!(alpha > 0.0 && beta > 0.0);
-    let mut scene = Scene::new(2);
-    scene.settings.mu = Some(0.5);
-    for (id, centre) in [("A", a), ("B", b), ("C", c)] {
-        let mut g = grainforce::scene::Grain::new(
-            id,
-            [centre[0], centre[1], 0.0],
-            std::f64::consts::PI * radius * radius,
-            [0.0; 6],
-        );
-        g.radius = Some(radius);
-        scene.grains.push(g);
-    }
+    let mut scene = disks(0.5, radius, &[("A", a), ("B", b), ("C", c)]);
     let mut truth = Vec::new();
     let mut contact =
         |scene: &mut Scene, a: usize, b: Option<usize>, wall: &str, deg: f64, force: [f64; 2]| {
@@ -501,22 +509,11 @@ fn a_start_the_balance_pins_at_zero_leaves_its_disks_out() {
 #[test]
 fn a_packing_the_balance_pins_at_zero_is_fitted_from_its_fringes() {
     let radius = 4e-3;
-    let mut scene = Scene::new(2);
-    scene.settings.mu = Some(1.0);
     let b_centre = [
         2.0 * radius * 20f64.to_radians().cos(),
         2.0 * radius * 20f64.to_radians().sin(),
     ];
-    for (id, centre) in [("A", [0.0, 0.0]), ("B", b_centre)] {
-        let mut g = grainforce::scene::Grain::new(
-            id,
-            [centre[0], centre[1], 0.0],
-            std::f64::consts::PI * radius * radius,
-            [0.0; 6],
-        );
-        g.radius = Some(radius);
-        scene.grains.push(g);
-    }
+    let mut scene = disks(1.0, radius, &[("A", [0.0, 0.0]), ("B", b_centre)]);
     // (grain, other grain or wall, angle of the contact on the grain, force on the grain).
     let contacts: [(usize, Option<usize>, f64, [f64; 2]); 3] = [
         (0, None, 180.0, [200.0, 0.0]),
