@@ -637,12 +637,6 @@ fn solve_on_path(
     let rows = ConeRows::new(cones);
     let mut aug = Augmented::new(problem, &rows);
     let mut ls = factor_of(&aug, problem, analysed)?;
-    let value_reuse = match std::env::var("GRAINFORCE_IP_REUSE").ok().as_deref() {
-        Some("0") => false,
-        Some(_) => true,
-        None => settings.noise_share.is_some(),
-    };
-    ls.set_value_reuse(value_reuse);
     if profile {
         eprintln!(
             "ip-profile setup (augmented rows + symbolic analysis) {:.4} s",

@@ -194,8 +194,6 @@ impl EqualityLeastSquares {
             refine_to: ROUNDOFF_FLOOR,
             first_delta: super::DELTA_LADDER[0],
             bordering: Bordering::Auto,
-            value_reuse: false,
-            a_csr_off_base: false,
             numeric: None,
         }
     }
@@ -259,7 +257,6 @@ impl EqualityLeastSquares {
         let n = self.n;
         let (ma, mc) = (a.nrows, c.nrows);
         self.a_csr.refill(&a.vals);
-        self.a_csr_off_base = false;
         self.a_csc.refill(&a.vals);
         self.c_csr.refill(&c.vals);
 

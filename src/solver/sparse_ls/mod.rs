@@ -198,12 +198,6 @@ pub struct EqualityLeastSquares {
     /// The first δ tried (then the larger ones of [`DELTA_LADDER`]).
     first_delta: f64,
     bordering: Bordering,
-    /// A factor of other values of A (same pattern, C, λ) preconditions
-    /// GMRES on the current system (see [`Self::set_value_reuse`]).
-    value_reuse: bool,
-    /// `a_csr` holds values other than the factor's base (a solve on a
-    /// factor of other values refilled it).
-    a_csr_off_base: bool,
     numeric: Option<Numeric>,
 }
 
@@ -303,15 +297,6 @@ impl EqualityLeastSquares {
         self.first_delta = delta.clamp(1e-14, DELTA_LADDER[0]);
     }
 
-    /// Let a factor of other values of A (the same pattern, C and λ, no
-    /// active rows) precondition GMRES on the current system instead of a
-    /// new factorisation, to the refinement target; a solve that does not
-    /// reach it within the modelled cost of a factorisation is redone on a
-    /// new one.
-    pub(crate) fn set_value_reuse(&mut self, on: bool) {
-        self.value_reuse = on;
-    }
-
     /// Number of stored entries in the factor L (0 for an empty problem).
     pub fn factor_nnz(&self) -> usize {
         self.symbolic.as_ref().map_or(0, |s| s.len_val())
@@ -392,19 +377,9 @@ impl EqualityLeastSquares {
         check_finite(d, "d")?;
         if !self.same_pattern(a, c) {
             let coupling = std::mem::take(&mut self.coupling);
-            let kept = (
-                self.refine_to,
-                self.first_delta,
-                self.bordering,
-                self.value_reuse,
-            );
+            let kept = (self.refine_to, self.first_delta, self.bordering);
             *self = Self::analyse(a, c, &coupling, self.par, self.ordering)?;
-            (
-                self.refine_to,
-                self.first_delta,
-                self.bordering,
-                self.value_reuse,
-            ) = kept;
+            (self.refine_to, self.first_delta, self.bordering) = kept;
         }
         let n = self.n;
         if n == 0 {

@@ -72,13 +72,7 @@ impl EqualityLeastSquares {
         // base (and its L storage) instead of equilibrating and forming AᵀA again.
         let clock = std::time::Instant::now();
         let (base, l_values) = match self.numeric.take() {
-            Some(num) if num.same_values(a, c, lambda, delta) => {
-                if self.a_csr_off_base {
-                    self.a_csr.refill(&a.vals);
-                    self.a_csr_off_base = false;
-                }
-                (num.base, num.l_values)
-            }
+            Some(num) if num.same_values(a, c, lambda, delta) => (num.base, num.l_values),
             old => (
                 self.base(a, c, lambda, delta)?,
                 old.map(|num| num.l_values).unwrap_or_default(),
@@ -222,11 +216,7 @@ pub(super) fn solve_parallelism(par: Par, ncols: usize) -> Par {
 
 /// Sequential below [`PARALLEL_MIN_SIZE`] KKT unknowns, all threads above.
 pub(super) fn default_parallelism(kkt_size: usize) -> Par {
-    let min = std::env::var("GRAINFORCE_PARALLEL_MIN")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(PARALLEL_MIN_SIZE);
-    if kkt_size >= min {
+    if kkt_size >= PARALLEL_MIN_SIZE {
         Par::rayon(0)
     } else {
         Par::Seq

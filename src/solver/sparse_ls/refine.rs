@@ -21,10 +21,6 @@ pub(super) struct Attempt {
     pub(super) primal: f64,
     pub(super) steps: usize,
     pub(super) reused_factor: bool,
-    /// The residual a solve on a reused factor must reach to be kept:
-    /// [`CONVERGED_TOL`], or the caller's looser target on a factor of
-    /// other values (see [`EqualityLeastSquares::set_value_reuse`]).
-    pub(super) enough: f64,
 }
 
 impl Attempt {
@@ -70,7 +66,7 @@ impl EqualityLeastSquares {
         springs: &Triplets,
     ) -> Result<Attempt> {
         match self.attempt_on(a, c, b, d, lambda, delta, g, springs, true) {
-            Ok(att) if !att.reused_factor || att.rho() <= att.enough => Ok(att),
+            Ok(att) if !att.reused_factor || att.rho() <= CONVERGED_TOL => Ok(att),
             Ok(_) | Err(Error::Solver(_)) => {
                 self.attempt_on(a, c, b, d, lambda, delta, g, springs, false)
             }
@@ -95,15 +91,8 @@ impl EqualityLeastSquares {
     ) -> Result<Attempt> {
         let n = self.n;
         let clock = std::time::Instant::now();
-        let (changes, built, held) = self.reusable(a, c, lambda, delta, g, springs, may_border);
-        let other_lambda = held == Held::OtherLambda;
-        let other_values = held == Held::OtherValues;
-        if other_values {
-            // The residual and right-hand side read A's current values; the
-            // factor and its scaling stay those of the values it was made of.
-            self.a_csr.refill(&a.vals);
-            self.a_csr_off_base = true;
-        }
+        let (changes, built, other_lambda) =
+            self.reusable(a, c, lambda, delta, g, springs, may_border);
         let changes = match changes {
             Some(changes) => changes,
             None => {
@@ -112,7 +101,7 @@ impl EqualityLeastSquares {
             }
         };
         let border = changes.count() > 0;
-        let stale = changes.any_stale() || other_lambda || other_values;
+        let stale = changes.any_stale() || other_lambda;
         let previous = self.numeric.as_mut().and_then(|n| n.last_border.take());
         let num = self.numeric.as_ref().expect("factorised above");
         let factor = num.factor(
@@ -215,27 +204,14 @@ impl EqualityLeastSquares {
         let residual = |z: &[f64]| self.kkt_residual(num, &lambda2_s2, &ones_a, b, &d_hat, z);
         let first = (r, dual, primal);
         let stale_solves = stale.then_some(num.factor_solves);
-        let operator = |v: &[f64]| self.kkt_times(num, v);
-        let operator = other_values.then_some(&operator as &dyn Fn(&[f64]) -> Vec<f64>);
-        let (best, steps) =
-            self.refine(z, first, stale_solves, &mut kkt_solve, &residual, operator);
+        let (best, steps) = self.refine(z, first, stale_solves, &mut kkt_solve, &residual);
         if super::profiling() {
             eprintln!(
-                "ls-profile attempt δ {delta:e} {:.4} s, {steps} refinement steps to {:.1e}{}",
+                "ls-profile attempt δ {delta:e} {:.4} s, {steps} refinement steps to {:.1e}",
                 clock.elapsed().as_secs_f64(),
-                best.0,
-                if other_values {
-                    " (factor of other values)"
-                } else {
-                    ""
-                }
+                best.0
             );
         }
-        let enough = if other_values {
-            self.refine_to.max(CONVERGED_TOL)
-        } else {
-            CONVERGED_TOL
-        };
         let (x, equality_multipliers, multipliers) = unscale(&best.3, num, n, size)?;
         if let Some(num) = self.numeric.as_mut() {
             num.last_border = bordered.or(previous);
@@ -248,7 +224,6 @@ impl EqualityLeastSquares {
             primal: best.2,
             steps,
             reused_factor: border || stale,
-            enough,
         })
     }
 
@@ -265,7 +240,6 @@ impl EqualityLeastSquares {
         stale_solves: Option<f64>,
         kkt_solve: &mut impl FnMut(&mut [f64]),
         residual: &impl Fn(&[f64]) -> (Vec<f64>, f64, f64),
-        operator: Option<&dyn Fn(&[f64]) -> Vec<f64>>,
     ) -> ((f64, f64, f64, Vec<f64>), usize) {
         let stale = stale_solves.is_some();
         // On a stale factor, refinement is GMRES preconditioned by the
@@ -285,35 +259,15 @@ impl EqualityLeastSquares {
         while steps < max_steps && best.0 > self.refine_to && stalled < STALL_STEPS {
             match &at_zero {
                 Some(r0) => {
-                    let (mut t_apply, mut t_solve) = (0.0, 0.0);
                     let mut apply = |v: &[f64]| {
-                        let clock = std::time::Instant::now();
-                        let out = match operator {
-                            Some(op) => op(v),
-                            None => {
-                                let rv = residual(v).0;
-                                r0.iter().zip(&rv).map(|(a, b)| a - b).collect()
-                            }
-                        };
-                        t_apply += clock.elapsed().as_secs_f64();
-                        out
-                    };
-                    let mut precondition = |v: &mut [f64]| {
-                        let clock = std::time::Instant::now();
-                        kkt_solve(v);
-                        t_solve += clock.elapsed().as_secs_f64();
+                        let rv = residual(v).0;
+                        r0.iter().zip(&rv).map(|(a, b)| a - b).collect()
                     };
                     let budget = (max_steps - steps).min(KRYLOV_RESTART);
                     // Only the reduction still needed (with a margin): the
                     // relative KKT residual is not GMRES's 2-norm.
                     let aim = (0.1 * self.refine_to / best.0).clamp(KRYLOV_TOL, 0.5);
-                    let taken = krylov::gmres(&mut r, budget, aim, &mut precondition, &mut apply);
-                    steps += taken.max(1);
-                    if super::profiling() {
-                        eprintln!(
-                            "ls-profile gmres {taken} steps: solves {t_solve:.4} apply {t_apply:.4} s"
-                        );
-                    }
+                    steps += krylov::gmres(&mut r, budget, aim, kkt_solve, &mut apply).max(1);
                 }
                 None => {
                     kkt_solve(&mut r);
@@ -351,7 +305,7 @@ impl EqualityLeastSquares {
         g: &Triplets,
         springs: &Triplets,
         may_border: bool,
-    ) -> (Option<Changes>, Option<Vec<BorderColumn>>, Held) {
+    ) -> (Option<Changes>, Option<Vec<BorderColumn>>, bool) {
         let n = self.n;
         // On a factor of the same A, C, λ and δ, the rows that changed since
         // it was computed (rows added, rows it holds that are no longer
@@ -361,23 +315,16 @@ impl EqualityLeastSquares {
         let mut changes = None;
         // The border's columns, when the choice below already built them.
         let mut built = None;
-        // The factor holds another, nearby λ or other values of A: GMRES on
-        // the exact system.
-        let mut held = Held::Same;
+        // The factor holds another, nearby λ: GMRES on the exact system.
+        let mut other_lambda = false;
         if let (Some(num), Some(symbolic)) = (self.numeric.as_mut(), self.symbolic.as_ref()) {
             // Only to the converged tolerance: to round-off GMRES took as
             // many solves as the factorisation (10⁴ spheres: 30 steps).
             let cheap = self.refine_to >= CONVERGED_TOL;
             let bordering = self.bordering;
-            if may_border && self.value_reuse && other_values(num, a, c, lambda, delta, g, springs)
+            if may_border && cheap && nearby_lambda(num, bordering, a, c, lambda, delta, g, springs)
             {
-                held = Held::OtherValues;
-                changes = Some(Changes::unchanged(0));
-            } else if may_border
-                && cheap
-                && nearby_lambda(num, bordering, a, c, lambda, delta, g, springs)
-            {
-                held = Held::OtherLambda;
+                other_lambda = true;
                 changes = Some(Changes::unchanged(0));
             } else if num.same_values(a, c, lambda, delta) {
                 if !num.active.same(g, springs) {
@@ -413,24 +360,7 @@ impl EqualityLeastSquares {
                 }
             }
         }
-        (changes, built, held)
-    }
-
-    /// K z of the unregularised equilibrated KKT system without active rows,
-    /// z = (y, μ): what GMRES needs, without the residual's bounds.
-    fn kkt_times(&self, num: &Numeric, z: &[f64]) -> Vec<f64> {
-        let n = self.n;
-        let (y, mu) = z.split_at(n);
-        let (s, t) = (&num.base.col_scale, &num.base.c_row_scale);
-        let ones_a = vec![1.0; self.a_csr.nmajor];
-        let ay = mul_scaled(&self.a_csr, &ones_a, s, y);
-        let mut out = mul_t_scaled(&self.a_csr, &ones_a, s, &ay, n);
-        let ctmu = mul_t_scaled(&self.c_csr, t, s, mu, n);
-        for (j, o) in out.iter_mut().enumerate() {
-            *o += num.base.lambda2_s2[j] * y[j] + ctmu[j];
-        }
-        out.extend(mul_scaled(&self.c_csr, t, s, y));
-        out
+        (changes, built, other_lambda)
     }
 
     /// Residual of the unregularised equilibrated KKT system at z = (y, μ, w), and
@@ -565,42 +495,6 @@ fn nearby_lambda(
         && base.delta == delta
         && base.a_vals == a.vals
         && base.c_vals == c.vals
-}
-
-/// What the kept factor holds against the system to solve.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Held {
-    /// The same A, C and λ (its active rows may differ: bordered or stale).
-    Same,
-    /// Another, nearby λ.
-    OtherLambda,
-    /// Other values of A on the same pattern (the interior point's cone
-    /// rows at the previous iteration's scaling).
-    OtherValues,
-}
-
-/// Whether the kept factor, of the same C, λ and δ and holding no active
-/// rows, was made of other values of A on the same pattern.
-#[allow(clippy::too_many_arguments)]
-fn other_values(
-    num: &Numeric,
-    a: &Triplets,
-    c: &Triplets,
-    lambda: f64,
-    delta: f64,
-    g: &Triplets,
-    springs: &Triplets,
-) -> bool {
-    let base = &num.base;
-    g.nrows == 0
-        && springs.nrows == 0
-        && num.in_factor.len() == 0
-        && num.in_factor.springs.nmajor == 0
-        && base.delta == delta
-        && base.lambda == lambda
-        && base.c_vals == c.vals
-        && base.a_vals.len() == a.vals.len()
-        && base.a_vals != a.vals
 }
 
 /// The answer and the multipliers in the problem's units from the refined
