@@ -2096,7 +2096,8 @@ impl Stepper<'_> {
                     end.noise = noise2.sqrt();
                     end.last_move =
                         (step_norm2(p, &evals, &x, &candidate) / (noise2 * end.free as f64)).sqrt();
-                    end.at_data_accuracy = attempt == 0 && end.last_move <= self.accuracy;
+                    end.at_data_accuracy =
+                        self.accuracy > 0.0 && attempt == 0 && end.last_move <= self.accuracy;
                     x = candidate;
                     evals = if speculate {
                         trial_evals
