@@ -200,6 +200,51 @@ fn the_polish_on_all_pixels_is_one_step_on_large_disks() {
     assert_eq!(steps.last(), Some(&1), "{steps:?}");
 }
 
+/// With `data_accuracy` (off by default, round 18) the final stage stops
+/// on the quarter subset once a step moves the forces by at most that
+/// share of what the pixel noise moves them by: fewer steps there than the
+/// default run to the relative tolerance, every stage's last step in the
+/// report, and the answer as close to the truth, and to the default's,
+/// within that noise.
+#[test]
+fn the_final_stage_can_stop_at_the_data_accuracy() {
+    let r = render(20, 8, 40.0, 4e4, 0.0, 0.02, 0.8);
+    let mut s = FringeFitSettings::new(4e4);
+    s.blur_px = 0.8;
+    let to_tolerance = fit_fringes(&r.image, &r.frame, &r.scene, &s).unwrap();
+    s.data_accuracy = 0.1;
+    let fit = fit_fringes(&r.image, &r.frame, &r.scene, &s).unwrap();
+    let (short, long) = (&fit.report.timing, &to_tolerance.report.timing);
+    eprintln!("at the data's accuracy: {short}");
+    eprintln!("to the tolerance: {long}");
+    let (e_short, e_long) = (
+        summary("at the data's accuracy", &r, &fit),
+        summary("to the tolerance", &r, &to_tolerance),
+    );
+    assert_eq!(short.ends.len(), short.steps.len());
+    // The subset's stage, before the one step on all pixels.
+    let subset = short.ends.len() - 2;
+    assert!(short.ends[subset].at_data_accuracy, "{short}");
+    assert!(short.ends[subset].last_move <= s.data_accuracy);
+    assert!(!long.ends.iter().any(|e| e.at_data_accuracy), "{long}");
+    assert!(
+        short.steps[subset] < long.steps[subset],
+        "{short} against {long}"
+    );
+    let apart = relerr(&fit.forces, &to_tolerance.forces);
+    eprintln!("forces apart {apart:.2e}, relerr {e_short:.5} against {e_long:.5}");
+    assert!(apart < 2e-3 && (e_short - e_long).abs() < 2e-3);
+    // In the fit's norm the two answers are apart by less than the noise
+    // moves them: √(objective difference) against σ̂ √k.
+    let end = short.ends[short.ends.len() - 1];
+    let noise_size = end.noise * (end.free as f64).sqrt();
+    let gap = (fit.report.objective - to_tolerance.report.objective)
+        .abs()
+        .sqrt();
+    eprintln!("objective gap √{gap:.3e} against noise size {noise_size:.3e}");
+    assert!(gap < noise_size);
+}
+
 /// A contact missed by detection (round 2's all-zero forces with detected
 /// geometry): a disk left with one contact can carry no balanced load, and
 /// with its balance imposed its zero spread to every contact of the packing.

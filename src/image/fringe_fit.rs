@@ -68,6 +68,13 @@ pub struct FringeFitSettings {
     pub edge_px: f64,
     /// Largest number of Levenberg–Marquardt steps, all stages together.
     pub max_iterations: usize,
+    /// The final stage also stops at a step (accepted at its first trial)
+    /// that moves the forces by at most this share of what the pixel noise
+    /// moves them by (the report's `timing.ends`). 0 (the default): at its
+    /// relative tolerance or step budget alone. Off: at 0.1 it saved 1–9
+    /// of 126–280 steps and no measurable CPU, at 0.3 step83's share fell
+    /// below its floor (docs/photoelastic.md, round 18).
+    pub data_accuracy: f64,
     /// A disk whose fit explains less than this share of its intensity
     /// variance (and shows fringes) is flagged.
     pub poor_fit: f64,
@@ -218,6 +225,7 @@ impl FringeFitSettings {
             blur_px: 1.0,
             edge_px: 6.0,
             max_iterations: 60,
+            data_accuracy: 0.0,
             poor_fit: 0.5,
             start: None,
             sparsity: 0.0,
@@ -245,11 +253,12 @@ impl FringeFitSettings {
             && ok(self.blur_px)
             && ok(self.edge_px)
             && ok(self.sparsity)
+            && ok(self.data_accuracy)
             && self.candidate_gap.is_none_or(ok)
             && self.support_prune.is_none_or(f64::is_finite))
         {
             return Err(Error::Invalid(
-                "fringe fit: friction, blur, edge band, sparsity and candidate gap must be finite and not negative".into(),
+                "fringe fit: friction, blur, edge band, sparsity, data accuracy and candidate gap must be finite and not negative".into(),
             ));
         }
         if let Balance::Penalty(w) = self.balance {
@@ -316,13 +325,42 @@ pub struct FitTiming {
     /// Accepted steps tried longer, and those the longer one bettered.
     pub extrapolations: usize,
     pub extrapolated: usize,
+    /// How each stage of `steps` ended, against the data's accuracy.
+    pub ends: Vec<StageEnd>,
+}
+
+impl FitTiming {
+    /// `earlier`'s stages put before this fit's own (a refit after a fit).
+    fn after(&mut self, earlier: &FitTiming) {
+        self.steps.splice(0..0, earlier.steps.iter().copied());
+        self.ends.splice(0..0, earlier.ends.iter().copied());
+    }
+}
+
+/// How a Levenberg–Marquardt stage ended: its last accepted step against
+/// what the noise moves the forces by, on the stage's own data (the
+/// solver's measure, `sparse_interior_point::noise_size`).
+#[derive(Debug, Clone, Copy, Default, serde::Serialize)]
+pub struct StageEnd {
+    /// ‖J s‖ / (σ̂ √k) of the last accepted step s (0: no step). ‖J s‖/σ̂
+    /// bounds how far any force, or sum of forces, moved in its own
+    /// standard deviations (covariance σ̂² (JᵀJ)⁻¹ on the balanced
+    /// problem's k free directions); σ̂ √k is about the length of the
+    /// noise's own effect on the forces in that norm.
+    pub last_move: f64,
+    /// σ̂, the residual's noise per pixel: √(objective / (pixels − k)).
+    pub noise: f64,
+    /// k: the unknowns less the imposed balance rows.
+    pub free: usize,
+    /// The stage stopped on that step, its move within the data's accuracy.
+    pub at_data_accuracy: bool,
 }
 
 impl std::fmt::Display for FitTiming {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
-            "prepare {:.3} s, start {:.3} s, smoothing {:.3} s, evaluate {:.3} s, solve {:.3} s ({} solves, {} off balance), trials {:.3} s, steps per stage {:?}, {} of {} steps extrapolated",
+            "prepare {:.3} s, start {:.3} s, smoothing {:.3} s, evaluate {:.3} s, solve {:.3} s ({} solves, {} off balance), trials {:.3} s, steps per stage {:?}, their last steps against the noise's effect {} (* at the data's accuracy), {} of {} steps extrapolated",
             self.prepare,
             self.start,
             self.smoothing,
@@ -332,6 +370,11 @@ impl std::fmt::Display for FitTiming {
             self.unbalanced_steps,
             self.trials,
             self.steps,
+            self.ends
+                .iter()
+                .map(|e| format!("{:.2}{}", e.last_move, if e.at_data_accuracy { "*" } else { "" }))
+                .collect::<Vec<_>>()
+                .join(", "),
             self.extrapolated,
             self.extrapolations
         )
@@ -1802,6 +1845,10 @@ struct Stepper<'a> {
     settings: &'a FringeFitSettings,
     /// The sparsity term's weight in per-pixel residual variances (0: none).
     sparsity: f64,
+    /// A step accepted at its first trial that moves the forces by at most
+    /// this share of the noise's effect ([`StageEnd::last_move`]) ends the
+    /// stage (0: off).
+    accuracy: f64,
 }
 
 /// ε of the sparsity term, in the unknowns' force unit F₀ = f_σ R (about one
@@ -1845,6 +1892,7 @@ fn stage_lap(
     steps: usize,
     (full, residual_only): (usize, usize),
     objective: f64,
+    end: StageEnd,
 ) {
     if !laps.running() {
         return;
@@ -1859,8 +1907,10 @@ fn stage_lap(
         ),
     };
     laps.lap(&format!(
-        "fringe stage {stage:<18} {pixels:>7} px {:>4} unknowns {steps:>3} steps {full:>3}+{residual_only} evaluations, objective {objective:.2}:",
-        2 * p.unknowns
+        "fringe stage {stage:<18} {pixels:>7} px {:>4} unknowns {steps:>3} steps {full:>3}+{residual_only} evaluations, objective {objective:.2}, last step {:.3} of the noise{}:",
+        2 * p.unknowns,
+        end.last_move,
+        if end.at_data_accuracy { " (the data's accuracy)" } else { "" }
     ));
 }
 
@@ -1870,6 +1920,7 @@ struct LmOutcome {
     damping: f64,
     /// The stage's objective at `x`.
     objective: f64,
+    end: StageEnd,
 }
 
 impl Stepper<'_> {
@@ -1907,6 +1958,15 @@ impl Stepper<'_> {
         let ssr0: f64 = evals.iter().map(|e| e.ssr).sum();
         let alpha = self.sparsity * ssr0 / pixels.max(1) as f64;
         let sparse_zeros = vec![0.0; p.unknowns];
+        let imposed = match (self.scene, self.settings.balance) {
+            (Some(_), Balance::Hard) => balance.nrows,
+            _ => 0,
+        };
+        let mut end = StageEnd {
+            free: n.saturating_sub(imposed).max(1),
+            ..StageEnd::default()
+        };
+        let degrees_of_freedom = pixels.saturating_sub(end.free).max(1) as f64;
         while iterations < max_iterations {
             current = evals.iter().map(|e| e.ssr).sum::<f64>() + sparsity_penalty(&x, alpha);
             let sparse = (alpha > 0.0).then(|| sparsity_rows(&x, alpha));
@@ -2031,6 +2091,13 @@ impl Stepper<'_> {
                         }
                     }
                     let gain = (current - trial) / current.max(1e-300);
+                    let ssr: f64 = trial_evals.iter().map(|e| e.ssr).sum();
+                    let noise2 = (ssr / degrees_of_freedom).max(f64::MIN_POSITIVE);
+                    end.noise = noise2.sqrt();
+                    end.last_move =
+                        (step_norm2(p, &evals, &x, &candidate) / (noise2 * end.free as f64)).sqrt();
+                    end.at_data_accuracy =
+                        self.accuracy > 0.0 && attempt == 0 && end.last_move <= self.accuracy;
                     x = candidate;
                     evals = if speculate {
                         trial_evals
@@ -2051,16 +2118,17 @@ impl Stepper<'_> {
                 damping *= 6.0;
             }
             iterations += 1;
-            if !accepted || stalls >= 2 {
+            if !accepted || stalls >= 2 || end.at_data_accuracy {
                 break;
             }
         }
-        stage_lap(&mut laps, p, optics, iterations, evaluations, current);
+        stage_lap(&mut laps, p, optics, iterations, evaluations, current, end);
         Ok(LmOutcome {
             x,
             iterations,
             damping,
             objective: current,
+            end,
         })
     }
 
@@ -2183,7 +2251,19 @@ impl StepSolver {
 /// The Gauss–Newton model's decrease of the squared residual for the step
 /// from `x` to `to`: Σ_disks 2 sᵀ(Jᵀr) − sᵀ JᵀJ s.
 fn predicted_gain(p: &Prepared, evals: &[DiskEval], x: &[f64], to: &[f64]) -> f64 {
-    let mut predicted = 0.0;
+    let (slope, curvature) = gauss_newton_terms(p, evals, x, to);
+    2.0 * slope - curvature
+}
+
+/// sᵀ JᵀJ s for the step s from `x` to `to`: its length in the metric of
+/// the forces' inverse covariance (over σ̂²).
+fn step_norm2(p: &Prepared, evals: &[DiskEval], x: &[f64], to: &[f64]) -> f64 {
+    gauss_newton_terms(p, evals, x, to).1
+}
+
+/// Σ_disks sᵀ(Jᵀr) and sᵀ JᵀJ s for the step s from `x` to `to`.
+fn gauss_newton_terms(p: &Prepared, evals: &[DiskEval], x: &[f64], to: &[f64]) -> (f64, f64) {
+    let (mut slope, mut curvature) = (0.0, 0.0);
     for (d, e) in p.disks.iter().zip(evals) {
         let k = d.local_unknowns();
         if k == 0 || d.points.is_empty() {
@@ -2193,13 +2273,13 @@ fn predicted_gain(p: &Prepared, evals: &[DiskEval], x: &[f64], to: &[f64]) -> f6
             .map(|(b, a)| b - a)
             .collect();
         for m in 0..k {
-            predicted += 2.0 * step[m] * e.rhs[m];
+            slope += step[m] * e.rhs[m];
             for j in 0..k {
-                predicted -= step[m] * e.normal[m * k + j] * step[j];
+                curvature += step[m] * e.normal[m * k + j] * step[j];
             }
         }
     }
-    predicted
+    (slope, curvature)
 }
 
 /// Longest extrapolation of an accepted step, in step lengths.
@@ -2569,9 +2649,7 @@ pub fn fit_fringes(
         };
         fit.report.iterations += first.iterations;
         fit.report.objective_start = first.objective_start;
-        let mut steps = first.timing.steps;
-        steps.extend(&fit.report.timing.steps);
-        fit.report.timing.steps = steps;
+        fit.report.timing.after(&first.timing);
     }
     fit.report.dropped = (work.contacts.iter().zip(&dropped))
         .filter(|(_, d)| **d)
@@ -2710,9 +2788,7 @@ fn with_wall_candidates(
     }
     again.report.iterations += fit.report.iterations;
     again.report.objective_start = fit.report.objective_start;
-    let mut steps = fit.report.timing.steps.clone();
-    steps.extend(&again.report.timing.steps);
-    again.report.timing.steps = steps;
+    again.report.timing.after(&fit.report.timing);
     Ok(Some(WalledFit {
         scene: walled,
         gaps,
@@ -2915,6 +2991,7 @@ fn fit_path(
             scene: Some(coarse),
             settings,
             sparsity: 0.0,
+            accuracy: stage_accuracy(settings, false),
         };
         let out = stepper.run(
             x,
@@ -2926,6 +3003,7 @@ fn fit_path(
         x = out.x;
         iterations += out.iterations;
         timing.steps.push(out.iterations);
+        timing.ends.push(out.end);
     }
     let stages = Stages {
         frame,
@@ -3104,6 +3182,7 @@ impl Stages<'_> {
             scene: Some(if last { scene } else { coarse }),
             settings,
             sparsity: if last { self.sparsity } else { 0.0 },
+            accuracy: stage_accuracy(settings, last),
         };
         let optics = stage_optics(
             p,
@@ -3134,6 +3213,7 @@ impl Stages<'_> {
             state.x = out.x;
             state.iterations += out.iterations;
             timing.steps.push(out.iterations);
+            timing.ends.push(out.end);
             budget -= out.iterations;
             if self.radius_px >= FINE_STAGE_THIN_RADIUS_PX {
                 budget = budget.min(THIN_POLISH_STEPS);
@@ -3151,8 +3231,28 @@ impl Stages<'_> {
         state.damping = out.damping;
         state.objective = out.objective;
         timing.steps.push(out.iterations);
+        timing.ends.push(out.end);
         Ok(())
     }
+}
+
+/// Set to a share to override the final stage's
+/// [`FringeFitSettings::data_accuracy`], and `…_COARSE` to give the
+/// envelope and smoothed stages one, for measuring only: they have none, as
+/// at 1 (steps within the noise's effect on their smoothed data) step83's
+/// share fell below its floor too (docs/photoelastic.md, round 18).
+const ACCURACY_ENV: &str = "GRAINFORCE_FRINGE_ACCURACY";
+
+/// The data-accuracy share of the final or a coarse stage (0: off).
+fn stage_accuracy(settings: &FringeFitSettings, last: bool) -> f64 {
+    let (name, default) = match last {
+        true => (ACCURACY_ENV.to_string(), settings.data_accuracy),
+        false => (format!("{ACCURACY_ENV}_COARSE"), 0.0),
+    };
+    std::env::var(name)
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(default)
 }
 
 /// The walls' μ in the coarse stages of the walls-first path: nearly
@@ -3206,6 +3306,7 @@ pub fn contact_support(
             scene: None,
             settings,
             sparsity: 0.0,
+            accuracy: 0.0,
         };
         let out = stepper.run(u0, &optics, 10, FINAL_TOLERANCE, &mut FitTiming::default())?;
         Ok(sub.disks[0].evaluate(&out.x, &optics, false).ssr)
@@ -3288,6 +3389,7 @@ pub fn fit_fringes_per_disk(
                 scene: None,
                 settings,
                 sparsity: 0.0,
+                accuracy: 0.0,
             };
             let out = stepper.run(
                 u0,

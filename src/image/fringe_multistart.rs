@@ -192,6 +192,7 @@ pub fn local_restarts(
             scene: Some(&work),
             settings,
             sparsity: 0.0,
+            accuracy: 0.0,
         }
         .run(
             x,
@@ -389,6 +390,7 @@ impl Group {
                     scene: None,
                     settings,
                     sparsity: 0.0,
+                    accuracy: 0.0,
                 }
                 .run(
                     u0,
@@ -458,6 +460,7 @@ fn fit_locally(
         scene: Some(local_scene),
         settings,
         sparsity: 0.0,
+        accuracy: 0.0,
     };
     let optics = stage_optics(local, frame, settings, sigma);
     let out = stepper.run(
