@@ -2848,8 +2848,9 @@ fn fit_scene(
 /// this share of the other's objective, it alone is continued. On the five
 /// renders and three PeGS photographs (plain fits and narrow starts, round
 /// 18) every path ahead by more than 10 % there ended lower, or within
-/// 2·10⁻⁶ of the other; paths closer there ended in either order (step83's
-/// plain fit: 4.6 % behind after the envelope, 41 % ahead at the end).
+/// 7·10⁻⁶ of the other (the same basin); paths closer there ended in either
+/// order (step83's plain fit: 4.6 % behind after the envelope, 41 % ahead
+/// at the end).
 const EARLY_PATH_MARGIN: f64 = 0.9;
 
 /// Whether [`fit_scene`] fits two paths: `smooth_walls_first`, walls with
