@@ -81,9 +81,10 @@ pub struct PhotoelasticConfig {
     /// from a fit with balance as a penalty of this weight, and keep the
     /// lower residual (0: off; [`DEFAULT_PENALTY_START`]).
     pub penalty_start: f64,
-    /// Where the fit leaves disks flagged under exact balance, fit again
-    /// from a fit with every wedge at this μ, when it is below `mu`, and
-    /// keep the lower residual (0: off; [`DEFAULT_NARROW_START`]).
+    /// Under exact balance, fit first from a fit with every wedge at this
+    /// μ, when it is below `mu`; where that leaves disks flagged, fit the
+    /// plain fit too and keep the lower residual (0: off;
+    /// [`DEFAULT_NARROW_START`]).
     pub narrow_start: f64,
     /// After the fit and its second starts, each flagged disk refitted
     /// with its and its neighbours' contacts free from up to this many
@@ -542,8 +543,8 @@ pub struct SecondStart {
 }
 
 /// The second starts of a run in the order they are tried: the narrow
-/// start first, the penalty start only where the fit is still poor after
-/// it. At round 16's defaults the narrow start was kept on four of five
+/// start first (before the plain fit, round 18), the penalty start only
+/// where the fit is still poor after it. At round 16's defaults the narrow start was kept on four of five
 /// renders and step83 at μ 1000, leaving no render's disk flagged; the
 /// penalty start only on fixed48 and narrow21 at μ 1000, where the narrow
 /// start was not (docs/photoelastic.md, round 17).
