@@ -20,8 +20,8 @@
 //! default is not judged on one picture alone.
 
 use grainforce::image::fringe_fit::local_restarts;
-use grainforce::image::fringe_fit::{fit_fringes, fit_fringes_per_disk, FringeFitSettings};
-use grainforce::image::fringe_run::{second_starts_in_order, with_second_starts};
+use grainforce::image::fringe_fit::{fit_fringes_per_disk, FringeFitSettings};
+use grainforce::image::fringe_run::{fit_with_second_starts, second_starts_in_order};
 use grainforce::image::photoelastic::{render_photoelastic, save_jpeg, PhotoelasticOptions};
 use grainforce::image::synthetic::match_disks;
 use grainforce::image::{detect_images, load_channel, Channel, DetectSettings, WallSource};
@@ -218,21 +218,21 @@ fn main() -> grainforce::Result<()> {
         let fit = if per_disk {
             fit_fringes_per_disk(&image, &frame, fit_scene, &s)?
         } else {
-            let plain = fit_fringes(&image, &frame, fit_scene, &s)?;
-            // The run's second starts where disks are left flagged
-            // (`photoelastic --penalty-start W --narrow-start MU`; off here
-            // unless asked).
+            // The run's fit and its second starts where disks are left
+            // flagged (`photoelastic --penalty-start W --narrow-start MU`;
+            // off here unless asked).
             let firsts = second_starts_in_order(
                 value("--penalty-start").unwrap_or(0.0),
                 value("--narrow-start").unwrap_or(0.0),
             );
-            let (fit, tried) = with_second_starts(&image, &frame, fit_scene, &s, plain, &firsts)?;
+            let (fit, tried) = fit_with_second_starts(&image, &frame, fit_scene, &s, &firsts)?;
             for t in &tried {
                 println!(
-                    "  second start {:?}: objective {:.2} against {:.2}, balance left out on {}, {} flagged, {}",
+                    "  second start {:?}: objective {:.2} against {}, balance left out on {}, {} flagged, {}",
                     t.first,
                     t.objective,
-                    t.compared_objective,
+                    t.compared_objective
+                        .map_or("no plain fit".into(), |o| format!("{o:.2}")),
                     t.balance_left_out,
                     t.flagged,
                     if t.kept { "kept" } else { "not kept" }

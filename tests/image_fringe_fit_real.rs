@@ -1415,10 +1415,10 @@ fn detected_against_pegs(
         run.fit.report.objective,
         (run.second_starts.iter())
             .map(|t| format!(
-                "{:?} objective {:.1} against {:.1}, balance left out on {}, {} flagged ({}, {:.1} s)",
+                "{:?} objective {:.1} against {}, balance left out on {}, {} flagged ({}, {:.1} s)",
                 t.first,
                 t.objective,
-                t.compared_objective,
+                t.compared_objective.map_or("no plain fit".into(), |o| format!("{o:.1}")),
                 t.balance_left_out,
                 t.flagged,
                 if t.kept { "kept" } else { "not kept" },

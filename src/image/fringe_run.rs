@@ -81,9 +81,10 @@ pub struct PhotoelasticConfig {
     /// from a fit with balance as a penalty of this weight, and keep the
     /// lower residual (0: off; [`DEFAULT_PENALTY_START`]).
     pub penalty_start: f64,
-    /// Where the fit leaves disks flagged under exact balance, fit again
-    /// from a fit with every wedge at this μ, when it is below `mu`, and
-    /// keep the lower residual (0: off; [`DEFAULT_NARROW_START`]).
+    /// Under exact balance, fit first from a fit with every wedge at this
+    /// μ, when it is below `mu`; where that leaves disks flagged, fit the
+    /// plain fit too and keep the lower residual (0: off;
+    /// [`DEFAULT_NARROW_START`]).
     pub narrow_start: f64,
     /// After the fit and its second starts, each flagged disk refitted
     /// with its and its neighbours' contacts free from up to this many
@@ -418,10 +419,9 @@ pub fn run(image: &Path, scene_dir: &Path, config: &PhotoelasticConfig) -> Resul
     let mut fit = if config.per_disk {
         fit_fringes_per_disk(&picture, &frame, &fitted_scene, &settings)?
     } else {
-        let plain = fit_fringes(&picture, &frame, &fitted_scene, &settings)?;
         let firsts = second_starts_in_order(config.penalty_start, config.narrow_start);
         let (fit, tried) =
-            with_second_starts(&picture, &frame, &fitted_scene, &settings, plain, &firsts)?;
+            fit_with_second_starts(&picture, &frame, &fitted_scene, &settings, &firsts)?;
         second_starts = tried;
         let (fit, done) = local_restarts(
             &picture,
@@ -524,8 +524,10 @@ pub enum FirstFit {
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct SecondStart {
     pub first: FirstFit,
-    /// The final objective of the fit it was compared with, and its own.
-    pub compared_objective: f64,
+    /// The final objective of the fit it was compared with (none where it
+    /// was kept without one: fitted before the plain fit and flagging no
+    /// disk), and its own.
+    pub compared_objective: Option<f64>,
     pub objective: f64,
     /// Disks whose balance it leaves out.
     pub balance_left_out: usize,
@@ -541,8 +543,8 @@ pub struct SecondStart {
 }
 
 /// The second starts of a run in the order they are tried: the narrow
-/// start first, the penalty start only where the fit is still poor after
-/// it. At round 16's defaults the narrow start was kept on four of five
+/// start first (before the plain fit, round 18), the penalty start only
+/// where the fit is still poor after it. At round 16's defaults the narrow start was kept on four of five
 /// renders and step83 at μ 1000, leaving no render's disk flagged; the
 /// penalty start only on fixed48 and narrow21 at μ 1000, where the narrow
 /// start was not (docs/photoelastic.md, round 17).
@@ -553,22 +555,28 @@ pub fn second_starts_in_order(penalty_start: f64, narrow_start: f64) -> [FirstFi
     ]
 }
 
-/// `plain` (the fit from the fringe start), or the best of it and the
-/// second starts `firsts`, fitted in turn, each only while the best so far
-/// leaves disks flagged (fringes unexplained) under exact balance, and kept
-/// where it ends lower under the same balance. The fit they end with is the
-/// run's own problem (μ, exact balance); only the start differs. A penalty
-/// start lets the first fit leave the basin the exact balance holds it in
-/// (round 10, step83: objective 3262.9 → 1706.0); a narrow one the basin of
-/// sideways loads that wide wedges admit from the fringe start (round 11).
-/// All are judged on the same pixels and polariscope (the plain fit's), so
-/// the lower residual decides (docs/photoelastic.md, round 11).
-pub fn with_second_starts(
+/// The fit from the fringe start (the plain fit), or the best of it and
+/// the second starts `firsts`, fitted in turn, each only while the best so
+/// far leaves disks flagged (fringes unexplained) under exact balance, and
+/// kept where it ends lower under the same balance. The fit they end with is
+/// the run's own problem (μ, exact balance); only the start differs. A
+/// penalty start lets the first fit leave the basin the exact balance holds
+/// it in (round 10, step83: objective 3262.9 → 1706.0); a narrow one the
+/// basin of sideways loads that wide wedges admit from the fringe start
+/// (round 11). All are judged on the same pixels and polariscope (the plain
+/// fit's), so the lower residual decides (docs/photoelastic.md, round 11).
+///
+/// A narrow start first in `firsts` is fitted before the plain fit, and
+/// where its answer flags no disk the plain fit is not fitted at all: on
+/// every render that answer was kept and flagged none, so the plain fit
+/// (half the run's steps) was paid for nothing (round 18). Its record then
+/// has no `compared_objective`. Where the plain fit is made, it takes the
+/// narrow start's polariscope.
+pub fn fit_with_second_starts(
     image: &FloatImage,
     frame: &PixelFrame,
     scene: &Scene,
     settings: &FringeFitSettings,
-    plain: FringeFit,
     firsts: &[FirstFit],
 ) -> Result<(FringeFit, Vec<SecondStart>)> {
     let useful = |first: &FirstFit| match *first {
@@ -576,19 +584,49 @@ pub fn with_second_starts(
         FirstFit::Narrow(mu) => mu > 0.0 && mu < settings.mu,
     };
     if settings.balance != Balance::Hard || settings.start.is_some() {
-        return Ok((plain, Vec::new()));
+        return Ok((fit_fringes(image, frame, scene, settings)?, Vec::new()));
     }
-    let polariscope = match plain.report.bright_field {
-        true => Polariscope::Bright,
-        false => Polariscope::Dark,
+    let mut firsts = firsts.iter().copied().filter(useful).peekable();
+    let mut early = None;
+    if let Some(&first @ FirstFit::Narrow(_)) = firsts.peek() {
+        firsts.next();
+        let fits = start_fits(image, frame, scene, settings, settings.polariscope, first)?;
+        // Without a plain fit, the refit (the run's μ) says which disks may
+        // be out of balance.
+        let refit_left_out = fits.second.report.balance_left_out.clone();
+        let answer = start_answer(settings, first, &fits, &refit_left_out);
+        if answer.report.flagged.is_empty() {
+            let (fit, record) = kept_alone(first, answer, &fits);
+            return Ok((fit, vec![record]));
+        }
+        early = Some((first, fits));
+    }
+    // The plain fit takes the polariscope the narrow start chose, so both
+    // are judged under one: deciding it again costs a 0.08 R stage per path
+    // (unthinned on step83's r ≈ 33 px: 10 % of its run, round 18), and it
+    // chose the same on every case.
+    let plain_settings = match &early {
+        Some((_, fits)) => FringeFitSettings {
+            polariscope: polariscope_of(&fits.started),
+            ..settings.clone()
+        },
+        None => settings.clone(),
     };
+    let plain = fit_fringes(image, frame, scene, &plain_settings)?;
+    let polariscope = polariscope_of(&plain);
     let mut best = plain;
     let mut tried = Vec::new();
+    // The narrow start fitted before the plain fit is judged against it.
+    if let Some((first, fits)) = early {
+        let (fit, record) = judged(settings, best, first, fits);
+        best = fit;
+        tried.push(record);
+    }
     // In turn, not at once: a start is fitted only where the one before
     // left disks flagged (round 17: the penalty start costs a third of the
     // CPU where the narrow start already explains every disk). Each start's
     // disks are still evaluated on both cores.
-    for first in firsts.iter().copied().filter(useful) {
+    for first in firsts {
         if best.report.flagged.is_empty() {
             break;
         }
@@ -600,6 +638,14 @@ pub fn with_second_starts(
     Ok((best, tried))
 }
 
+/// The polariscope a fit ended with.
+fn polariscope_of(fit: &FringeFit) -> Polariscope {
+    match fit.report.bright_field {
+        true => Polariscope::Bright,
+        false => Polariscope::Dark,
+    }
+}
+
 /// A second start's two fits: the first fit's answer, the exact refit from
 /// it, and the seconds both took.
 struct StartFits {
@@ -608,8 +654,15 @@ struct StartFits {
     seconds: f64,
 }
 
+impl StartFits {
+    fn steps(&self) -> usize {
+        self.started.report.iterations + self.second.report.iterations
+    }
+}
+
 /// The first fit ([`FirstFit`]) under `polariscope`, then the run's own fit
-/// (exact balance, its μ) from its forces.
+/// (exact balance, its μ) from its forces under the polariscope the first
+/// fit ended with.
 fn start_fits(
     image: &FloatImage,
     frame: &PixelFrame,
@@ -633,7 +686,7 @@ fn start_fits(
     let started = fit_fringes(image, frame, scene, &first_settings)?;
     let exact = FringeFitSettings {
         start: Some(started.forces.clone()),
-        polariscope,
+        polariscope: polariscope_of(&started),
         ..settings.clone()
     };
     let second = fit_fringes(image, frame, scene, &exact)?;
@@ -644,6 +697,56 @@ fn start_fits(
     })
 }
 
+/// A second start's answer where the disks in `left_out` may be out of
+/// balance: its refit, or a narrow start's own answer where that is lower
+/// and leaves out no other disk's balance.
+fn start_answer(
+    settings: &FringeFitSettings,
+    first: FirstFit,
+    fits: &StartFits,
+    left_out: &[String],
+) -> FringeFit {
+    let (started, second) = (&fits.started, &fits.second);
+    // A narrow start's own answer is admissible under the run's wider
+    // wedges: where it balances the disks `left_out` spares and the refit,
+    // whose smoothed stages start over from it, ends higher, the answer
+    // itself is the better one found.
+    let lower = started.report.objective < second.report.objective;
+    if matches!(first, FirstFit::Narrow(_)) && lower && balanced_as(started, left_out) {
+        let mut own = started.clone();
+        own.report.mu = settings.mu;
+        return own;
+    }
+    second.clone()
+}
+
+/// Whether `fit` leaves out the balance of no disk but those in `left_out`.
+fn balanced_as(fit: &FringeFit, left_out: &[String]) -> bool {
+    (fit.report.balance_left_out.iter()).all(|g| left_out.contains(g))
+}
+
+/// A second start kept without a fit to compare with (its answer flags no
+/// disk, so the plain fit was not fitted), and its record.
+fn kept_alone(
+    first: FirstFit,
+    mut answer: FringeFit,
+    fits: &StartFits,
+) -> (FringeFit, SecondStart) {
+    let record = SecondStart {
+        first,
+        compared_objective: None,
+        objective: answer.report.objective,
+        balance_left_out: answer.report.balance_left_out.len(),
+        flagged: answer.report.flagged.len(),
+        kept: true,
+        seconds: fits.seconds,
+    };
+    answer.report.objective_start = fits.started.report.objective_start;
+    answer.report.iterations = fits.steps();
+    answer.report.seconds = fits.seconds;
+    (answer, record)
+}
+
 /// One second start judged against `best`: the better of the two, and the record.
 fn judged(
     settings: &FringeFitSettings,
@@ -651,39 +754,24 @@ fn judged(
     first: FirstFit,
     fits: StartFits,
 ) -> (FringeFit, SecondStart) {
-    let StartFits {
-        started,
-        mut second,
-        seconds,
-    } = fits;
-    let steps = started.report.iterations + second.report.iterations;
     // Refitted from a start the balance pins, the exact fit leaves out the
     // balance of the disks that pin it (release_forced_zeros): fewer
     // constraints, so a lower objective alone would favour it (round 11: a
     // penalty start at μ 0.5 left 11 of fixed48's disks out). Only the same
     // disks' balance may be out.
-    let balanced_as = |fit: &FringeFit| {
-        (fit.report.balance_left_out.iter()).all(|g| best.report.balance_left_out.contains(g))
-    };
-    // A narrow start's own answer is admissible under the run's wider
-    // wedges: where it balances the disks `best` balances and the refit,
-    // whose smoothed stages start over from it, ends higher, the answer
-    // itself is the better one found.
-    let lower = started.report.objective < second.report.objective;
-    if matches!(first, FirstFit::Narrow(_)) && lower && balanced_as(&started) {
-        second = started;
-        second.report.mu = settings.mu;
-    }
-    let same_balance = balanced_as(&second);
+    let best_left_out = &best.report.balance_left_out;
+    let mut second = start_answer(settings, first, &fits, best_left_out);
+    let same_balance = balanced_as(&second, best_left_out);
     let record = SecondStart {
         first,
-        compared_objective: best.report.objective,
+        compared_objective: Some(best.report.objective),
         objective: second.report.objective,
         balance_left_out: second.report.balance_left_out.len(),
         flagged: second.report.flagged.len(),
         kept: same_balance && second.report.objective < best.report.objective,
-        seconds,
+        seconds: fits.seconds,
     };
+    let steps = fits.steps();
     let mut kept = if record.kept {
         second.report.objective_start = best.report.objective_start;
         second.report.iterations = best.report.iterations + steps;
@@ -693,7 +781,7 @@ fn judged(
         best.report.iterations += steps;
         best
     };
-    kept.report.seconds += seconds;
+    kept.report.seconds += fits.seconds;
     (kept, record)
 }
 
