@@ -2893,20 +2893,18 @@ fn fit_scene(
     let (first, throughout) = (first?, throughout?);
     let finish = |begun| finish_path(frame, scene, settings, sparsity, begun);
     // A path well behind after the envelope stage is not continued.
-    let first_ahead = first.envelope_objective <= throughout.envelope_objective;
-    let (ahead, behind) = match first_ahead {
-        true => (first, throughout),
-        false => (throughout, first),
-    };
-    if ahead.envelope_objective < EARLY_PATH_MARGIN * behind.envelope_objective {
+    let alone = |ahead: BegunPath, behind: BegunPath| {
         let mut kept = finish(ahead)?;
         kept.0.report.iterations += behind.iterations;
-        return Ok(kept);
-    }
-    let (first, throughout) = match first_ahead {
-        true => (ahead, behind),
-        false => (behind, ahead),
+        Ok(kept)
     };
+    let (a, b) = (first.envelope_objective, throughout.envelope_objective);
+    if a < EARLY_PATH_MARGIN * b {
+        return alone(first, throughout);
+    }
+    if b < EARLY_PATH_MARGIN * a {
+        return alone(throughout, first);
+    }
     let (first, throughout) = rayon::join(|| finish(first), || finish(throughout));
     let (first, throughout) = (first?, throughout?);
     let steps = first.0.report.iterations + throughout.0.report.iterations;
