@@ -25,7 +25,7 @@
 //! stages (a smoother objective first, fewer local minima).
 
 use super::detect::profile::Laps;
-use super::fringe_kernel::{self, KernelLoad, KernelOptics};
+use super::fringe_kernel::{self, KernelLoad, KernelOptics, Precision};
 use super::{FloatImage, PixelFrame};
 use crate::error::{Error, Result};
 use crate::scene::{Body, Contact, Scene};
@@ -540,6 +540,9 @@ struct Optics {
     lighting: bool,
     /// Contrasts are negative (dark fringes, bright field).
     bright_field: bool,
+    /// The kernel's float: single in every fit, double for the tests of
+    /// the model's derivatives against finite differences.
+    precision: Precision,
 }
 
 /// The Flamant field at p of a unit force along `dir` at q and its spatial
@@ -715,9 +718,18 @@ impl DiskData {
             envelope_gain: optics
                 .envelope
                 .map(|px_per_m| optics.contrast * PI / (std::f64::consts::SQRT_2 * fr * px_per_m)),
+            precision: optics.precision,
         };
         let floor = 1e-3 * self.radius;
-        fringe_kernel::fringes(&self.points, &loads, u, &kernel, floor, jacobian)
+        fringe_kernel::fringes(
+            &self.points,
+            self.centre,
+            &loads,
+            u,
+            &kernel,
+            floor,
+            jacobian,
+        )
     }
 
     /// Background and contrast in closed form, the residual and (with
@@ -1095,6 +1107,7 @@ fn prepare(
         envelope: None,
         lighting: settings.lighting,
         bright_field: settings.polariscope == Polariscope::Bright,
+        precision: Precision::Single,
     };
     let balanced = vec![true; disks.len()];
     Ok(Prepared {
@@ -3917,6 +3930,7 @@ mod tests {
                         envelope,
                         lighting: false,
                         bright_field: false,
+                        precision: Precision::Double,
                     };
                     let (s, ds) = d.fringes(&u, &optics, jacobian);
                     let (s0, ds0) = scalar_fringes(&d, &u, &optics, jacobian);
@@ -4015,6 +4029,7 @@ mod tests {
                 envelope,
                 lighting: false,
                 bright_field: false,
+                precision: Precision::Double,
             };
             let u = vec![1.3, 0.2, 0.7, -0.1, 2.1, 0.4];
             let (_, ds) = d.fringes(&u, &optics, true);
@@ -4059,6 +4074,7 @@ mod tests {
                 envelope,
                 lighting: false,
                 bright_field: false,
+                precision: Precision::Double,
             };
             let u: Vec<f64> = [1.3, 0.2, 0.7, -0.1, 2.1, 0.4]
                 .iter()
@@ -4129,6 +4145,7 @@ mod tests {
                 envelope: None,
                 lighting: true,
                 bright_field,
+                precision: Precision::Double,
             };
             let u = vec![1.3, 0.2, 0.7, -0.1, 2.1, 0.4];
             let (k, n) = (u.len(), d.points.len());
@@ -4265,6 +4282,7 @@ mod tests {
                 envelope: None,
                 lighting: false,
                 bright_field: false,
+                precision: Precision::Single,
             },
             pixel: 1.3e-3,
             balanced: vec![true],
