@@ -1107,7 +1107,7 @@ fn prepare(
         envelope: None,
         lighting: settings.lighting,
         bright_field: settings.polariscope == Polariscope::Bright,
-        precision: Precision::Single,
+        precision: kernel_precision(),
     };
     let balanced = vec![true; disks.len()];
     Ok(Prepared {
@@ -1119,6 +1119,18 @@ fn prepare(
         balanced,
         pinned: Vec::new(),
     })
+}
+
+/// Set to run the fringe kernel in f64 throughout, for measuring what its
+/// f32 costs in the answers (docs/photoelastic.md, round 19).
+const DOUBLE_ENV: &str = "GRAINFORCE_FRINGE_DOUBLE";
+
+fn kernel_precision() -> Precision {
+    if std::env::var_os(DOUBLE_ENV).is_some() {
+        Precision::Double
+    } else {
+        Precision::Single
+    }
 }
 
 /// The packing's fringe contrast: the upper quartile over the disks of each

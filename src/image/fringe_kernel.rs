@@ -140,15 +140,19 @@ struct Geometry<T> {
     w2i: Lanes<T>,
     w3r: Lanes<T>,
     w3i: Lanes<T>,
-    /// Nearer the load than the floor: no gradient.
-    near: [bool; LANES],
-    /// At the load itself: no field.
-    at_load: [bool; LANES],
+    /// |e|² before the floor, and the floor's square: a lane below it has
+    /// no gradient, one at 0 (the load itself) no field.
+    r2: Lanes<T>,
+    floor2: T,
+    /// Some lane is below the floor (rare: the rim band keeps pixels away
+    /// from the loads), so `field` must mask.
+    any_near: bool,
 }
 
 impl<T: Real> Geometry<T> {
     #[inline(always)]
     fn new(q: [T; 2], px: &Lanes<T>, py: &Lanes<T>, floor: T) -> Geometry<T> {
+        let floor2 = floor * floor;
         let mut g = Geometry {
             ex: [T::ZERO; LANES],
             ey: [T::ZERO; LANES],
@@ -156,38 +160,37 @@ impl<T: Real> Geometry<T> {
             w2i: [T::ZERO; LANES],
             w3r: [T::ZERO; LANES],
             w3i: [T::ZERO; LANES],
-            near: [false; LANES],
-            at_load: [false; LANES],
+            r2: [T::ZERO; LANES],
+            floor2,
+            any_near: false,
         };
+        let mut any_near = false;
         for i in 0..LANES {
             let (ex, ey) = (px[i] - q[0], py[i] - q[1]);
             let r2 = ex * ex + ey * ey;
             g.ex[i] = ex;
             g.ey[i] = ey;
-            g.near[i] = r2 < floor * floor;
-            g.at_load[i] = g.near[i] && r2 == T::ZERO;
+            g.r2[i] = r2;
+            // Not short-circuited: a reduction the compiler vectorises.
+            any_near |= r2 < floor2;
         }
+        g.any_near = any_near;
         // Points nearer than the floor are moved out to it (at the load
         // itself the field is zeroed in `field`); a rare case, so the root
         // and the division are skipped for a batch without one.
-        if g.near.iter().any(|n| *n) {
+        if any_near {
             for i in 0..LANES {
-                let (ex, ey) = (g.ex[i], g.ey[i]);
-                let r2 = ex * ex + ey * ey;
-                let k = if g.near[i] && !g.at_load[i] {
-                    floor / r2.sqrt()
-                } else {
-                    T::of(1.0)
-                };
-                if g.near[i] {
-                    (g.ex[i], g.ey[i]) = (ex * k, ey * k);
+                let r2 = g.r2[i];
+                if r2 < floor2 && r2 > T::ZERO {
+                    let k = floor / r2.sqrt();
+                    (g.ex[i], g.ey[i]) = (g.ex[i] * k, g.ey[i] * k);
                 }
             }
         }
         for i in 0..LANES {
             let (ex, ey) = (g.ex[i], g.ey[i]);
-            let r2 = ex * ex + ey * ey;
-            let (wr, wi) = (ex / r2, ey / r2);
+            let inverse = T::of(1.0) / (ex * ex + ey * ey);
+            let (wr, wi) = (ex * inverse, ey * inverse);
             let (w2r, w2i) = (wr * wr - wi * wi, T::of(2.0) * wr * wi);
             g.w2r[i] = w2r;
             g.w2i[i] = w2i;
@@ -209,19 +212,23 @@ impl<T: Real> Geometry<T> {
             let (ex, ey) = (self.ex[i], self.ey[i]);
             let (w2r, w2i, w3r, w3i) = (self.w2r[i], self.w2i[i], self.w3r[i], self.w3i[i]);
             let proj = ex * dir[0] + ey * dir[1];
-            let (dr, di) = (k * proj * w2r, k * proj * w2i);
-            let xr = k * (dir[0] * w2r - two * proj * w3r);
-            let xi = k * (dir[0] * w2i - two * proj * w3i);
+            c[0][i] = k * proj * w2r;
+            c[1][i] = k * proj * w2i;
+            c[2][i] = k * (dir[0] * w2r - two * proj * w3r);
+            c[4][i] = k * (dir[0] * w2i - two * proj * w3i);
             // 2i·P·w³ = 2P(−w3i + i w3r).
-            let yr = k * (dir[1] * w2r - two * proj * w3i);
-            let yi = k * (dir[1] * w2i + two * proj * w3r);
-            let (none, flat) = (self.at_load[i], self.near[i] || self.at_load[i]);
-            c[0][i] = if none { T::ZERO } else { dr };
-            c[1][i] = if none { T::ZERO } else { di };
-            c[2][i] = if flat { T::ZERO } else { xr };
-            c[3][i] = if flat { T::ZERO } else { yr };
-            c[4][i] = if flat { T::ZERO } else { xi };
-            c[5][i] = if flat { T::ZERO } else { yi };
+            c[3][i] = k * (dir[1] * w2r - two * proj * w3i);
+            c[5][i] = k * (dir[1] * w2i + two * proj * w3r);
+        }
+        if self.any_near {
+            for i in 0..LANES {
+                let (none, flat) = (self.r2[i] == T::ZERO, self.r2[i] < self.floor2);
+                for (j, cj) in c.iter_mut().enumerate() {
+                    if none || (flat && j >= 2) {
+                        cj[i] = T::ZERO;
+                    }
+                }
+            }
         }
         c
     }
@@ -242,7 +249,7 @@ pub(super) fn fringes(
     jacobian: bool,
 ) -> (Vec<f64>, Vec<f64>) {
     #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") {
+    if single_precision_runs() {
         // SAFETY: the CPU has AVX2, checked just above.
         return unsafe {
             match optics.precision {
@@ -350,24 +357,23 @@ fn fringes_batched<T: Real>(
             }
         }
         let pixel = Pixels::of(&f, &constants);
-        let (s, by_order, by_gradient, row_live) = pixel.model(&constants);
+        let (s, by_order, by_gradient, live) = pixel.model(&constants);
         for (out, v) in s_all[start..start + len].iter_mut().zip(&s) {
             *out = v.wide();
         }
         if !jacobian {
             continue;
         }
-        let w = pixel.weights(&by_order, &by_gradient);
+        let w = pixel.weights(&by_order, &by_gradient, &live);
         for (m, c) in coef.iter().enumerate() {
             let mut row = [T::ZERO; LANES];
             for i in 0..LANES {
-                let v = w[0][i] * c[0][i]
+                row[i] = w[0][i] * c[0][i]
                     + w[1][i] * c[1][i]
                     + w[2][i] * c[2][i]
                     + w[3][i] * c[3][i]
                     + w[4][i] * c[4][i]
                     + w[5][i] * c[5][i];
-                row[i] = if row_live[i] { v } else { T::ZERO };
             }
             for (i, v) in row[..len].iter().enumerate() {
                 ds_all[(start + i) * k + m] = v.wide();
@@ -377,10 +383,13 @@ fn fringes_batched<T: Real>(
     (s_all, ds_all)
 }
 
-/// [`KernelOptics`] in the batch's float.
+/// [`KernelOptics`] in the batch's float, as the batch multiplies by them
+/// (divisions are slow in the lanes).
 struct BatchOptics<T> {
-    fringe: T,
-    blur2: T,
+    /// 1 / fringe.
+    per_fringe: T,
+    /// blur² / fringe²: s² per |∇|D||².
+    blur_per_fringe2: T,
     envelope_gain: Option<T>,
 }
 
@@ -388,8 +397,8 @@ impl<T: Real> BatchOptics<T> {
     #[inline(always)]
     fn of(optics: &KernelOptics) -> BatchOptics<T> {
         BatchOptics {
-            fringe: T::of(optics.fringe),
-            blur2: T::of(optics.blur2),
+            per_fringe: T::of(1.0 / optics.fringe),
+            blur_per_fringe2: T::of(optics.blur2 / (optics.fringe * optics.fringe)),
             envelope_gain: optics.envelope_gain.map(T::of),
         }
     }
@@ -584,44 +593,48 @@ fn exp_nonpositive_f32(x: &Lanes<f32>) -> Lanes<f32> {
 struct Pixels<'a, T> {
     f: &'a [Lanes<T>; 6],
     d: Lanes<T>,
+    /// 1 / |D| (infinite where |D| is 0: those lanes are not live).
+    per_d: Lanes<T>,
     gd: [Lanes<T>; 2],
     s2: Lanes<T>,
-    live: [bool; LANES],
+    /// |D| above round-off (else no gradient): 1, or 0.
+    live: Lanes<T>,
 }
 
 impl<'a, T: Real> Pixels<'a, T> {
     #[inline(always)]
     fn of(f: &'a [Lanes<T>; 6], optics: &BatchOptics<T>) -> Pixels<'a, T> {
-        let fr = optics.fringe;
         let mut out = Pixels {
             f,
             d: [T::ZERO; LANES],
+            per_d: [T::ZERO; LANES],
             gd: [[T::ZERO; LANES]; 2],
             s2: [T::ZERO; LANES],
-            live: [false; LANES],
+            live: [T::ZERO; LANES],
         };
         for i in 0..LANES {
             let (d1, d2) = (f[0][i], f[1][i]);
             let d = (d1 * d1 + d2 * d2).sqrt();
             let big = T::of(1e-12) * (d1.abs() + d2.abs() + T::of(1e-300));
             let live = d > big;
-            let gx = (d1 * f[2][i] + d2 * f[4][i]) / d;
-            let gy = (d1 * f[3][i] + d2 * f[5][i]) / d;
-            let s2 = optics.blur2 * (gx * gx + gy * gy) / (fr * fr);
+            let per_d = T::of(1.0) / d;
+            let gx = (d1 * f[2][i] + d2 * f[4][i]) * per_d;
+            let gy = (d1 * f[3][i] + d2 * f[5][i]) * per_d;
+            let s2 = optics.blur_per_fringe2 * (gx * gx + gy * gy);
             out.d[i] = d;
+            out.per_d[i] = per_d;
             out.gd[0][i] = if live { gx } else { T::ZERO };
             out.gd[1][i] = if live { gy } else { T::ZERO };
             out.s2[i] = if live { s2 } else { T::ZERO };
-            out.live[i] = live;
+            out.live[i] = if live { T::of(1.0) } else { T::ZERO };
         }
         out
     }
 
     /// S per pixel, ∂S/∂|D| and ∂S/∂g / |g| (see `jacobian_weights`) and
-    /// whether the pixel has a Jacobian row.
+    /// whether the pixel has a Jacobian row (1 or 0).
     #[inline(always)]
-    fn model(&self, optics: &BatchOptics<T>) -> (Lanes<T>, Lanes<T>, Lanes<T>, [bool; LANES]) {
-        let fr = optics.fringe;
+    fn model(&self, optics: &BatchOptics<T>) -> (Lanes<T>, Lanes<T>, Lanes<T>, Lanes<T>) {
         let mut exponent = [T::ZERO; LANES];
         for i in 0..LANES {
             exponent[i] = T::of(-2.0 * PI * PI) * self.s2[i];
@@ -637,41 +650,53 @@ impl<'a, T: Real> Pixels<'a, T> {
                 s[i] = gain * norm * fade[i];
                 by_gradient[i] =
                     gain * fade[i] * (T::of(1.0) - T::of(4.0 * PI * PI) * self.s2[i]) / norm;
-                live[i] = live[i] && norm > T::ZERO;
+                live[i] = if norm > T::ZERO { live[i] } else { T::ZERO };
             }
             return (s, by_order, by_gradient, live);
         }
         let mut turns = [T::ZERO; LANES];
         for i in 0..LANES {
-            turns[i] = self.d[i] / fr;
+            turns[i] = self.d[i] * optics.per_fringe;
         }
         let (sin, cos) = T::sin_cos_turns(&turns);
         let (half, pi) = (T::of(0.5), T::of(PI));
+        let gradient_gain = T::of(2.0 * PI * PI) * optics.blur_per_fringe2;
         for i in 0..LANES {
             s[i] = half - half * cos[i] * fade[i];
-            by_order[i] = pi * fade[i] * sin[i] / fr;
-            by_gradient[i] = T::of(2.0 * PI * PI) * fade[i] * cos[i] * optics.blur2 / (fr * fr);
+            by_order[i] = pi * fade[i] * sin[i] * optics.per_fringe;
+            by_gradient[i] = gradient_gain * fade[i] * cos[i];
         }
         (s, by_order, by_gradient, live)
     }
 
-    /// `jacobian_weights` per pixel.
+    /// `jacobian_weights` per pixel, 0 where the pixel has no row.
     #[inline(always)]
-    fn weights(&self, by_order: &Lanes<T>, by_gradient: &Lanes<T>) -> [Lanes<T>; 6] {
+    fn weights(
+        &self,
+        by_order: &Lanes<T>,
+        by_gradient: &Lanes<T>,
+        live: &Lanes<T>,
+    ) -> [Lanes<T>; 6] {
         let f = self.f;
         let mut w = [[T::ZERO; LANES]; 6];
         for i in 0..LANES {
-            let d = self.d[i];
+            let per_d = self.per_d[i];
             let (g0, g1) = (self.gd[0][i], self.gd[1][i]);
-            let (e1, e2) = (f[0][i] / d, f[1][i] / d);
+            let (e1, e2) = (f[0][i] * per_d, f[1][i] * per_d);
             let q = by_gradient[i];
-            let r = by_order[i] - q * (g0 * g0 + g1 * g1) / d;
-            w[0][i] = r * e1 + q * (g0 * f[2][i] + g1 * f[3][i]) / d;
-            w[1][i] = r * e2 + q * (g0 * f[4][i] + g1 * f[5][i]) / d;
-            w[2][i] = q * e1 * g0;
-            w[3][i] = q * e1 * g1;
-            w[4][i] = q * e2 * g0;
-            w[5][i] = q * e2 * g1;
+            let r = by_order[i] - q * (g0 * g0 + g1 * g1) * per_d;
+            let row = [
+                r * e1 + q * (g0 * f[2][i] + g1 * f[3][i]) * per_d,
+                r * e2 + q * (g0 * f[4][i] + g1 * f[5][i]) * per_d,
+                q * e1 * g0,
+                q * e1 * g1,
+                q * e2 * g0,
+                q * e2 * g1,
+            ];
+            let keep = live[i] > T::ZERO;
+            for (wj, v) in w.iter_mut().zip(row) {
+                wj[i] = if keep { v } else { T::ZERO };
+            }
         }
         w
     }
