@@ -25,7 +25,7 @@
 //! stages (a smoother objective first, fewer local minima).
 
 use super::detect::profile::Laps;
-use super::fringe_kernel::{self, KernelLoad, KernelOptics, Precision};
+use super::fringe_kernel::{self, Jacobian, KernelLoad, KernelOptics, Precision};
 use super::{FloatImage, PixelFrame};
 use crate::error::{Error, Result};
 use crate::scene::{Body, Contact, Scene};
@@ -704,7 +704,7 @@ impl DiskData {
     /// takes each load's force vector at once (the field is linear in it).
     /// (Keeping each pixel's Flamant numbers for a whole stage instead was
     /// measured no faster on the loaded 2-core machine, at ~50 MB.)
-    fn fringes(&self, u: &[f64], optics: &Optics, jacobian: bool) -> (Vec<f64>, Vec<f64>) {
+    fn fringes(&self, u: &[f64], optics: &Optics, jacobian: bool) -> (Vec<f64>, Jacobian) {
         let loads: Vec<KernelLoad> = (self.loads.iter())
             .map(|l| KernelLoad {
                 point: l.point,
@@ -805,30 +805,15 @@ impl DiskData {
         let k = self.local_unknowns();
         let (mut normal, mut rhs) = (vec![0.0; k * k], vec![0.0; k]);
         if jacobian && k > 0 {
-            let mut mean_ds = vec![0.0; k];
-            for ds_i in ds.chunks_exact(k) {
-                for (m, v) in mean_ds.iter_mut().zip(ds_i) {
-                    *m += v;
-                }
-            }
+            let mut mean_ds = ds.weighted_sums(None);
             for m in &mut mean_ds {
                 *m /= nf;
             }
             // Each column's part along the plane's slopes, projected out too.
-            let slope_ds: Vec<Vec<f64>> = (slopes.iter())
-                .map(|q| {
-                    let mut c = vec![0.0; k];
-                    for (ds_i, qi) in ds.chunks_exact(k).zip(q) {
-                        for (o, v) in c.iter_mut().zip(ds_i) {
-                            *o += qi * v;
-                        }
-                    }
-                    c
-                })
-                .collect();
+            let slope_ds: Vec<Vec<f64>> =
+                (slopes.iter()).map(|q| ds.weighted_sums(Some(q))).collect();
             // The rows' centred parts; the contrast is applied once at the end.
-            fringe_kernel::normal_equations(
-                &ds,
+            ds.normal_equations(
                 &residual,
                 &mean_ds,
                 &slopes,
@@ -880,7 +865,7 @@ impl DiskData {
     }
 
     /// The envelope fit's residual (data in `intensity`) and normal equations.
-    fn evaluate_envelope(&self, model: &[f64], dm: &[f64], jacobian: bool) -> DiskEval {
+    fn evaluate_envelope(&self, model: &[f64], dm: &Jacobian, jacobian: bool) -> DiskEval {
         let k = self.local_unknowns();
         let (mut normal, mut rhs) = (vec![0.0; k * k], vec![0.0; k]);
         let residual: Vec<f64> = (self.intensity.iter().zip(model))
@@ -889,7 +874,7 @@ impl DiskData {
         let ssr = residual.iter().map(|r| r * r).sum();
         if jacobian && k > 0 {
             let zero = vec![0.0; k];
-            fringe_kernel::normal_equations(dm, &residual, &zero, &[], &[], &mut normal, &mut rhs);
+            dm.normal_equations(&residual, &zero, &[], &[], &mut normal, &mut rhs);
         }
         for a in 0..k {
             for b in 0..a {
@@ -3954,6 +3939,7 @@ mod tests {
                             && a.iter().zip(b).all(|(x, y)| (x - y).abs() <= 1e-12 * size)
                     };
                     assert!(close(&s, &s0), "S, {envelope:?}, jacobian {jacobian}");
+                    let ds = ds.rows();
                     assert!(close(&ds, &ds0), "∂S/∂u, {envelope:?}");
                     assert!(s.iter().all(|v| v.is_finite()));
                     // Pixels without a field give no row, as in the scalar model.
@@ -4056,7 +4042,7 @@ mod tests {
                 let (sm, _) = d.fringes(&down, &optics, false);
                 for i in 0..d.points.len() {
                     let fd = (sp[i] - sm[i]) / (2.0 * h);
-                    worst = worst.max((fd - ds[i * k + m]).abs() / (1.0 + fd.abs()));
+                    worst = worst.max((fd - ds.at(i, m)).abs() / (1.0 + fd.abs()));
                 }
             }
             assert!(

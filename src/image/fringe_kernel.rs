@@ -43,6 +43,9 @@ trait Real:
     fn sin_cos_turns(t: &Lanes<Self>) -> (Lanes<Self>, Lanes<Self>);
     /// eˣ per lane, x ≤ 0.
     fn exp_nonpositive(x: &Lanes<Self>) -> Lanes<Self>;
+    fn jacobian_values(values: Vec<Self>) -> JacobianValues;
+    /// The normal equations' sums over a Jacobian stored in this float.
+    fn normal_equations(values: &[Self], sums: NormalSums<'_>);
 }
 
 impl Real for f64 {
@@ -71,6 +74,12 @@ impl Real for f64 {
     fn exp_nonpositive(x: &Lanes<f64>) -> Lanes<f64> {
         exp_nonpositive(x)
     }
+    fn jacobian_values(values: Vec<f64>) -> JacobianValues {
+        JacobianValues::Double(values)
+    }
+    fn normal_equations(values: &[f64], sums: NormalSums<'_>) {
+        normal_equations(values, sums)
+    }
 }
 
 impl Real for f32 {
@@ -98,6 +107,12 @@ impl Real for f32 {
     #[inline(always)]
     fn exp_nonpositive(x: &Lanes<f32>) -> Lanes<f32> {
         exp_nonpositive_f32(x)
+    }
+    fn jacobian_values(values: Vec<f32>) -> JacobianValues {
+        JacobianValues::Single(values)
+    }
+    fn normal_equations(values: &[f32], sums: NormalSums<'_>) {
+        normal_equations(values, sums)
     }
 }
 
@@ -129,6 +144,120 @@ pub(super) struct KernelOptics {
     /// The envelope's gain c π / (√2 f_σ s_px) (None: the intensity model).
     pub envelope_gain: Option<f64>,
     pub precision: Precision,
+}
+
+/// ∂S/∂u at a disk's pixels, in the kernel's float and batches: pixel
+/// `LANES` b + i's derivative by unknown m at [(b k + m) `LANES` + i], so
+/// the kernel stores each unknown's lanes at once; a short last batch's
+/// extra lanes are 0. Every sum over it is f64 ([`Jacobian::normal_equations`]).
+pub(super) struct Jacobian {
+    values: JacobianValues,
+    unknowns: usize,
+    pixels: usize,
+}
+
+pub(super) enum JacobianValues {
+    Single(Vec<f32>),
+    Double(Vec<f64>),
+}
+
+impl Jacobian {
+    /// ∂S_i/∂u_m.
+    #[cfg(test)]
+    pub fn at(&self, i: usize, m: usize) -> f64 {
+        let at = (i / LANES * self.unknowns + m) * LANES + i % LANES;
+        match &self.values {
+            JacobianValues::Single(v) => v[at] as f64,
+            JacobianValues::Double(v) => v[at],
+        }
+    }
+
+    /// Row-major (pixel × unknown), for the tests.
+    #[cfg(test)]
+    pub fn rows(&self) -> Vec<f64> {
+        let stored = match &self.values {
+            JacobianValues::Single(v) => v.len(),
+            JacobianValues::Double(v) => v.len(),
+        };
+        if stored == 0 {
+            return Vec::new();
+        }
+        let k = self.unknowns;
+        (0..self.pixels * k)
+            .map(|j| self.at(j / k, j % k))
+            .collect()
+    }
+
+    /// A double-precision Jacobian from row-major rows, for the tests.
+    #[cfg(test)]
+    pub fn from_rows(rows: &[f64], unknowns: usize) -> Jacobian {
+        let pixels = rows.len() / unknowns;
+        let mut values = Vec::new();
+        for start in (0..pixels).step_by(LANES) {
+            for m in 0..unknowns {
+                for i in start..start + LANES {
+                    values.push(if i < pixels {
+                        rows[i * unknowns + m]
+                    } else {
+                        0.0
+                    });
+                }
+            }
+        }
+        Jacobian {
+            values: JacobianValues::Double(values),
+            unknowns,
+            pixels,
+        }
+    }
+
+    /// Σ_i w_i ∂S_i/∂u per unknown, in f64 (w = 1 without `weights`).
+    pub fn weighted_sums(&self, weights: Option<&[f64]>) -> Vec<f64> {
+        match &self.values {
+            JacobianValues::Single(v) => weighted_sums(v, self.unknowns, weights),
+            JacobianValues::Double(v) => weighted_sums(v, self.unknowns, weights),
+        }
+    }
+
+    /// The Gauss–Newton normal equations of one disk: over its pixels i,
+    /// row = ∂S_i/∂u − `mean`, less its part along each lighting slope q
+    /// (q_i × that slope's column sums `slope_ds`), then rhs += row r_i and
+    /// the upper triangle of `normal` (k × k, row-major) += row rowᵀ, in f64.
+    /// `normal` and `rhs` are zeros on entry.
+    pub fn normal_equations(
+        &self,
+        residual: &[f64],
+        mean: &[f64],
+        slopes: &[Vec<f64>],
+        slope_ds: &[Vec<f64>],
+        normal: &mut [f64],
+        rhs: &mut [f64],
+    ) {
+        let sums = NormalSums {
+            pixels: self.pixels,
+            residual,
+            mean,
+            slopes,
+            slope_ds,
+            normal,
+            rhs,
+        };
+        match &self.values {
+            JacobianValues::Single(v) => f32::normal_equations(v, sums),
+            JacobianValues::Double(v) => f64::normal_equations(v, sums),
+        }
+    }
+}
+
+/// What [`Jacobian::normal_equations`] reads and fills.
+pub(super) struct NormalSums<'a> {
+    pixels: usize,
+    residual: &'a [f64],
+    mean: &'a [f64],
+    slopes: &'a [Vec<f64>],
+    slope_ds: &'a [Vec<f64>],
+    normal: &'a mut [f64],
+    rhs: &'a mut [f64],
 }
 
 /// The direction-free part of the Flamant field of one load at a batch of
@@ -247,7 +376,7 @@ pub(super) fn fringes(
     optics: &KernelOptics,
     floor: f64,
     jacobian: bool,
-) -> (Vec<f64>, Vec<f64>) {
+) -> (Vec<f64>, Jacobian) {
     #[cfg(target_arch = "x86_64")]
     if single_precision_runs() {
         // SAFETY: the CPU has AVX2, checked just above.
@@ -284,7 +413,7 @@ unsafe fn fringes_avx2<T: Real>(
     optics: &KernelOptics,
     floor: f64,
     jacobian: bool,
-) -> (Vec<f64>, Vec<f64>) {
+) -> (Vec<f64>, Jacobian) {
     fringes_batched::<T>(points, origin, loads, u, optics, floor, jacobian)
 }
 
@@ -297,15 +426,12 @@ fn fringes_batched<T: Real>(
     optics: &KernelOptics,
     floor: f64,
     jacobian: bool,
-) -> (Vec<f64>, Vec<f64>) {
+) -> (Vec<f64>, Jacobian) {
     let n = points.len();
     let k = 2 * loads.len();
     let mut s_all = vec![0.0; n];
-    let mut ds_all = if jacobian {
-        vec![0.0; n * k]
-    } else {
-        Vec::new()
-    };
+    let batches = n.div_ceil(LANES);
+    let mut ds_all: Vec<T> = Vec::with_capacity(if jacobian { batches * k * LANES } else { 0 });
     let constants = BatchOptics::<T>::of(optics);
     let floor = T::of(floor);
     let relative = |p: [f64; 2]| [T::of(p[0] - origin[0]), T::of(p[1] - origin[1])];
@@ -365,7 +491,7 @@ fn fringes_batched<T: Real>(
             continue;
         }
         let w = pixel.weights(&by_order, &by_gradient, &live);
-        for (m, c) in coef.iter().enumerate() {
+        for c in &coef {
             let mut row = [T::ZERO; LANES];
             for i in 0..LANES {
                 row[i] = w[0][i] * c[0][i]
@@ -375,12 +501,17 @@ fn fringes_batched<T: Real>(
                     + w[4][i] * c[4][i]
                     + w[5][i] * c[5][i];
             }
-            for (i, v) in row[..len].iter().enumerate() {
-                ds_all[(start + i) * k + m] = v.wide();
-            }
+            // A short batch's repeated pixel is no row.
+            row[len..].fill(T::ZERO);
+            ds_all.extend_from_slice(&row);
         }
     }
-    (s_all, ds_all)
+    let jacobian = Jacobian {
+        values: T::jacobian_values(ds_all),
+        unknowns: k,
+        pixels: n,
+    };
+    (s_all, jacobian)
 }
 
 /// [`KernelOptics`] in the batch's float, as the batch multiplies by them
@@ -702,131 +833,149 @@ impl<'a, T: Real> Pixels<'a, T> {
     }
 }
 
-/// The Gauss–Newton normal equations of one disk: over its pixels i (in
-/// order), row = ds_i − `mean`, less its part along each lighting slope q
-/// (q_i × that slope's column sums `slope_ds`), then rhs += row r_i and
-/// the upper triangle of `normal` (k × k, row-major) += row rowᵀ. The
-/// same sums as one loop over pixels, bit for bit, with the sums held in
-/// fixed-size arrays for the usual k (unrolled, kept near the registers).
-/// `normal` and `rhs` are zeros on entry.
-pub(super) fn normal_equations(
-    ds: &[f64],
-    residual: &[f64],
-    mean: &[f64],
-    slopes: &[Vec<f64>],
-    slope_ds: &[Vec<f64>],
-    normal: &mut [f64],
-    rhs: &mut [f64],
-) {
+/// [`Jacobian::normal_equations`] on its values `ds`, in f64: each pixel's
+/// row widened, centred and its slopes' parts taken out lane by lane, and
+/// the products summed per lane (the same sums for any float of `ds`),
+/// the lanes added at the end; held in fixed-size arrays for the usual k
+/// (unrolled), the same sums bit for bit as the loop for any k.
+fn normal_equations<T: Real>(ds: &[T], sums: NormalSums<'_>) {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU has AVX2, checked just above.
-        return unsafe { normal_equations_avx2(ds, residual, mean, slopes, slope_ds, normal, rhs) };
+        return unsafe { normal_equations_avx2(ds, sums) };
     }
-    normal_equations_any(ds, residual, mean, slopes, slope_ds, normal, rhs)
+    normal_equations_any(ds, sums)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-unsafe fn normal_equations_avx2(
-    ds: &[f64],
-    residual: &[f64],
-    mean: &[f64],
-    slopes: &[Vec<f64>],
-    slope_ds: &[Vec<f64>],
-    normal: &mut [f64],
-    rhs: &mut [f64],
-) {
-    normal_equations_any(ds, residual, mean, slopes, slope_ds, normal, rhs)
+unsafe fn normal_equations_avx2<T: Real>(ds: &[T], sums: NormalSums<'_>) {
+    normal_equations_any(ds, sums)
 }
 
 #[inline(always)]
-fn normal_equations_any(
-    ds: &[f64],
-    residual: &[f64],
-    mean: &[f64],
-    slopes: &[Vec<f64>],
-    slope_ds: &[Vec<f64>],
-    normal: &mut [f64],
-    rhs: &mut [f64],
-) {
+fn normal_equations_any<T: Real>(ds: &[T], sums: NormalSums<'_>) {
     macro_rules! fixed {
         ($($k:literal)*) => {
-            match mean.len() {
-                $($k => normal_equations_fixed::<$k>(ds, residual, mean, slopes, slope_ds, normal, rhs),)*
-                _ => normal_equations_dyn(ds, residual, mean, slopes, slope_ds, normal, rhs),
+            match sums.mean.len() {
+                $($k => normal_equations_fixed::<T, $k>(ds, sums),)*
+                _ => normal_equations_dyn(ds, sums),
             }
         };
     }
     fixed!(2 4 6 8 10 12 14 16);
 }
 
+/// One batch's lanes of `values` (pixels from `start`), 0 past the last.
 #[inline(always)]
-fn normal_equations_fixed<const K: usize>(
-    ds: &[f64],
-    residual: &[f64],
-    mean: &[f64],
-    slopes: &[Vec<f64>],
-    slope_ds: &[Vec<f64>],
-    normal: &mut [f64],
-    rhs: &mut [f64],
-) {
-    let mean: [f64; K] = mean.try_into().expect("K unknowns");
-    let mut g = [[0.0f64; K]; K];
-    let mut h = [0.0f64; K];
-    for (i, (ds_i, r)) in ds.chunks_exact(K).zip(residual).enumerate() {
-        let mut row = [0.0f64; K];
+fn batch_lanes(values: &[f64], start: usize) -> Lanes<f64> {
+    let mut out = [0.0; LANES];
+    let len = values.len().saturating_sub(start).min(LANES);
+    out[..len].copy_from_slice(&values[start..start + len]);
+    out
+}
+
+#[inline(always)]
+fn normal_equations_fixed<T: Real, const K: usize>(ds: &[T], sums: NormalSums<'_>) {
+    let mean: [f64; K] = sums.mean.try_into().expect("K unknowns");
+    let mut g = [[[0.0f64; LANES]; K]; K];
+    let mut h = [[0.0f64; LANES]; K];
+    for (b, block) in ds.chunks_exact(K * LANES).enumerate() {
+        let start = b * LANES;
+        let r = batch_lanes(sums.residual, start);
+        let live = batch_lanes(&[1.0; LANES][..(sums.pixels - start).min(LANES)], 0);
+        let mut row = [[0.0f64; LANES]; K];
         for m in 0..K {
-            row[m] = ds_i[m] - mean[m];
+            for i in 0..LANES {
+                row[m][i] = (block[m * LANES + i].wide() - mean[m]) * live[i];
+            }
         }
-        for (q, c) in slopes.iter().zip(slope_ds) {
+        for (q, c) in sums.slopes.iter().zip(sums.slope_ds) {
+            let q = batch_lanes(q, start);
             for m in 0..K {
-                row[m] -= q[i] * c[m];
+                for i in 0..LANES {
+                    row[m][i] -= q[i] * c[m];
+                }
             }
         }
         for a in 0..K {
-            let ra = row[a];
-            h[a] += ra * r;
+            for i in 0..LANES {
+                h[a][i] += row[a][i] * r[i];
+            }
             for b in a..K {
-                g[a][b] += ra * row[b];
+                for i in 0..LANES {
+                    g[a][b][i] += row[a][i] * row[b][i];
+                }
             }
         }
     }
     for a in 0..K {
-        rhs[a] = h[a];
-        normal[a * K + a..(a + 1) * K].copy_from_slice(&g[a][a..]);
+        sums.rhs[a] = lane_sum(&h[a]);
+        for b in a..K {
+            sums.normal[a * K + b] = lane_sum(&g[a][b]);
+        }
     }
 }
 
-fn normal_equations_dyn(
-    ds: &[f64],
-    residual: &[f64],
-    mean: &[f64],
-    slopes: &[Vec<f64>],
-    slope_ds: &[Vec<f64>],
-    normal: &mut [f64],
-    rhs: &mut [f64],
-) {
-    let k = mean.len();
-    let mut row = vec![0.0; k];
-    for (i, (ds_i, r)) in ds.chunks_exact(k).zip(residual).enumerate() {
-        for ((out, v), m) in row.iter_mut().zip(ds_i).zip(mean) {
-            *out = v - m;
+fn normal_equations_dyn<T: Real>(ds: &[T], sums: NormalSums<'_>) {
+    let k = sums.mean.len();
+    let mut g = vec![[0.0f64; LANES]; k * k];
+    let mut h = vec![[0.0f64; LANES]; k];
+    let mut row = vec![[0.0f64; LANES]; k];
+    for (b, block) in ds.chunks_exact(k * LANES).enumerate() {
+        let start = b * LANES;
+        let r = batch_lanes(sums.residual, start);
+        let live = batch_lanes(&[1.0; LANES][..(sums.pixels - start).min(LANES)], 0);
+        for m in 0..k {
+            for i in 0..LANES {
+                row[m][i] = (block[m * LANES + i].wide() - sums.mean[m]) * live[i];
+            }
         }
-        for (q, c) in slopes.iter().zip(slope_ds) {
-            for (out, cm) in row.iter_mut().zip(c) {
-                *out -= q[i] * cm;
+        for (q, c) in sums.slopes.iter().zip(sums.slope_ds) {
+            let q = batch_lanes(q, start);
+            for m in 0..k {
+                for i in 0..LANES {
+                    row[m][i] -= q[i] * c[m];
+                }
             }
         }
         for a in 0..k {
-            let ra = row[a];
-            rhs[a] += ra * r;
-            let upper = &mut normal[a * k + a..(a + 1) * k];
-            for (g, rb) in upper.iter_mut().zip(&row[a..]) {
-                *g += ra * rb;
+            for i in 0..LANES {
+                h[a][i] += row[a][i] * r[i];
+            }
+            for b in a..k {
+                for i in 0..LANES {
+                    g[a * k + b][i] += row[a][i] * row[b][i];
+                }
             }
         }
     }
+    for a in 0..k {
+        sums.rhs[a] = lane_sum(&h[a]);
+        for b in a..k {
+            sums.normal[a * k + b] = lane_sum(&g[a * k + b]);
+        }
+    }
+}
+
+/// [`Jacobian::weighted_sums`] on its values `ds` (k unknowns).
+fn weighted_sums<T: Real>(ds: &[T], k: usize, weights: Option<&[f64]>) -> Vec<f64> {
+    let mut lanes = vec![[0.0f64; LANES]; k];
+    for (b, block) in ds.chunks_exact(k * LANES).enumerate() {
+        let w = weights.map_or([1.0; LANES], |w| batch_lanes(w, b * LANES));
+        for m in 0..k {
+            for i in 0..LANES {
+                lanes[m][i] += w[i] * block[m * LANES + i].wide();
+            }
+        }
+    }
+    lanes.iter().map(lane_sum).collect()
+}
+
+/// The lanes' sum, in a fixed order.
+#[inline(always)]
+fn lane_sum(v: &Lanes<f64>) -> f64 {
+    v.iter().sum()
 }
 
 #[cfg(test)]
@@ -875,7 +1024,7 @@ mod tests {
                     };
                     let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
                     assert_eq!(bits(&s), bits(&s0));
-                    assert_eq!(bits(&ds), bits(&ds0));
+                    assert_eq!(bits(&ds.rows()), bits(&ds0.rows()));
                     assert!(s.iter().any(|v| *v != 0.0));
                 }
             }
@@ -1024,6 +1173,7 @@ mod tests {
                     fringes(&points, centre, &loads, &u, &optics(precision), floor, true)
                 };
                 let ((s, ds), (s0, ds0)) = (run(Precision::Single), run(Precision::Double));
+                let (ds, ds0) = (ds.rows(), ds0.rows());
                 let range = s0.iter().fold(0.0f64, |m, v| m.max(v.abs()));
                 for (a, b) in s.iter().zip(&s0) {
                     worst_s = worst_s.max((a - b).abs() / range);
@@ -1052,14 +1202,18 @@ mod tests {
 
     /// The unrolled sums give the plain loop's normal equations bit for
     /// bit, with and without a lighting slope, for each k they cover and
-    /// one past them (the loop itself).
+    /// one past them (the loop itself), and match the sums pixel by pixel.
     #[test]
     fn fixed_normal_equations_match_the_loop_bit_for_bit() {
         let n = 37;
         for k in [2, 6, 8, 16, 18] {
-            let ds: Vec<f64> = (0..n * k)
+            let rows: Vec<f64> = (0..n * k)
                 .map(|i| ((i * 7919 % 1000) as f64 / 997.0 - 0.4) * 1.7)
                 .collect();
+            let ds = Jacobian::from_rows(&rows, k);
+            let JacobianValues::Double(values) = &ds.values else {
+                unreachable!()
+            };
             let residual: Vec<f64> = (0..n).map(|i| (i as f64 * 0.37).sin()).collect();
             let mean: Vec<f64> = (0..k).map(|m| 0.1 * m as f64 - 0.3).collect();
             for lit in [false, true] {
@@ -1070,13 +1224,40 @@ mod tests {
                     .map(|_| (0..k).map(|m| 0.05 * m as f64).collect())
                     .collect();
                 let (mut g, mut h) = (vec![0.0; k * k], vec![0.0; k]);
-                normal_equations(&ds, &residual, &mean, &slopes, &slope_ds, &mut g, &mut h);
+                ds.normal_equations(&residual, &mean, &slopes, &slope_ds, &mut g, &mut h);
                 let (mut g0, mut h0) = (vec![0.0; k * k], vec![0.0; k]);
-                normal_equations_dyn(&ds, &residual, &mean, &slopes, &slope_ds, &mut g0, &mut h0);
+                let sums = NormalSums {
+                    pixels: n,
+                    residual: &residual,
+                    mean: &mean,
+                    slopes: &slopes,
+                    slope_ds: &slope_ds,
+                    normal: &mut g0,
+                    rhs: &mut h0,
+                };
+                normal_equations_dyn(values, sums);
                 let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
                 assert_eq!(bits(&g), bits(&g0), "k {k}, lit {lit}");
                 assert_eq!(bits(&h), bits(&h0), "k {k}, lit {lit}");
-                assert!(g[k - 1] != 0.0 && h[0] != 0.0);
+                // Pixel by pixel, to round-off.
+                for a in 0..k {
+                    let row = |i: usize, m: usize| {
+                        rows[i * k + m]
+                            - mean[m]
+                            - (slopes.iter().zip(&slope_ds))
+                                .map(|(q, c)| q[i] * c[m])
+                                .sum::<f64>()
+                    };
+                    let rhs: f64 = (0..n).map(|i| row(i, a) * residual[i]).sum();
+                    assert!((rhs - h[a]).abs() < 1e-12 * (1.0 + rhs.abs()), "k {k}");
+                    for b in a..k {
+                        let gab: f64 = (0..n).map(|i| row(i, a) * row(i, b)).sum();
+                        assert!(
+                            (gab - g[a * k + b]).abs() < 1e-12 * (1.0 + gab.abs()),
+                            "k {k}"
+                        );
+                    }
+                }
             }
         }
     }
