@@ -25,7 +25,7 @@
 //! stages (a smoother objective first, fewer local minima).
 
 use super::detect::profile::Laps;
-use super::fringe_kernel::{self, KernelLoad, KernelOptics};
+use super::fringe_kernel::{self, Jacobian, KernelLoad, KernelOptics, Precision};
 use super::{FloatImage, PixelFrame};
 use crate::error::{Error, Result};
 use crate::scene::{Body, Contact, Scene};
@@ -540,6 +540,9 @@ struct Optics {
     lighting: bool,
     /// Contrasts are negative (dark fringes, bright field).
     bright_field: bool,
+    /// The kernel's float: single in every fit, double for the tests of
+    /// the model's derivatives against finite differences.
+    precision: Precision,
 }
 
 /// The Flamant field at p of a unit force along `dir` at q and its spatial
@@ -701,7 +704,7 @@ impl DiskData {
     /// takes each load's force vector at once (the field is linear in it).
     /// (Keeping each pixel's Flamant numbers for a whole stage instead was
     /// measured no faster on the loaded 2-core machine, at ~50 MB.)
-    fn fringes(&self, u: &[f64], optics: &Optics, jacobian: bool) -> (Vec<f64>, Vec<f64>) {
+    fn fringes(&self, u: &[f64], optics: &Optics, jacobian: bool) -> (Vec<f64>, Jacobian) {
         let loads: Vec<KernelLoad> = (self.loads.iter())
             .map(|l| KernelLoad {
                 point: l.point,
@@ -715,9 +718,18 @@ impl DiskData {
             envelope_gain: optics
                 .envelope
                 .map(|px_per_m| optics.contrast * PI / (std::f64::consts::SQRT_2 * fr * px_per_m)),
+            precision: optics.precision,
         };
         let floor = 1e-3 * self.radius;
-        fringe_kernel::fringes(&self.points, &loads, u, &kernel, floor, jacobian)
+        fringe_kernel::fringes(
+            &self.points,
+            self.centre,
+            &loads,
+            u,
+            &kernel,
+            floor,
+            jacobian,
+        )
     }
 
     /// Background and contrast in closed form, the residual and (with
@@ -793,30 +805,15 @@ impl DiskData {
         let k = self.local_unknowns();
         let (mut normal, mut rhs) = (vec![0.0; k * k], vec![0.0; k]);
         if jacobian && k > 0 {
-            let mut mean_ds = vec![0.0; k];
-            for ds_i in ds.chunks_exact(k) {
-                for (m, v) in mean_ds.iter_mut().zip(ds_i) {
-                    *m += v;
-                }
-            }
+            let mut mean_ds = ds.weighted_sums(None);
             for m in &mut mean_ds {
                 *m /= nf;
             }
             // Each column's part along the plane's slopes, projected out too.
-            let slope_ds: Vec<Vec<f64>> = (slopes.iter())
-                .map(|q| {
-                    let mut c = vec![0.0; k];
-                    for (ds_i, qi) in ds.chunks_exact(k).zip(q) {
-                        for (o, v) in c.iter_mut().zip(ds_i) {
-                            *o += qi * v;
-                        }
-                    }
-                    c
-                })
-                .collect();
+            let slope_ds: Vec<Vec<f64>> =
+                (slopes.iter()).map(|q| ds.weighted_sums(Some(q))).collect();
             // The rows' centred parts; the contrast is applied once at the end.
-            fringe_kernel::normal_equations(
-                &ds,
+            ds.normal_equations(
                 &residual,
                 &mean_ds,
                 &slopes,
@@ -868,7 +865,7 @@ impl DiskData {
     }
 
     /// The envelope fit's residual (data in `intensity`) and normal equations.
-    fn evaluate_envelope(&self, model: &[f64], dm: &[f64], jacobian: bool) -> DiskEval {
+    fn evaluate_envelope(&self, model: &[f64], dm: &Jacobian, jacobian: bool) -> DiskEval {
         let k = self.local_unknowns();
         let (mut normal, mut rhs) = (vec![0.0; k * k], vec![0.0; k]);
         let residual: Vec<f64> = (self.intensity.iter().zip(model))
@@ -877,7 +874,7 @@ impl DiskData {
         let ssr = residual.iter().map(|r| r * r).sum();
         if jacobian && k > 0 {
             let zero = vec![0.0; k];
-            fringe_kernel::normal_equations(dm, &residual, &zero, &[], &[], &mut normal, &mut rhs);
+            dm.normal_equations(&residual, &zero, &[], &[], &mut normal, &mut rhs);
         }
         for a in 0..k {
             for b in 0..a {
@@ -1095,6 +1092,7 @@ fn prepare(
         envelope: None,
         lighting: settings.lighting,
         bright_field: settings.polariscope == Polariscope::Bright,
+        precision: kernel_precision(),
     };
     let balanced = vec![true; disks.len()];
     Ok(Prepared {
@@ -1106,6 +1104,18 @@ fn prepare(
         balanced,
         pinned: Vec::new(),
     })
+}
+
+/// Set to run the fringe kernel in f64 throughout, for measuring what its
+/// f32 costs in the answers (docs/photoelastic.md, round 19).
+const DOUBLE_ENV: &str = "GRAINFORCE_FRINGE_DOUBLE";
+
+fn kernel_precision() -> Precision {
+    if std::env::var_os(DOUBLE_ENV).is_some() {
+        Precision::Double
+    } else {
+        Precision::Single
+    }
 }
 
 /// The packing's fringe contrast: the upper quartile over the disks of each
@@ -1396,7 +1406,6 @@ fn load_levels(p: &Prepared, shared: &SharedWork) -> Vec<Vec<f64>> {
 /// Everything [`load_level`] reads of disk `d`, as bits: the optics, the
 /// disk's circle and loads, and a hash of its pixels and intensities.
 fn level_key(p: &Prepared, d: &DiskData) -> Vec<u64> {
-    use std::hash::{Hash, Hasher};
     let o = &p.optics;
     let mut key = vec![
         o.fringe.to_bits(),
@@ -1413,13 +1422,25 @@ fn level_key(p: &Prepared, d: &DiskData) -> Vec<u64> {
         let numbers = [l.sign, l.point[0], l.point[1], l.normal[0], l.normal[1]];
         key.extend(numbers.iter().chain(&l.tangent).map(|v| v.to_bits()));
     }
-    let mut hasher = std::collections::hash_map::DefaultHasher::new();
-    for (pt, v) in d.points.iter().zip(&d.intensity) {
-        (pt[0].to_bits(), pt[1].to_bits(), v.to_bits()).hash(&mut hasher);
-    }
+    let words = (d.points.iter().zip(&d.intensity))
+        .flat_map(|(pt, v)| [pt[0].to_bits(), pt[1].to_bits(), v.to_bits()]);
     key.push(d.points.len() as u64);
-    key.push(hasher.finish());
+    key.push(hash_words(words));
     key
+}
+
+/// A 64-bit hash of `words`: a multiply–rotate step per word (FxHash's)
+/// and a final avalanche (MurmurHash3's). Not for adversarial input; std's
+/// SipHash over each disk's pixels was 1.2 % of a run.
+fn hash_words(words: impl Iterator<Item = u64>) -> u64 {
+    let mut h = words.fold(0x9e37_79b9_7f4a_7c15u64, |h, w| {
+        (h.rotate_left(5) ^ w).wrapping_mul(0x517c_c1b7_2722_0a95)
+    });
+    h ^= h >> 33;
+    h = h.wrapping_mul(0xff51_afd7_ed55_8ccd);
+    h ^= h >> 33;
+    h = h.wrapping_mul(0xc4ce_b9a5_3c8b_51e5);
+    h ^ (h >> 33)
 }
 
 /// [`load_levels`] of load `l` of disk `d`, scanned over `levels`.
@@ -1427,12 +1448,11 @@ fn load_level(p: &Prepared, d: &DiskData, l: usize, levels: &[f64]) -> f64 {
     let q = d.loads[l].point;
     // The load alone on the pixels near it (and their neighbours, for the
     // gradients): a few hundred pixels, not the whole disk, at each level.
+    // Squared distances: libm's hypot per pixel and load was 1 % of a run.
     let reach = 0.6 * d.radius + 2.0 * p.pixel;
+    let distance2 = |pt: [f64; 2], a: [f64; 2]| (pt[0] - a[0]).powi(2) + (pt[1] - a[1]).powi(2);
     let keep: Vec<usize> = (0..d.points.len())
-        .filter(|&i| {
-            let pt = d.points[i];
-            (pt[0] - q[0]).hypot(pt[1] - q[1]) < reach
-        })
+        .filter(|&i| distance2(d.points[i], q) < reach * reach)
         .collect();
     let mut load = d.loads[l];
     load.unknown = 0;
@@ -1442,9 +1462,8 @@ fn load_level(p: &Prepared, d: &DiskData, l: usize, levels: &[f64]) -> f64 {
     };
     let near: Vec<bool> = (sub.points.iter())
         .map(|pt| {
-            let dist = |a: [f64; 2]| (pt[0] - a[0]).hypot(pt[1] - a[1]);
-            let own = dist(q);
-            own < 0.6 * d.radius && d.loads.iter().all(|o| dist(o.point) >= own)
+            let own = distance2(*pt, q);
+            own < (0.6 * d.radius).powi(2) && d.loads.iter().all(|o| distance2(*pt, o.point) >= own)
         })
         .collect();
     if near.iter().filter(|v| **v).count() < 10 {
@@ -3917,6 +3936,7 @@ mod tests {
                         envelope,
                         lighting: false,
                         bright_field: false,
+                        precision: Precision::Double,
                     };
                     let (s, ds) = d.fringes(&u, &optics, jacobian);
                     let (s0, ds0) = scalar_fringes(&d, &u, &optics, jacobian);
@@ -3928,6 +3948,7 @@ mod tests {
                             && a.iter().zip(b).all(|(x, y)| (x - y).abs() <= 1e-12 * size)
                     };
                     assert!(close(&s, &s0), "S, {envelope:?}, jacobian {jacobian}");
+                    let ds = ds.rows();
                     assert!(close(&ds, &ds0), "∂S/∂u, {envelope:?}");
                     assert!(s.iter().all(|v| v.is_finite()));
                     // Pixels without a field give no row, as in the scalar model.
@@ -4015,6 +4036,7 @@ mod tests {
                 envelope,
                 lighting: false,
                 bright_field: false,
+                precision: Precision::Double,
             };
             let u = vec![1.3, 0.2, 0.7, -0.1, 2.1, 0.4];
             let (_, ds) = d.fringes(&u, &optics, true);
@@ -4029,7 +4051,7 @@ mod tests {
                 let (sm, _) = d.fringes(&down, &optics, false);
                 for i in 0..d.points.len() {
                     let fd = (sp[i] - sm[i]) / (2.0 * h);
-                    worst = worst.max((fd - ds[i * k + m]).abs() / (1.0 + fd.abs()));
+                    worst = worst.max((fd - ds.at(i, m)).abs() / (1.0 + fd.abs()));
                 }
             }
             assert!(
@@ -4059,6 +4081,7 @@ mod tests {
                 envelope,
                 lighting: false,
                 bright_field: false,
+                precision: Precision::Double,
             };
             let u: Vec<f64> = [1.3, 0.2, 0.7, -0.1, 2.1, 0.4]
                 .iter()
@@ -4129,6 +4152,7 @@ mod tests {
                 envelope: None,
                 lighting: true,
                 bright_field,
+                precision: Precision::Double,
             };
             let u = vec![1.3, 0.2, 0.7, -0.1, 2.1, 0.4];
             let (k, n) = (u.len(), d.points.len());
@@ -4265,6 +4289,7 @@ mod tests {
                 envelope: None,
                 lighting: false,
                 bright_field: false,
+                precision: Precision::Single,
             },
             pixel: 1.3e-3,
             balanced: vec![true],
