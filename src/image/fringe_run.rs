@@ -577,7 +577,7 @@ pub fn second_starts_in_order(penalty_start: f64, narrow_start: f64) -> [FirstFi
 /// (half the run's steps) was paid for nothing (round 18). Its record then
 /// has no `compared_objective`. Where the plain fit is made, it takes the
 /// narrow start's polariscope. The narrow start's first fit runs one wall
-/// path ([`start_fits`]), so a run decides its polariscope once.
+/// path (`start_fits`), so a run decides its polariscope once.
 pub fn fit_with_second_starts(
     image: &FloatImage,
     frame: &PixelFrame,
