@@ -459,3 +459,60 @@ fn the_narrow_start_comes_first_and_the_rest_only_where_it_leaves_disks_flagged(
         "{kept} against the plain fit's {plain}"
     );
 }
+
+/// The narrow start's first fit is only a start (its answer is refitted at
+/// the run's μ), so it fits the walls-frictionless-first path alone (round
+/// 19). On the bundled photograph's `detect` scene both wall paths of that
+/// fit used to run to the end and tie; the run now fits one, and its
+/// answer is the one the two-path first fit and its refit give (main's
+/// route, through the library).
+#[test]
+fn the_narrow_start_fits_one_wall_path() {
+    use grainforce::image::fringe_fit::{fit_fringes, FringeFitSettings, Polariscope};
+    use grainforce::image::fringe_run::set_for_scene;
+    use grainforce::image::{load_channel, Channel, PixelFrame};
+    let dir = tempfile::tempdir().unwrap();
+    let scene_dir = dir.path().join("scene");
+    let (ok, err) = detect_bundled_photo(&scene_dir, &[]);
+    assert!(ok, "{err}");
+    let (forces, report) = (dir.path().join("forces.csv"), dir.path().join("r.json"));
+    let (ok, err) = photoelastic_bundled_photo(&scene_dir, &forces, &report, &["--blur", "0.8"]);
+    assert!(ok, "{err}");
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&report).unwrap()).unwrap();
+    let tried = report["second_starts"].as_array().unwrap();
+    assert_eq!(tried.len(), 1, "{tried:?}");
+    assert_eq!(tried[0]["first_paths"], 1, "{tried:?}");
+    assert_eq!(tried[0]["steps"], report["iterations"], "{tried:?}");
+    assert_eq!(report["paths"], 1);
+
+    // Main's route: the narrow first fit on both wall paths, then the refit.
+    let scene = read_scene(&scene_dir).unwrap();
+    let image = load_channel(Path::new(BUNDLED_PHOTO), Channel::Green).unwrap();
+    let frame = PixelFrame::read(Path::new(BUNDLED_FRAME)).unwrap();
+    let mut settings = FringeFitSettings::new(200.0 / 0.005);
+    settings.mu = 1.0;
+    settings.blur_px = 0.8;
+    set_for_scene(&mut settings, true, None);
+    let narrow = FringeFitSettings {
+        mu: 0.3,
+        ..settings.clone()
+    };
+    let started = fit_fringes(&image, &frame, &scene, &narrow).unwrap();
+    assert_eq!(started.report.paths, 2, "both wall paths fitted there");
+    let polariscope = match started.report.bright_field {
+        true => Polariscope::Bright,
+        false => Polariscope::Dark,
+    };
+    let refit = FringeFitSettings {
+        start: Some(started.forces.clone()),
+        polariscope,
+        ..settings
+    };
+    let two_paths = fit_fringes(&image, &frame, &scene, &refit).unwrap();
+    let (one, two) = (
+        report["objective"].as_f64().unwrap(),
+        two_paths.report.objective,
+    );
+    assert!((one - two).abs() <= 1e-3 * two, "{one} against {two}");
+}

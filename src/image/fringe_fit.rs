@@ -134,6 +134,10 @@ pub struct FringeFitSettings {
     /// walls carry friction the other path wins; docs/photoelastic.md,
     /// round 9). Costs a second fit in that case.
     pub smooth_walls_first: bool,
+    /// With `smooth_walls_first`, the walls-frictionless-first path alone:
+    /// for a fit that is only a start (the narrow start's first fit, whose
+    /// answer is refitted; docs/photoelastic.md, round 19).
+    pub walls_first_alone: bool,
     /// Work the fits of one run share (each disk's G² levels): a run's
     /// paths and second starts are fitted from clones of one settings value
     /// and find it done (docs/photoelastic.md, round 13).
@@ -236,6 +240,7 @@ impl FringeFitSettings {
             lighting: false,
             polariscope: Polariscope::Auto,
             smooth_walls_first: false,
+            walls_first_alone: false,
             shared: SharedWork::default(),
         }
     }
@@ -2888,7 +2893,8 @@ fn is_straight(scene: &Scene, w: usize, point: [f64; 2], normal: [f64; 2]) -> bo
 /// to it (the first avoids a basin of sideways wall loads on detected
 /// geometry; the second is needed where the walls do carry friction). A
 /// path well behind the other after the envelope stage
-/// ([`EARLY_PATH_MARGIN`]) is not continued.
+/// ([`EARLY_PATH_MARGIN`]) is not continued. With `walls_first_alone`, the
+/// first path only.
 fn fit_scene(
     image: &FloatImage,
     frame: &PixelFrame,
@@ -2896,8 +2902,9 @@ fn fit_scene(
     settings: &FringeFitSettings,
     sparsity: f64,
 ) -> Result<(FringeFit, Vec<f64>)> {
-    if !two_paths(scene, settings) {
-        return fit_path(image, frame, scene, settings, sparsity, false);
+    let walls_first = two_paths(scene, settings);
+    if !walls_first || settings.walls_first_alone {
+        return fit_path(image, frame, scene, settings, sparsity, walls_first);
     }
     // The two paths share nothing but their inputs: fitted at once on two
     // cores (each sums its objective in disk order, so the same bits

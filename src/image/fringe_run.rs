@@ -533,6 +533,11 @@ pub struct SecondStart {
     pub balance_left_out: usize,
     /// Disks whose fringes its answer leaves unexplained (flagged).
     pub flagged: usize,
+    /// The wall paths its first fit fitted through the intensity stages
+    /// (that fit's `paths`: a narrow start's is 1, round 19).
+    pub first_paths: usize,
+    /// Both its fits' steps.
+    pub steps: usize,
     /// Kept: its objective is the lower and it leaves out the balance of no
     /// disk the fit it was compared with keeps balanced.
     pub kept: bool,
@@ -571,7 +576,8 @@ pub fn second_starts_in_order(penalty_start: f64, narrow_start: f64) -> [FirstFi
 /// every render that answer was kept and flagged none, so the plain fit
 /// (half the run's steps) was paid for nothing (round 18). Its record then
 /// has no `compared_objective`. Where the plain fit is made, it takes the
-/// narrow start's polariscope.
+/// narrow start's polariscope. The narrow start's first fit runs one wall
+/// path (`start_fits`), so a run decides its polariscope once.
 pub fn fit_with_second_starts(
     image: &FloatImage,
     frame: &PixelFrame,
@@ -662,7 +668,9 @@ impl StartFits {
 
 /// The first fit ([`FirstFit`]) under `polariscope`, then the run's own fit
 /// (exact balance, its μ) from its forces under the polariscope the first
-/// fit ended with.
+/// fit ended with. A narrow first fit runs the walls-frictionless-first
+/// path alone (round 19: on the bundled `detect` scene the two paths tied
+/// and the run's steps fell from 136 to 74, its answer the same).
 fn start_fits(
     image: &FloatImage,
     frame: &PixelFrame,
@@ -681,6 +689,9 @@ fn start_fits(
         FirstFit::Narrow(mu) => {
             first_settings.mu = mu;
             first_settings.wall_mu = settings.wall_mu.map(|w| w.min(mu));
+            // Only a start: its answer is refitted at the run's μ, so one
+            // wall path (the one that won or tied on every render, round 18).
+            first_settings.walls_first_alone = true;
         }
     }
     let started = fit_fringes(image, frame, scene, &first_settings)?;
@@ -738,6 +749,8 @@ fn kept_alone(
         objective: answer.report.objective,
         balance_left_out: answer.report.balance_left_out.len(),
         flagged: answer.report.flagged.len(),
+        first_paths: fits.started.report.paths,
+        steps: fits.steps(),
         kept: true,
         seconds: fits.seconds,
     };
@@ -768,6 +781,8 @@ fn judged(
         objective: second.report.objective,
         balance_left_out: second.report.balance_left_out.len(),
         flagged: second.report.flagged.len(),
+        first_paths: fits.started.report.paths,
+        steps: fits.steps(),
         kept: same_balance && second.report.objective < best.report.objective,
         seconds: fits.seconds,
     };
