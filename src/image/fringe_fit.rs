@@ -1723,8 +1723,8 @@ fn admissible_optimum(problem: &ConicProblem) -> Result<Vec<f64>> {
 }
 
 /// The optimum of a fit's start by clarabel, as before: the fit's path
-/// from it is sensitive to its last digits (the exact optimum sent DEM
-/// packing 3's narrow start along 121 steps instead of 88, docs round 19).
+/// from it depends on its last digits (the exact optimum sent step83 at
+/// μ 1000 to another basin, share 0.83 → 0.64; docs round 19).
 fn start_optimum(problem: &ConicProblem) -> Result<Vec<f64>> {
     Ok(cascade::solve(problem, None, &CascadeSettings::default())?
         .solution
