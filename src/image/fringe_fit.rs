@@ -31,7 +31,7 @@ use crate::error::{Error, Result};
 use crate::scene::{Body, Contact, Scene};
 use crate::solver::cascade::{self, CascadeSettings, FactorSlot, Pattern};
 use crate::solver::Triplets;
-use crate::solver::{Cone, ConicProblem, Term};
+use crate::solver::{Cone, ConicProblem, Solution, Term};
 use rayon::prelude::*;
 use std::f64::consts::PI;
 
@@ -1058,13 +1058,14 @@ fn prepare(
     if !per_side {
         unknowns = scene.contacts.len();
     }
-    // Pixels inside each disk, clear of its rim.
+    // Pixels inside each disk, clear of its rim (disks on both cores: the
+    // refit's prepare is serial work between two fits).
     let (w, h) = (frame.width as i64, frame.height as i64);
-    for d in &mut disks {
+    disks.par_iter_mut().for_each(|d| {
         let c = frame.to_pixel(d.centre);
         let r = d.radius * s - settings.edge_px;
         if r < 2.0 {
-            continue;
+            return;
         }
         let (x0, x1) = (
             ((c[0] - r).floor() as i64).max(0),
@@ -1085,7 +1086,7 @@ fn prepare(
                 }
             }
         }
-    }
+    });
     let mut radii: Vec<f64> = disks.iter().map(|d| d.radius).collect();
     radii.sort_by(f64::total_cmp);
     let scale = settings.fringe_stress * radii[radii.len() / 2];
@@ -1127,7 +1128,7 @@ fn kernel_precision() -> Precision {
 /// disk's 2–98 % intensity range (a disk with a full fringe spans it).
 fn contrast_estimate(disks: &[DiskData]) -> f64 {
     let mut ranges: Vec<f64> = disks
-        .iter()
+        .par_iter()
         .filter(|d| d.intensity.len() > 20)
         .map(|d| {
             let mut v = d.intensity.clone();
@@ -1594,9 +1595,7 @@ fn local_unit_loads(d: &DiskData, cones: &[Cone]) -> Result<Vec<f64>> {
         regularized: 0,
         cones: wedges,
     };
-    let x = cascade::solve(&problem, None, &CascadeSettings::default())?
-        .solution
-        .x;
+    let x = admissible_optimum(&problem)?;
     Ok((0..k).map(|i| x[2 * i]).collect())
 }
 
@@ -1618,9 +1617,8 @@ fn release_forced_zeros(
     settings: &FringeFitSettings,
     start: &[f64],
 ) -> Result<()> {
-    let ones: Vec<Vec<f64>> = p.disks.iter().map(|d| vec![1.0; d.loads.len()]).collect();
     for _ in 0..p.disks.len() {
-        let unit = balanced_start(p, scene, settings, &ones)?;
+        let unit = unit_field(p, scene, settings)?;
         let mut forced = Vec::new();
         let pinned = |k: &usize| unit[2 * k] < FORCED_ZERO && start[2 * k] > SPARSE_EPS;
         for k in (0..p.unknowns).filter(pinned) {
@@ -1681,9 +1679,8 @@ fn release_pinned_packing(
     if settings.balance != Balance::Hard || p.unknowns == 0 {
         return Ok(());
     }
-    let ones: Vec<Vec<f64>> = p.disks.iter().map(|d| vec![1.0; d.loads.len()]).collect();
     for _ in 0..p.disks.len() {
-        let unit = balanced_start(p, scene, settings, &ones)?;
+        let unit = unit_field(p, scene, settings)?;
         let pinned: Vec<usize> = (0..p.unknowns)
             .filter(|&k| unit[2 * k] < FORCED_ZERO)
             .collect();
@@ -1715,9 +1712,7 @@ fn can_load(p: &Prepared, scene: &Scene, settings: &FringeFitSettings, k: usize)
     }];
     let cones = friction_cones(scene, settings);
     let problem = constrained_problem(n, terms, &balance, &zeros, settings, cones);
-    let x = cascade::solve(&problem, None, &CascadeSettings::default())?
-        .solution
-        .x;
+    let x = admissible_optimum(&problem)?;
     Ok(x[2 * k] >= FORCED_ZERO)
 }
 
@@ -1741,6 +1736,28 @@ fn friction_cones(scene: &Scene, settings: &FringeFitSettings) -> Vec<Cone> {
             }
         })
         .collect()
+}
+
+/// The optimum of a one-off constrained least squares that only decides
+/// (a disk's unit loads, a load test, the contacts a unit field leaves
+/// unloaded) on the steps' sparse route rather than clarabel alone: the
+/// active set answers these exactly, in a fraction of the time.
+fn admissible_optimum(problem: &ConicProblem) -> Result<Vec<f64>> {
+    Ok(admissible_solution(problem)?.x)
+}
+
+/// The optimum of a fit's start by clarabel, as before: the fit's path
+/// from it depends on its last digits (the exact optimum sent step83 at
+/// μ 1000 to another basin, share 0.83 → 0.64; docs round 19).
+fn start_optimum(problem: &ConicProblem) -> Result<Vec<f64>> {
+    Ok(cascade::solve(problem, None, &CascadeSettings::default())?
+        .solution
+        .x)
+}
+
+/// [`admissible_optimum`] with the route that answered.
+fn admissible_solution(problem: &ConicProblem) -> Result<Solution> {
+    StepSolver::default().solution(problem)
 }
 
 fn constrained_problem<'a>(
@@ -1778,6 +1795,24 @@ fn balanced_start(
     settings: &FringeFitSettings,
     levels: &[Vec<f64>],
 ) -> Result<Vec<f64>> {
+    nearest_balanced(p, scene, settings, levels, start_optimum)
+}
+
+/// The balanced, friction-admissible field nearest unit loads, to find the
+/// contacts the balance and wedges leave unloaded.
+fn unit_field(p: &Prepared, scene: &Scene, settings: &FringeFitSettings) -> Result<Vec<f64>> {
+    let ones: Vec<Vec<f64>> = p.disks.iter().map(|d| vec![1.0; d.loads.len()]).collect();
+    nearest_balanced(p, scene, settings, &ones, admissible_optimum)
+}
+
+/// The balanced, friction-admissible field nearest `levels`, by `optimum`.
+fn nearest_balanced(
+    p: &Prepared,
+    scene: &Scene,
+    settings: &FringeFitSettings,
+    levels: &[Vec<f64>],
+    optimum: fn(&ConicProblem) -> Result<Vec<f64>>,
+) -> Result<Vec<f64>> {
     let n = 2 * p.unknowns;
     // Each contact's level: the geometric mean of its sides' (or its one side's).
     let mut product = vec![1.0; p.unknowns];
@@ -1812,9 +1847,7 @@ fn balanced_start(
         settings,
         friction_cones(scene, settings),
     );
-    Ok(cascade::solve(&problem, None, &CascadeSettings::default())?
-        .solution
-        .x)
+    optimum(&problem)
 }
 
 /// The balanced, friction-admissible field nearest a given start `x0` (a
@@ -1849,9 +1882,7 @@ fn feasible_start(
         weight: 1.0,
     }];
     let problem = constrained_problem(n, terms, &balance, &zeros, settings, cones);
-    Ok(cascade::solve(&problem, None, &CascadeSettings::default())?
-        .solution
-        .x)
+    start_optimum(&problem)
 }
 
 fn objective(p: &Prepared, x: &[f64], optics: &Optics) -> f64 {
@@ -2247,6 +2278,11 @@ struct StepSolver {
 
 impl StepSolver {
     fn solve(&mut self, problem: &ConicProblem) -> Result<Vec<f64>> {
+        Ok(self.solution(problem)?.x)
+    }
+
+    /// The answer, projected onto the wedges, with the route that gave it.
+    fn solution(&mut self, problem: &ConicProblem) -> Result<Solution> {
         let pattern = self.pattern.get_or_insert_with(|| {
             let mut blocks = Triplets::new(problem.cones.len(), problem.n);
             for (k, c) in problem.cones.iter().enumerate() {
@@ -2268,11 +2304,11 @@ impl StepSolver {
             Some((pattern, &self.slot)),
             &CascadeSettings::default(),
         )?;
-        let mut x = solved.solution.x;
+        let mut solution = solved.solution;
         for c in &problem.cones {
-            c.project(&mut x);
+            c.project(&mut solution.x);
         }
-        Ok(x)
+        Ok(solution)
     }
 }
 
@@ -3786,6 +3822,42 @@ pub fn wall_scale(scene: &Scene, forces: &[[f64; 2]]) -> Option<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The one-off solves (starts, a disk's unit loads, load tests) are
+    /// answered by the sparse stages, exactly, not by clarabel: a contact
+    /// pulled open (its optimum the apex) and one inside its wedge.
+    #[test]
+    fn one_off_solves_take_the_sparse_route() {
+        let n = 4;
+        let mut identity = Triplets::new(n, n);
+        for i in 0..n {
+            identity.push(i, i, 1.0);
+        }
+        let rhs = [-1.0, 0.2, 2.0, 0.5];
+        let problem = ConicProblem {
+            n,
+            terms: vec![Term {
+                matrix: &identity,
+                rhs: &rhs,
+                weight: 1.0,
+            }],
+            equalities: Vec::new(),
+            lambda: 0.0,
+            regularized: 0,
+            cones: (0..2)
+                .map(|k| Cone::Wedge {
+                    normal: 2 * k,
+                    tangent: 2 * k + 1,
+                    mu: 0.5,
+                })
+                .collect(),
+        };
+        let sol = admissible_solution(&problem).unwrap();
+        assert!(!sol.status.is_interior_point(), "{:?}", sol.status);
+        for (x, e) in sol.x.iter().zip([0.0, 0.0, 2.0, 0.5]) {
+            assert!((x - e).abs() < 1e-9, "{:?}", sol.x);
+        }
+    }
 
     fn disk() -> DiskData {
         let radius = 0.01;
