@@ -3823,9 +3823,10 @@ pub fn wall_scale(scene: &Scene, forces: &[[f64; 2]]) -> Option<f64> {
 mod tests {
     use super::*;
 
-    /// The one-off solves (starts, a disk's unit loads, load tests) are
-    /// answered by the sparse stages, exactly, not by clarabel: a contact
-    /// pulled open (its optimum the apex) and one inside its wedge.
+    /// The one-off solves that only decide (a disk's unit loads, load
+    /// tests, the unit field) are answered by the sparse stages, exactly,
+    /// not by clarabel: a contact pulled open (its optimum the apex) and one
+    /// inside its wedge. (The starts stay on clarabel: `start_optimum`.)
     #[test]
     fn one_off_solves_take_the_sparse_route() {
         let n = 4;
