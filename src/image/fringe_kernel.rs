@@ -26,7 +26,8 @@ type Lanes<T> = [T; LANES];
 /// is written once over it; only the sine, cosine and exponential's series
 /// differ (f32's shorter, to its own ulp).
 trait Real:
-    Copy
+    'static
+    + Copy
     + PartialOrd
     + Add<Output = Self>
     + Sub<Output = Self>
@@ -44,11 +45,11 @@ trait Real:
     /// eˣ per lane, x ≤ 0.
     fn exp_nonpositive(x: &Lanes<Self>) -> Lanes<Self>;
     fn jacobian_values(values: Vec<Self>) -> JacobianValues;
-    /// This thread's spare Jacobian buffer (empty), see [`Jacobian`]'s drop.
-    fn spare_buffer() -> Vec<Self>;
-    /// The normal equations' sums over a Jacobian stored in this float.
-    fn normal_equations(values: &[Self], sums: NormalSums<'_>);
+    /// This thread's spare Jacobian buffer in this float, see [`Jacobian`]'s drop.
+    fn spare() -> &'static SpareBuffer<Self>;
 }
+
+type SpareBuffer<T> = std::thread::LocalKey<std::cell::Cell<Vec<T>>>;
 
 impl Real for f64 {
     const ZERO: f64 = 0.0;
@@ -79,11 +80,8 @@ impl Real for f64 {
     fn jacobian_values(values: Vec<f64>) -> JacobianValues {
         JacobianValues::Double(values)
     }
-    fn spare_buffer() -> Vec<f64> {
-        SPARE_DOUBLE.take()
-    }
-    fn normal_equations(values: &[f64], sums: NormalSums<'_>) {
-        normal_equations(values, sums)
+    fn spare() -> &'static SpareBuffer<f64> {
+        &SPARE_DOUBLE
     }
 }
 
@@ -116,11 +114,8 @@ impl Real for f32 {
     fn jacobian_values(values: Vec<f32>) -> JacobianValues {
         JacobianValues::Single(values)
     }
-    fn spare_buffer() -> Vec<f32> {
-        SPARE_SINGLE.take()
-    }
-    fn normal_equations(values: &[f32], sums: NormalSums<'_>) {
-        normal_equations(values, sums)
+    fn spare() -> &'static SpareBuffer<f32> {
+        &SPARE_SINGLE
     }
 }
 
@@ -180,19 +175,17 @@ thread_local! {
 impl Drop for Jacobian {
     fn drop(&mut self) {
         match std::mem::replace(&mut self.values, JacobianValues::Double(Vec::new())) {
-            JacobianValues::Single(mut v) => {
-                v.clear();
-                if v.capacity() > 0 {
-                    SPARE_SINGLE.set(v);
-                }
-            }
-            JacobianValues::Double(mut v) => {
-                v.clear();
-                if v.capacity() > 0 {
-                    SPARE_DOUBLE.set(v);
-                }
-            }
+            JacobianValues::Single(v) => give_back(v),
+            JacobianValues::Double(v) => give_back(v),
         }
+    }
+}
+
+/// Keeps `values`' allocation as this thread's spare buffer of its float.
+fn give_back<T: Real>(mut values: Vec<T>) {
+    values.clear();
+    if values.capacity() > 0 {
+        T::spare().set(values);
     }
 }
 
@@ -278,8 +271,8 @@ impl Jacobian {
             rhs,
         };
         match &self.values {
-            JacobianValues::Single(v) => f32::normal_equations(v, sums),
-            JacobianValues::Double(v) => f64::normal_equations(v, sums),
+            JacobianValues::Single(v) => normal_equations(v, sums),
+            JacobianValues::Double(v) => normal_equations(v, sums),
         }
     }
 }
@@ -467,7 +460,7 @@ fn fringes_batched<T: Real>(
     let mut s_all = vec![0.0; n];
     let batches = n.div_ceil(LANES);
     let mut ds_all: Vec<T> = if jacobian {
-        let mut spare = T::spare_buffer();
+        let mut spare = T::spare().take();
         spare.reserve(batches * k * LANES);
         spare
     } else {
